@@ -1,0 +1,28 @@
+"""vtkillum: global illumination for direct volume rendering in VTK, ParaView and pyvista.
+
+The compute core (:mod:`vtkillum.core`) needs only numpy and warp; VTK glue lives
+in :mod:`vtkillum.filters` and :mod:`vtkillum.mappers`.
+"""
+
+__version__ = "0.1.0"
+
+from vtkillum.core.camera import Camera
+from vtkillum.core.lights import DirectionalLight, PointLight
+from vtkillum.core.render import METHODS, RenderResult, render
+from vtkillum.core.scene import Scene, load_scene, save_scene
+from vtkillum.core.transfer_function import TransferFunction
+from vtkillum.core.volume import Volume
+
+__all__ = [
+    "Camera",
+    "DirectionalLight",
+    "PointLight",
+    "METHODS",
+    "RenderResult",
+    "render",
+    "Scene",
+    "load_scene",
+    "save_scene",
+    "TransferFunction",
+    "Volume",
+]

@@ -1,0 +1,135 @@
+"""Directional and point lights shared by every method.
+
+A directional light has a *travel* direction (the way photons move) and an RGB
+irradiance ``E`` per unit area perpendicular to it. A point light has a position
+and an RGB intensity ``I``; its irradiance at distance ``d`` is ``I / d**2``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+DIRECTIONAL = 0
+POINT = 1
+
+
+def _vec3(value, name: str) -> np.ndarray:
+    v = np.asarray(value, dtype=np.float64).reshape(-1)
+    if v.shape != (3,) or not np.all(np.isfinite(v)):
+        raise ValueError(f"{name} must be three finite numbers, got {value!r}")
+    return v
+
+
+def _rgb(value, name: str) -> np.ndarray:
+    v = _vec3(value, name)
+    if np.any(v < 0):
+        raise ValueError(f"{name} must be non-negative, got {value!r}")
+    return v
+
+
+@dataclass
+class DirectionalLight:
+    """Distant light.
+
+    Parameters
+    ----------
+    direction : (3,) float
+        Direction in which the light travels (world space); normalised here.
+    irradiance : (3,) float
+        RGB irradiance on a surface perpendicular to ``direction``.
+    """
+
+    direction: np.ndarray
+    irradiance: np.ndarray = (1.0, 1.0, 1.0)
+
+    def __post_init__(self) -> None:
+        d = _vec3(self.direction, "light.direction")
+        n = np.linalg.norm(d)
+        if n == 0:
+            raise ValueError("light.direction must not be the zero vector")
+        self.direction = d / n
+        self.irradiance = _rgb(self.irradiance, "light.irradiance")
+
+    kind = DIRECTIONAL
+
+    def to_dict(self) -> dict:
+        return {"type": "directional", "direction": self.direction.tolist(),
+                "irradiance": self.irradiance.tolist()}
+
+
+@dataclass
+class PointLight:
+    """Isotropic point light.
+
+    Parameters
+    ----------
+    position : (3,) float
+        World-space position.
+    intensity : (3,) float
+        RGB radiant intensity; irradiance at distance d is ``intensity / d**2``.
+    """
+
+    position: np.ndarray
+    intensity: np.ndarray = (1.0, 1.0, 1.0)
+
+    def __post_init__(self) -> None:
+        self.position = _vec3(self.position, "light.position")
+        self.intensity = _rgb(self.intensity, "light.intensity")
+
+    kind = POINT
+
+    def to_dict(self) -> dict:
+        return {"type": "point", "position": self.position.tolist(),
+                "intensity": self.intensity.tolist()}
+
+
+Light = DirectionalLight | PointLight
+
+
+def light_from_dict(d: dict, index: int = 0) -> Light:
+    """Build a light from its scene-file object; errors name ``lights[index].field``."""
+    where = f"lights[{index}]"
+    if not isinstance(d, dict) or "type" not in d:
+        raise ValueError(f"{where}: expected an object with a 'type' of 'directional' or 'point'")
+    kind = d["type"]
+    fields = {"directional": {"direction", "irradiance"}, "point": {"position", "intensity"}}
+    if kind not in fields:
+        raise ValueError(f"{where}.type: {kind!r} is not 'directional' or 'point'")
+    unknown = set(d) - fields[kind] - {"type"}
+    if unknown:
+        raise ValueError(f"{where}: unknown field(s) {sorted(unknown)} for a {kind} light")
+    try:
+        if kind == "directional":
+            if "direction" not in d:
+                raise ValueError("direction is missing")
+            return DirectionalLight(d["direction"], d.get("irradiance", (1.0, 1.0, 1.0)))
+        if "position" not in d:
+            raise ValueError("position is missing")
+        return PointLight(d["position"], d.get("intensity", (1.0, 1.0, 1.0)))
+    except ValueError as err:
+        raise ValueError(f"{where}: {err}") from err
+
+
+def pack_lights(lights, rotation=None, origin=None):
+    """Arrays for the kernels: kinds (int32), vectors and RGB (float32, (n, 3)).
+
+    Directional vectors are travel directions, point vectors are positions. When
+    ``rotation``/``origin`` are given, vectors are mapped into a volume's local frame
+    (``p_local = rotation.T @ (p - origin)``, directions rotated only).
+    """
+    lights = list(lights)
+    kinds = np.array([l.kind for l in lights], dtype=np.int32)
+    vecs = np.zeros((len(lights), 3), dtype=np.float64)
+    rgb = np.zeros((len(lights), 3), dtype=np.float64)
+    R = np.eye(3) if rotation is None else np.asarray(rotation, dtype=np.float64)
+    o = np.zeros(3) if origin is None else np.asarray(origin, dtype=np.float64)
+    for i, l in enumerate(lights):
+        if l.kind == DIRECTIONAL:
+            vecs[i] = R.T @ l.direction
+            rgb[i] = l.irradiance
+        else:
+            vecs[i] = R.T @ (l.position - o)
+            rgb[i] = l.intensity
+    return kinds, vecs.astype(np.float32), rgb.astype(np.float32)

@@ -1,0 +1,85 @@
+"""One entry point for every rendering method, and the result type they share.
+
+Methods register here by name with the import path of their render function, so
+that each lives in its own module and is imported only when used::
+
+    result = render(volume, scene, method="single", width=256, height=256)
+    result.radiance   # (H, W, 3) float32, linear
+    result.alpha      # (H, W) float32, 1 - transmittance along the primary ray
+
+Every render function has the signature
+``fn(volume, scene, width, height, device, progress, **options) -> RenderResult``.
+"""
+
+from __future__ import annotations
+
+import importlib
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from vtkillum.core.device import resolve_device
+
+#: method name -> "module:function"
+METHODS: dict[str, str] = {
+    "emission": "vtkillum.core.raycast:render_emission",
+    "single": "vtkillum.core.raycast:render_single",
+    "illumination": "vtkillum.core.raycast:render_illuminated",
+    "path": "vtkillum.core.pathtrace:render_path",
+}
+
+
+@dataclass
+class RenderResult:
+    """Linear radiance and alpha of a rendered image.
+
+    Attributes
+    ----------
+    radiance : ndarray (H, W, 3) float32
+        Linear radiance reaching the camera from the volume (background excluded).
+    alpha : ndarray (H, W) float32
+        ``1 - transmittance`` along each primary ray.
+    info : dict
+        Method-specific diagnostics (timings, sample counts, ...).
+    """
+
+    radiance: np.ndarray
+    alpha: np.ndarray
+    info: dict = field(default_factory=dict)
+
+    def composite(self, background=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """Radiance with ``background`` seen through the volume: ``L + (1 - alpha) * bg``."""
+        bg = np.asarray(background, dtype=np.float32)
+        return self.radiance + (1.0 - self.alpha)[..., None] * bg
+
+
+def render(volume, scene, method: str = "emission", width: int = 256, height: int = 256,
+           device: str | None = None, progress=None, **options) -> RenderResult:
+    """Render ``volume`` as described by ``scene`` with a registered method.
+
+    Parameters
+    ----------
+    volume : vtkillum.core.volume.Volume
+    scene : vtkillum.core.scene.Scene
+    method : str
+        One of :data:`METHODS`.
+    width, height : int
+        Image size in pixels.
+    device : str, optional
+        Warp device; default CUDA when present, else CPU (``VTKILLUM_DEVICE`` overrides).
+    progress : callable, optional
+        Called as ``progress(fraction_done)`` during long renders.
+    **options
+        Method-specific options (e.g. ``spp`` for ``path``, ``illumination`` for
+        ``illumination``).
+    """
+    fn = method_function(method)
+    return fn(volume, scene, int(width), int(height), resolve_device(device), progress, **options)
+
+
+def method_function(method: str):
+    """Import and return the render function registered as ``method``."""
+    if method not in METHODS:
+        raise ValueError(f"unknown method {method!r}; choose one of {sorted(METHODS)}")
+    module, name = METHODS[method].split(":")
+    return getattr(importlib.import_module(module), name)

@@ -1,0 +1,206 @@
+"""The scene file: one JSON description shared by the CLI, the tests and users.
+
+Fields (unknown ones are an error, missing ones take the defaults below)::
+
+    transfer_function      {"scalars": [...], "opacity": [...], "colors": [[r,g,b], ...]}
+                           default: opacity ramp over the data range, white
+    opacity_unit_distance  u in world units; default: the volume's mean spacing
+    albedo                 single-scattering albedo Λ in [0, 1]; default 0.9
+    anisotropy             Henyey–Greenstein g in (-1, 1); default 0
+    lights                 list of {"type": "directional", "direction", "irradiance"} or
+                           {"type": "point", "position", "intensity"};
+                           default: one white directional light travelling (1, -1, -1)
+    camera                 {"position", "focal_point", "view_up", "view_angle" | "parallel_scale"};
+                           default: frames the volume like vtkRenderer.ResetCamera
+    background             RGB composited behind the volume; default [0, 0, 0]
+    step_size              ray-marching step in world units; default: half the smallest spacing
+    shading                Phong terms of the illumination-volume shading (Zhang & Ma eq. 24):
+                           {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0, "shininess": 32}
+    <method sections>      per-method options, see ``METHOD_OPTIONS``
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from vtkillum.core.camera import Camera
+from vtkillum.core.lights import DirectionalLight, light_from_dict
+from vtkillum.core.transfer_function import TransferFunction, check_unit_distance
+
+#: Options of the methods that have their own scene section: field -> default.
+METHOD_OPTIONS: dict[str, dict] = {
+    "path": {"spp": 64, "max_bounces": 16, "seed": 0},
+    "convection_diffusion": {
+        "light_volume_scale": 0.5,     # light-volume resolution relative to the data
+        "scattering": [0.0, 0.0, 0.0],  # per-channel diffusion coefficient sigma_hat_s
+        "iterations": 0,               # 0: solve to convergence
+    },
+    "ambient_scattering": {
+        "radius": 4.0,                 # sphere radius r
+        "radius_units": "voxels",      # "voxels" or "world"
+        "radiance_cache_scale": 0.5,   # radiance-cache resolution relative to the data
+        "specular": 0.0,
+        "ambient_occlusion": False,
+    },
+}
+
+SHADING_DEFAULTS = {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0, "shininess": 32.0}
+
+TOP_LEVEL = {"transfer_function", "opacity_unit_distance", "albedo", "anisotropy", "lights",
+             "camera", "background", "step_size", "shading"} | set(METHOD_OPTIONS)
+
+
+@dataclass
+class Scene:
+    """Everything but the data that a render needs. See the module docstring for fields."""
+
+    transfer_function: TransferFunction | None = None
+    opacity_unit_distance: float | None = None
+    albedo: float = 0.9
+    anisotropy: float = 0.0
+    lights: list = field(default_factory=lambda: [DirectionalLight((1.0, -1.0, -1.0))])
+    camera: Camera | None = None
+    background: np.ndarray = (0.0, 0.0, 0.0)
+    step_size: float | None = None
+    shading: dict = field(default_factory=lambda: dict(SHADING_DEFAULTS))
+    options: dict = field(default_factory=lambda: copy.deepcopy(METHOD_OPTIONS))
+
+    def __post_init__(self) -> None:
+        if not (0.0 <= float(self.albedo) <= 1.0):
+            raise ValueError(f"albedo must lie in [0, 1], got {self.albedo}")
+        if not (-1.0 < float(self.anisotropy) < 1.0):
+            raise ValueError(f"anisotropy must lie in (-1, 1), got {self.anisotropy}")
+        self.albedo, self.anisotropy = float(self.albedo), float(self.anisotropy)
+        if self.opacity_unit_distance is not None:
+            self.opacity_unit_distance = check_unit_distance(self.opacity_unit_distance)
+        if self.step_size is not None and not (np.isfinite(self.step_size) and self.step_size > 0):
+            raise ValueError(f"step_size must be positive, got {self.step_size}")
+        bg = np.asarray(self.background, dtype=np.float64).reshape(-1)
+        if bg.shape != (3,) or not np.all(np.isfinite(bg)) or np.any(bg < 0):
+            raise ValueError("background must be three non-negative numbers")
+        self.background = bg
+        if not self.lights:
+            raise ValueError("lights: at least one light is needed")
+        self.shading = _merge("shading", SHADING_DEFAULTS, self.shading)
+        merged = copy.deepcopy(METHOD_OPTIONS)
+        for name, opts in (self.options or {}).items():
+            if name not in METHOD_OPTIONS:
+                raise ValueError(f"unknown method section {name!r}; known: {sorted(METHOD_OPTIONS)}")
+            merged[name] = _merge(name, METHOD_OPTIONS[name], opts)
+        self.options = merged
+
+    # --- resolution of data-dependent defaults --------------------------------------------
+    def resolved_transfer_function(self, volume) -> TransferFunction:
+        if self.transfer_function is not None:
+            return self.transfer_function
+        lo, hi = volume.value_range
+        return TransferFunction.ramp(lo, hi if hi > lo else lo + 1.0, 0.5)
+
+    def resolved_unit_distance(self, volume) -> float:
+        return self.opacity_unit_distance or volume.mean_spacing()
+
+    def resolved_step_size(self, volume) -> float:
+        return self.step_size or 0.5 * float(volume.spacing.min())
+
+    def resolved_camera(self, volume) -> Camera:
+        return self.camera or Camera.looking_at_bounds(volume.bounds, direction=(-0.4, -0.3, -1.0))
+
+    # --- (de)serialisation -------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        d = {
+            "albedo": self.albedo,
+            "anisotropy": self.anisotropy,
+            "lights": [l.to_dict() for l in self.lights],
+            "background": self.background.tolist(),
+            "shading": dict(self.shading),
+        }
+        if self.transfer_function is not None:
+            d["transfer_function"] = self.transfer_function.to_dict()
+        if self.opacity_unit_distance is not None:
+            d["opacity_unit_distance"] = self.opacity_unit_distance
+        if self.camera is not None:
+            d["camera"] = self.camera.to_dict()
+        if self.step_size is not None:
+            d["step_size"] = self.step_size
+        d.update(copy.deepcopy(self.options))
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Scene":
+        """Validate and build; a ``ValueError`` names the offending field."""
+        if not isinstance(d, dict):
+            raise ValueError("a scene must be a JSON object")
+        unknown = set(d) - TOP_LEVEL
+        if unknown:
+            raise ValueError(f"unknown scene field(s) {sorted(unknown)}; known: {sorted(TOP_LEVEL)}")
+        kw = {}
+        if "transfer_function" in d:
+            kw["transfer_function"] = TransferFunction.from_dict(d["transfer_function"])
+        if "lights" in d:
+            if not isinstance(d["lights"], list):
+                raise ValueError("lights must be a list of light objects")
+            kw["lights"] = [light_from_dict(l, i) for i, l in enumerate(d["lights"])]
+        if "camera" in d:
+            kw["camera"] = Camera.from_dict(d["camera"])
+        for key in ("opacity_unit_distance", "albedo", "anisotropy", "step_size"):
+            if key in d:
+                if not isinstance(d[key], (int, float)) or isinstance(d[key], bool):
+                    raise ValueError(f"{key} must be a number, got {d[key]!r}")
+                kw[key] = d[key]
+        if "background" in d:
+            kw["background"] = d["background"]
+        if "shading" in d:
+            kw["shading"] = d["shading"]
+        kw["options"] = {k: d[k] for k in METHOD_OPTIONS if k in d}
+        try:
+            return cls(**kw)
+        except (TypeError, ValueError) as err:
+            raise ValueError(str(err)) from err
+
+
+def _merge(section: str, defaults: dict, given) -> dict:
+    if not isinstance(given, dict):
+        raise ValueError(f"{section} must be an object")
+    unknown = set(given) - set(defaults)
+    if unknown:
+        raise ValueError(f"{section}: unknown field(s) {sorted(unknown)}; known: {sorted(defaults)}")
+    out = dict(defaults)
+    for key, value in given.items():
+        ref = defaults[key]
+        if isinstance(ref, bool):
+            ok = isinstance(value, bool)
+        elif isinstance(ref, (int, float)):
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
+        elif isinstance(ref, list):
+            ok = isinstance(value, list) and len(value) == len(ref)
+        else:
+            ok = isinstance(value, type(ref))
+        if not ok:
+            raise ValueError(f"{section}.{key}: expected a value like {ref!r}, got {value!r}")
+        out[key] = value
+    return out
+
+
+def load_scene(path) -> Scene:
+    """Read and validate a scene file; errors name the file and the field."""
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError:
+        raise FileNotFoundError(f"scene file {path} does not exist") from None
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}: not valid JSON ({err})") from err
+    try:
+        return Scene.from_dict(data)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from err
+
+
+def save_scene(scene: Scene, path) -> None:
+    """Write ``scene`` as JSON (round-trips through :func:`load_scene`)."""
+    Path(path).write_text(json.dumps(scene.to_dict(), indent=2))

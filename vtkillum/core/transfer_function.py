@@ -1,0 +1,165 @@
+"""Piecewise-linear colour and opacity transfer functions and the optical model.
+
+Conventions (``DESIGN.md``): extinction is grey,
+``sigma_t(s) = -ln(1 - alpha(s)) / u`` with ``u`` the opacity unit distance and
+``alpha`` clamped below 1; the scattering coefficient is
+``sigma_s,c = albedo * color_c(s) * sigma_t``. Outside its control points a
+transfer function is constant.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+#: Largest opacity used when converting to extinction (alpha = 1 means infinite sigma_t).
+MAX_ALPHA = 1.0 - 1e-6
+
+#: Number of entries of the lookup tables handed to the kernels.
+TABLE_SIZE = 4096
+
+
+@dataclass
+class TransferFunction:
+    """Colour and opacity as piecewise-linear functions of the data value.
+
+    Parameters
+    ----------
+    scalars : sequence of float
+        Control points in data units, strictly increasing.
+    opacity : sequence of float
+        Opacity ``alpha`` in [0, 1] at each control point (per unit distance ``u``).
+    colors : sequence of (3,) float, optional
+        RGB in [0, 1] at each control point; white when omitted. Used as emission
+        colour in the emission-absorption mode and as scattering colour elsewhere.
+    """
+
+    scalars: np.ndarray
+    opacity: np.ndarray
+    colors: np.ndarray = field(default=None)
+
+    def __post_init__(self) -> None:
+        s = np.asarray(self.scalars, dtype=np.float64).reshape(-1)
+        a = np.asarray(self.opacity, dtype=np.float64).reshape(-1)
+        if s.size == 0:
+            raise ValueError("transfer_function.scalars: at least one control point is needed")
+        if a.shape != s.shape:
+            raise ValueError(
+                f"transfer_function.opacity: {a.size} values for {s.size} control points; "
+                "give one opacity per scalar control point"
+            )
+        if not (np.all(np.isfinite(s)) and np.all(np.isfinite(a))):
+            raise ValueError("transfer_function: control points and opacities must be finite")
+        if np.any(np.diff(s) <= 0):
+            raise ValueError(
+                "transfer_function.scalars: control points must be strictly increasing "
+                f"(got {s.tolist()}); sort them together with their opacities and colours"
+            )
+        if np.any(a < 0) or np.any(a > 1):
+            raise ValueError("transfer_function.opacity: values must lie in [0, 1]")
+        if self.colors is None:
+            c = np.ones((s.size, 3))
+        else:
+            c = np.asarray(self.colors, dtype=np.float64)
+            if c.ndim != 2 or c.shape[1] != 3 or c.shape[0] != s.size:
+                raise ValueError(
+                    f"transfer_function.colors: expected {s.size} RGB triples, got shape {c.shape}"
+                )
+            if not np.all(np.isfinite(c)) or np.any(c < 0) or np.any(c > 1):
+                raise ValueError("transfer_function.colors: RGB values must lie in [0, 1]")
+        self.scalars, self.opacity, self.colors = s, a, c
+
+    # --- evaluation -----------------------------------------------------------------
+    def alpha(self, values) -> np.ndarray:
+        """Opacity at ``values`` (piecewise linear, constant outside the control points)."""
+        return np.interp(np.asarray(values, dtype=np.float64), self.scalars, self.opacity)
+
+    def color(self, values) -> np.ndarray:
+        """RGB colour at ``values``, shape ``values.shape + (3,)``."""
+        v = np.asarray(values, dtype=np.float64)
+        return np.stack([np.interp(v, self.scalars, self.colors[:, c]) for c in range(3)], -1)
+
+    def sigma_t(self, values, unit_distance: float) -> np.ndarray:
+        """Extinction coefficient ``-ln(1 - alpha) / u`` in 1/world units."""
+        check_unit_distance(unit_distance)
+        a = np.minimum(self.alpha(values), MAX_ALPHA)
+        return -np.log1p(-a) / unit_distance
+
+    def domain(self) -> tuple[float, float]:
+        """Range of the control points (a single point gives a zero-width range)."""
+        return float(self.scalars[0]), float(self.scalars[-1])
+
+    def lookup_tables(self, unit_distance: float, value_range=None, size: int = TABLE_SIZE):
+        """Sample the model into tables the kernels interpolate linearly.
+
+        Parameters
+        ----------
+        unit_distance : float
+            Opacity unit distance ``u`` in world units.
+        value_range : (float, float), optional
+            Data range the table must cover; the control-point range is always included.
+        size : int
+            Number of entries.
+
+        Returns
+        -------
+        sigma_t : ndarray (size,) float32
+            Extinction per entry (1/world units).
+        color : ndarray (size, 3) float32
+            Colour per entry.
+        lo, hi : float
+            Data values of the first and last entries.
+        """
+        lo, hi = self.domain()
+        if value_range is not None:
+            lo, hi = min(lo, float(value_range[0])), max(hi, float(value_range[1]))
+        if hi <= lo:
+            hi = lo + 1.0
+        # Sample alpha (not sigma_t) linearly, as VTK's opacity table does, then convert.
+        v = np.linspace(lo, hi, size)
+        return (
+            self.sigma_t(v, unit_distance).astype(np.float32),
+            self.color(v).astype(np.float32),
+            lo,
+            hi,
+        )
+
+    # --- (de)serialisation ---------------------------------------------------------------
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary (the scene file's ``transfer_function`` field)."""
+        return {
+            "scalars": self.scalars.tolist(),
+            "opacity": self.opacity.tolist(),
+            "colors": self.colors.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TransferFunction":
+        """Inverse of :meth:`to_dict`; raises ``ValueError`` naming a bad field."""
+        if not isinstance(d, dict):
+            raise ValueError("transfer_function must be an object with scalars/opacity/colors")
+        unknown = set(d) - {"scalars", "opacity", "colors"}
+        if unknown:
+            raise ValueError(f"transfer_function: unknown field(s) {sorted(unknown)}")
+        for key in ("scalars", "opacity"):
+            if key not in d:
+                raise ValueError(f"transfer_function.{key} is missing")
+        try:
+            return cls(d["scalars"], d["opacity"], d.get("colors"))
+        except (TypeError, ValueError) as err:
+            if isinstance(err, ValueError) and str(err).startswith("transfer_function"):
+                raise
+            raise ValueError(f"transfer_function: {err}") from err
+
+    @classmethod
+    def ramp(cls, lo: float, hi: float, max_opacity: float = 0.5, color=(1.0, 1.0, 1.0)):
+        """Linear opacity ramp from 0 at ``lo`` to ``max_opacity`` at ``hi``, uniform colour."""
+        return cls([lo, hi], [0.0, max_opacity], [color, color])
+
+
+def check_unit_distance(u: float) -> float:
+    """Validate the opacity unit distance (positive and finite)."""
+    if not (np.isfinite(u) and u > 0):
+        raise ValueError(f"opacity_unit_distance must be positive and finite, got {u}")
+    return float(u)

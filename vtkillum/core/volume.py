@@ -1,0 +1,119 @@
+"""A scalar volume on a uniform grid, in the geometry of ``vtkImageData``.
+
+Arrays are indexed ``[i, j, k]`` (x, y, z), i.e. VTK's point order reshaped with
+``order='F'``. Samples are point-centred and interpolated trilinearly. Kernels
+work in the volume's *local frame*: ``p_local = direction.T @ (p_world - origin)``,
+in which the volume spans ``[0, (n - 1) * spacing]`` along each axis.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class Volume:
+    """Point-centred scalar field on a uniform grid.
+
+    Parameters
+    ----------
+    scalars : ndarray (nx, ny, nz)
+        One real value per grid point. Converted to float32.
+    spacing : (3,) float
+        Positive distance between grid points along x, y, z (world units).
+    origin : (3,) float
+        World position of point ``[0, 0, 0]``.
+    direction : (3, 3) float
+        Orthonormal direction matrix (columns: the grid axes in world space).
+    nan_policy : {"raise", "fill"}
+        What to do with NaN/Inf samples: raise, or replace them with the smallest
+        finite value (they then render like the most transparent data).
+    """
+
+    scalars: np.ndarray
+    spacing: np.ndarray = (1.0, 1.0, 1.0)
+    origin: np.ndarray = (0.0, 0.0, 0.0)
+    direction: np.ndarray = field(default_factory=lambda: np.eye(3))
+    nan_policy: str = "raise"
+
+    def __post_init__(self) -> None:
+        s = np.asarray(self.scalars)
+        if s.dtype.kind == "c" or s.dtype.kind not in "biuf":
+            raise ValueError(f"volume scalars must be real numbers, got dtype {s.dtype}")
+        if s.ndim == 4 and s.shape[-1] == 1:
+            s = s[..., 0]
+        if s.ndim != 3:
+            raise ValueError(
+                f"volume scalars must be a 3D array (nx, ny, nz) with one component, got shape "
+                f"{s.shape}; for multi-component data choose one component or the magnitude"
+            )
+        if min(s.shape) < 2:
+            raise ValueError(
+                f"volume dimensions {s.shape}: volume rendering needs at least 2 points along "
+                "each axis (a 2D image or a single voxel has no thickness); resample or pad it"
+            )
+        s = s.astype(np.float32, copy=False)
+        finite = np.isfinite(s)
+        if not finite.all():
+            bad = int((~finite).sum())
+            if self.nan_policy == "fill":
+                if not finite.any():
+                    raise ValueError("volume scalars: every sample is NaN or Inf")
+                s = np.where(finite, s, s[finite].min()).astype(np.float32)
+            elif self.nan_policy == "raise":
+                raise ValueError(
+                    f"volume scalars: {bad} sample(s) are NaN or Inf; clean them "
+                    "(np.nan_to_num) or pass nan_policy='fill' to replace them with the minimum"
+                )
+            else:
+                raise ValueError("nan_policy must be 'raise' or 'fill'")
+        self.scalars = np.ascontiguousarray(s)
+        sp = np.asarray(self.spacing, dtype=np.float64).reshape(-1)
+        if sp.shape != (3,) or not np.all(np.isfinite(sp)) or np.any(sp <= 0):
+            raise ValueError(
+                f"volume spacing must be three positive numbers, got {np.asarray(self.spacing)}; "
+                "a negative spacing flips an axis: flip the array and move the origin instead"
+            )
+        self.spacing = sp
+        o = np.asarray(self.origin, dtype=np.float64).reshape(-1)
+        if o.shape != (3,) or not np.all(np.isfinite(o)):
+            raise ValueError("volume origin must be three finite numbers")
+        self.origin = o
+        d = np.asarray(self.direction, dtype=np.float64)
+        if d.shape != (3, 3) or not np.allclose(d.T @ d, np.eye(3), atol=1e-6):
+            raise ValueError("volume direction must be an orthonormal 3x3 matrix")
+        self.direction = d
+
+    @property
+    def dims(self) -> tuple[int, int, int]:
+        return tuple(int(n) for n in self.scalars.shape)
+
+    @property
+    def extent(self) -> np.ndarray:
+        """Size of the volume in its local frame, ``(n - 1) * spacing``."""
+        return (np.asarray(self.dims) - 1) * self.spacing
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """World-space axis-aligned bounds ``(xmin, xmax, ymin, ymax, zmin, zmax)``."""
+        corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)]) * self.extent
+        world = corners @ self.direction.T + self.origin
+        return np.stack([world.min(0), world.max(0)], 1).reshape(-1)
+
+    @property
+    def value_range(self) -> tuple[float, float]:
+        return float(self.scalars.min()), float(self.scalars.max())
+
+    def mean_spacing(self) -> float:
+        """Default opacity unit distance (VTK uses the mean spacing too)."""
+        return float(self.spacing.mean())
+
+    def to_local(self, points) -> np.ndarray:
+        """World points ``(..., 3)`` to the local frame."""
+        return (np.asarray(points, dtype=np.float64) - self.origin) @ self.direction
+
+    def to_local_direction(self, vectors) -> np.ndarray:
+        """World directions ``(..., 3)`` to the local frame."""
+        return np.asarray(vectors, dtype=np.float64) @ self.direction

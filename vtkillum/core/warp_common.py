@@ -1,0 +1,329 @@
+"""Warp structures and functions every kernel shares, and the host code that fills them.
+
+Kernels work in a volume's local frame (see :mod:`vtkillum.core.volume`): the
+volume spans ``[0, extent]``; camera and lights are mapped into that frame on the
+host, so kernels never see the direction matrix. Data are point-centred and
+sampled trilinearly, with the transfer function applied after interpolation
+(post-classification, as VTK's ray caster does).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from vtkillum.core.device import init_warp, resolve_device
+from vtkillum.core.lights import pack_lights
+
+init_warp()
+
+DIRECTIONAL = wp.constant(0)
+POINT = wp.constant(1)
+#: Distance used for "infinitely far" (directional lights).
+FAR = wp.constant(1.0e30)
+
+
+@wp.struct
+class Medium:
+    """Scalar volume plus transfer-function tables: the optical model on the device."""
+
+    scalars: wp.array3d(dtype=wp.float32)  # [i, j, k], point-centred
+    extent: wp.vec3  # local-frame size (n - 1) * spacing
+    inv_spacing: wp.vec3
+    sigma_table: wp.array(dtype=wp.float32)  # sigma_t per table entry (1/world units)
+    color_table: wp.array(dtype=wp.vec3)  # colour per table entry
+    table_lo: float  # data value of entry 0
+    table_scale: float  # entries per data unit
+    albedo: float
+    g: float  # Henyey–Greenstein anisotropy
+    majorant: float  # upper bound of sigma_t over the volume (delta tracking)
+
+
+@wp.struct
+class RGBGrid:
+    """An RGB volume (e.g. an illumination volume) covering ``[0, extent]`` of the local frame."""
+
+    data: wp.array3d(dtype=wp.vec3)
+    extent: wp.vec3
+    inv_spacing: wp.vec3
+
+
+@wp.struct
+class CameraParams:
+    """A camera in the local frame; see :mod:`vtkillum.core.camera` for pixel conventions."""
+
+    position: wp.vec3
+    right: wp.vec3
+    up: wp.vec3
+    forward: wp.vec3
+    tan_half: float  # tan(view_angle / 2)
+    aspect: float  # width / height
+    parallel: int
+    parallel_scale: float
+    width: int
+    height: int
+
+
+@wp.struct
+class Lights:
+    """Light list: kind (0 directional, 1 point), travel direction or position, RGB."""
+
+    kind: wp.array(dtype=wp.int32)
+    vec: wp.array(dtype=wp.vec3)
+    rgb: wp.array(dtype=wp.vec3)
+    count: int
+
+
+# --- sampling -----------------------------------------------------------------------------------
+@wp.func
+def trilinear_index(p: wp.vec3, inv_spacing: wp.vec3, shape: wp.vec3i):
+    """Cell index (clamped so that index + 1 is valid) and fractions for point ``p``."""
+    u = wp.cw_mul(p, inv_spacing)
+    i = wp.clamp(int(wp.floor(u[0])), 0, shape[0] - 2)
+    j = wp.clamp(int(wp.floor(u[1])), 0, shape[1] - 2)
+    k = wp.clamp(int(wp.floor(u[2])), 0, shape[2] - 2)
+    f = wp.vec3(
+        wp.clamp(u[0] - float(i), 0.0, 1.0),
+        wp.clamp(u[1] - float(j), 0.0, 1.0),
+        wp.clamp(u[2] - float(k), 0.0, 1.0),
+    )
+    return wp.vec3i(i, j, k), f
+
+
+@wp.func
+def sample_scalar(a: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.vec3):
+    """Trilinear sample of a point-centred scalar grid at local position ``p``."""
+    idx, f = trilinear_index(p, inv_spacing, wp.vec3i(a.shape[0], a.shape[1], a.shape[2]))
+    i = idx[0]
+    j = idx[1]
+    k = idx[2]
+    c00 = wp.lerp(a[i, j, k], a[i + 1, j, k], f[0])
+    c10 = wp.lerp(a[i, j + 1, k], a[i + 1, j + 1, k], f[0])
+    c01 = wp.lerp(a[i, j, k + 1], a[i + 1, j, k + 1], f[0])
+    c11 = wp.lerp(a[i, j + 1, k + 1], a[i + 1, j + 1, k + 1], f[0])
+    return wp.lerp(wp.lerp(c00, c10, f[1]), wp.lerp(c01, c11, f[1]), f[2])
+
+
+@wp.func
+def sample_rgb(grid: RGBGrid, p: wp.vec3):
+    """Trilinear sample of an RGB grid at local position ``p``."""
+    a = grid.data
+    idx, f = trilinear_index(p, grid.inv_spacing, wp.vec3i(a.shape[0], a.shape[1], a.shape[2]))
+    i = idx[0]
+    j = idx[1]
+    k = idx[2]
+    c00 = wp.lerp(a[i, j, k], a[i + 1, j, k], f[0])
+    c10 = wp.lerp(a[i, j + 1, k], a[i + 1, j + 1, k], f[0])
+    c01 = wp.lerp(a[i, j, k + 1], a[i + 1, j, k + 1], f[0])
+    c11 = wp.lerp(a[i, j + 1, k + 1], a[i + 1, j + 1, k + 1], f[0])
+    return wp.lerp(wp.lerp(c00, c10, f[1]), wp.lerp(c01, c11, f[1]), f[2])
+
+
+@wp.func
+def table_coord(m: Medium, s: float):
+    """Continuous table coordinate of data value ``s`` (clamped: constant outside)."""
+    n = m.sigma_table.shape[0]
+    return wp.clamp((s - m.table_lo) * m.table_scale, 0.0, float(n - 1))
+
+
+@wp.func
+def lookup_sigma_t(m: Medium, s: float):
+    x = table_coord(m, s)
+    i = wp.min(int(x), m.sigma_table.shape[0] - 2)
+    return wp.lerp(m.sigma_table[i], m.sigma_table[i + 1], x - float(i))
+
+
+@wp.func
+def lookup_color(m: Medium, s: float):
+    x = table_coord(m, s)
+    i = wp.min(int(x), m.color_table.shape[0] - 2)
+    return wp.lerp(m.color_table[i], m.color_table[i + 1], x - float(i))
+
+
+@wp.func
+def inside_box(p: wp.vec3, extent: wp.vec3):
+    return (p[0] >= 0.0 and p[1] >= 0.0 and p[2] >= 0.0
+            and p[0] <= extent[0] and p[1] <= extent[1] and p[2] <= extent[2])
+
+
+@wp.func
+def sigma_t_at(m: Medium, p: wp.vec3):
+    """Extinction at local position ``p`` (0 outside the volume)."""
+    if not inside_box(p, m.extent):
+        return 0.0
+    return lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, p))
+
+
+@wp.func
+def ray_box(o: wp.vec3, d: wp.vec3, extent: wp.vec3):
+    """Entry and exit distances of the ray ``o + t d`` through ``[0, extent]`` (t0 > t1: miss)."""
+    t0 = float(-1.0e30)
+    t1 = float(1.0e30)
+    for a in range(3):
+        if wp.abs(d[a]) < 1.0e-12:
+            if o[a] < 0.0 or o[a] > extent[a]:
+                t0 = 1.0e30
+                t1 = -1.0e30
+        else:
+            inv = 1.0 / d[a]
+            ta = (0.0 - o[a]) * inv
+            tb = (extent[a] - o[a]) * inv
+            t0 = wp.max(t0, wp.min(ta, tb))
+            t1 = wp.min(t1, wp.max(ta, tb))
+    return wp.vec2(t0, t1)
+
+
+# --- phase function ------------------------------------------------------------------------------
+@wp.func
+def hg_phase(cos_theta: float, g: float):
+    """Henyey–Greenstein phase function, normalised to 1 over the sphere.
+
+    ``cos_theta`` is between the light's travel direction and the scattered direction.
+    """
+    denom = 1.0 + g * g - 2.0 * g * cos_theta
+    return (1.0 - g * g) / (4.0 * wp.pi * denom * wp.sqrt(denom))
+
+
+@wp.func
+def orthonormal_basis(n: wp.vec3):
+    """Two unit vectors completing ``n`` to a right-handed basis (Duff et al. 2017)."""
+    sign = wp.where(n[2] >= 0.0, 1.0, -1.0)
+    a = -1.0 / (sign + n[2])
+    b = n[0] * n[1] * a
+    t = wp.vec3(1.0 + sign * n[0] * n[0] * a, sign * b, -sign * n[0])
+    s = wp.vec3(b, sign + n[1] * n[1] * a, -n[1])
+    return t, s
+
+
+@wp.func
+def sample_hg(wi: wp.vec3, g: float, u1: float, u2: float):
+    """Sample a scattered direction for light travelling along ``wi`` (pdf = hg_phase)."""
+    cos_t = float(0.0)
+    if wp.abs(g) < 1.0e-3:
+        cos_t = 1.0 - 2.0 * u1
+    else:
+        sq = (1.0 - g * g) / (1.0 - g + 2.0 * g * u1)
+        cos_t = (1.0 + g * g - sq * sq) / (2.0 * g)
+    cos_t = wp.clamp(cos_t, -1.0, 1.0)
+    sin_t = wp.sqrt(wp.max(0.0, 1.0 - cos_t * cos_t))
+    phi = 2.0 * wp.pi * u2
+    t, s = orthonormal_basis(wi)
+    return wp.normalize(sin_t * wp.cos(phi) * t + sin_t * wp.sin(phi) * s + cos_t * wi)
+
+
+# --- lights and camera ---------------------------------------------------------------------------
+@wp.func
+def light_incidence(lights: Lights, li: int, p: wp.vec3):
+    """Unit direction from ``p`` towards light ``li``, its distance, and the RGB irradiance at ``p``."""
+    if lights.kind[li] == DIRECTIONAL:
+        return -lights.vec[li], FAR, lights.rgb[li]
+    d = lights.vec[li] - p
+    dist2 = wp.max(wp.dot(d, d), 1.0e-12)
+    dist = wp.sqrt(dist2)
+    return d / dist, dist, lights.rgb[li] / dist2
+
+
+@wp.func
+def camera_ray(cam: CameraParams, x: float, y: float):
+    """Origin and unit direction through image position ``(x, y)`` in pixels (x right, y down)."""
+    nx = 2.0 * x / float(cam.width) - 1.0
+    ny = 1.0 - 2.0 * y / float(cam.height)
+    if cam.parallel != 0:
+        o = cam.position + (nx * cam.aspect * cam.parallel_scale) * cam.right + (
+            ny * cam.parallel_scale) * cam.up
+        return o, cam.forward
+    d = cam.forward + (nx * cam.aspect * cam.tan_half) * cam.right + (ny * cam.tan_half) * cam.up
+    return cam.position, wp.normalize(d)
+
+
+# --- host side -----------------------------------------------------------------------------------
+def make_medium(volume, transfer_function, unit_distance: float, albedo: float = 0.9,
+                anisotropy: float = 0.0, device: str | None = None) -> Medium:
+    """Upload a volume and its optical model.
+
+    Parameters
+    ----------
+    volume : vtkillum.core.volume.Volume
+    transfer_function : vtkillum.core.transfer_function.TransferFunction
+    unit_distance : float
+        Opacity unit distance ``u`` (world units).
+    albedo, anisotropy : float
+        Single-scattering albedo and HG ``g``.
+    device : str, optional
+        Warp device (see :func:`vtkillum.core.device.resolve_device`).
+    """
+    device = resolve_device(device)
+    sig, col, lo, hi = transfer_function.lookup_tables(unit_distance, volume.value_range)
+    m = Medium()
+    m.scalars = to_device(volume.scalars, wp.float32, device)
+    m.extent = wp.vec3(*volume.extent.astype(np.float32))
+    m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
+    m.sigma_table = wp.array(sig, dtype=wp.float32, device=device)
+    m.color_table = wp.array(col, dtype=wp.vec3, device=device)
+    m.table_lo = float(lo)
+    m.table_scale = float((len(sig) - 1) / (hi - lo))
+    m.albedo = float(albedo)
+    m.g = float(anisotropy)
+    # Trilinear interpolation stays within the data range, so the table's maximum over it bounds σt.
+    vlo, vhi = volume.value_range
+    x = np.linspace(lo, hi, len(sig))
+    in_range = (x >= vlo - (hi - lo) / len(sig)) & (x <= vhi + (hi - lo) / len(sig))
+    m.majorant = float(sig[in_range].max() if in_range.any() else sig.max()) * 1.0001 + 1e-12
+    return m
+
+
+def make_rgb_grid(data: np.ndarray, extent, device: str | None = None) -> RGBGrid:
+    """Upload an RGB volume ``(nx, ny, nz, 3)`` covering ``[0, extent]`` in the local frame."""
+    device = resolve_device(device)
+    data = np.asarray(data, dtype=np.float32)
+    if data.ndim != 4 or data.shape[-1] != 3 or min(data.shape[:3]) < 2:
+        raise ValueError(f"an RGB volume must have shape (nx, ny, nz, 3) with n >= 2, got {data.shape}")
+    extent = np.asarray(extent, dtype=np.float64)
+    g = RGBGrid()
+    g.data = wp.array(np.ascontiguousarray(data), dtype=wp.vec3, device=device)
+    g.extent = wp.vec3(*extent.astype(np.float32))
+    g.inv_spacing = wp.vec3(*((np.asarray(data.shape[:3]) - 1) / extent).astype(np.float32))
+    return g
+
+
+def make_camera(camera, volume, width: int, height: int) -> CameraParams:
+    """Map a :class:`~vtkillum.core.camera.Camera` into ``volume``'s local frame."""
+    if int(width) < 1 or int(height) < 1:
+        raise ValueError(f"image size must be positive, got {width} x {height}")
+    r, u, f = camera.basis()
+    c = CameraParams()
+    c.position = wp.vec3(*volume.to_local(camera.position).astype(np.float32))
+    c.right = wp.vec3(*volume.to_local_direction(r).astype(np.float32))
+    c.up = wp.vec3(*volume.to_local_direction(u).astype(np.float32))
+    c.forward = wp.vec3(*volume.to_local_direction(f).astype(np.float32))
+    c.tan_half = float(np.tan(np.radians(camera.view_angle) / 2))
+    c.aspect = float(width) / float(height)
+    c.parallel = int(camera.parallel_projection)
+    c.parallel_scale = float(camera.parallel_scale)
+    c.width = int(width)
+    c.height = int(height)
+    return c
+
+
+def make_lights(lights, volume, device: str | None = None) -> Lights:
+    """Upload a light list, mapped into ``volume``'s local frame."""
+    device = resolve_device(device)
+    kinds, vecs, rgb = pack_lights(lights, volume.direction, volume.origin)
+    out = Lights()
+    out.kind = wp.array(kinds, dtype=wp.int32, device=device)
+    out.vec = wp.array(vecs, dtype=wp.vec3, device=device)
+    out.rgb = wp.array(rgb, dtype=wp.vec3, device=device)
+    out.count = len(kinds)
+    return out
+
+
+def to_device(array: np.ndarray, dtype, device: str):
+    """Copy a numpy array to ``device`` with a clear error when the device runs out of memory."""
+    try:
+        return wp.array(np.ascontiguousarray(array), dtype=dtype, device=device)
+    except Exception as err:  # warp raises RuntimeError on allocation failure
+        nbytes = np.asarray(array).nbytes
+        raise MemoryError(
+            f"could not allocate {nbytes / 2**20:.0f} MiB on {device} ({err}); downsample the "
+            "volume (e.g. vtkImageResample) or render on device='cpu'"
+        ) from err
