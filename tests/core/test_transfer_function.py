@@ -1,0 +1,55 @@
+"""Transfer functions: piecewise linear, constant outside, σt per DESIGN.md."""
+
+import numpy as np
+import pytest
+
+from vtkillum.core.transfer_function import MAX_ALPHA, TransferFunction
+
+
+def test_piecewise_linear_and_constant_outside():
+    tf = TransferFunction([0.0, 1.0, 3.0], [0.0, 0.5, 0.1], [[0, 0, 0], [1, 0, 0], [0, 0, 1]])
+    assert np.allclose(tf.alpha([-5, 0, 0.5, 1, 2, 3, 9]), [0, 0, 0.25, 0.5, 0.3, 0.1, 0.1])
+    assert np.allclose(tf.color(2.0), [0.5, 0, 0.5])
+    assert np.allclose(tf.color(10.0), [0, 0, 1])
+
+
+def test_sigma_t_matches_opacity_correction():
+    """exp(-σt Δ) must equal VTK's opacity correction (1 - α)^(Δ/u)."""
+    tf = TransferFunction([0, 1], [0.0, 0.8])
+    u, step = 2.0, 0.37
+    for s in (0.2, 0.6, 1.0):
+        a = tf.alpha(s)
+        assert np.isclose(np.exp(-tf.sigma_t(s, u) * step), (1 - a) ** (step / u))
+
+
+def test_opaque_is_clamped_finite():
+    tf = TransferFunction([0, 1], [1.0, 1.0])
+    assert np.isfinite(tf.sigma_t(0.5, 1.0))
+    assert np.isclose(tf.sigma_t(0.5, 1.0), -np.log1p(-MAX_ALPHA))
+
+
+def test_lookup_table_covers_data_range():
+    tf = TransferFunction([0.2, 0.4], [0.1, 0.9])
+    sig, col, lo, hi = tf.lookup_tables(1.0, value_range=(-1.0, 2.0), size=301)
+    assert lo == -1.0 and hi == 2.0 and sig.shape == (301,) and col.shape == (301, 3)
+    x = np.linspace(lo, hi, 301)
+    assert np.allclose(sig, tf.sigma_t(x, 1.0), rtol=1e-6)
+
+
+@pytest.mark.parametrize("kw, msg", [
+    (dict(scalars=[0, 0], opacity=[0, 1]), "strictly increasing"),
+    (dict(scalars=[1, 0], opacity=[0, 1]), "strictly increasing"),
+    (dict(scalars=[0, 1], opacity=[0, 1, 1]), "one opacity per"),
+    (dict(scalars=[0, np.nan], opacity=[0, 1]), "finite"),
+    (dict(scalars=[0, 1], opacity=[0, -0.1]), r"\[0, 1\]"),
+    (dict(scalars=[0, 1], opacity=[0, 1], colors=[[1, 1]]), "RGB"),
+    (dict(scalars=[], opacity=[]), "at least one"),
+])
+def test_bad_transfer_functions(kw, msg):
+    with pytest.raises(ValueError, match=msg):
+        TransferFunction(**kw)
+
+
+def test_bad_unit_distance():
+    with pytest.raises(ValueError, match="opacity_unit_distance"):
+        TransferFunction([0, 1], [0, 1]).sigma_t(0.5, 0.0)
