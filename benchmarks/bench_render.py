@@ -1,0 +1,72 @@
+"""Milliseconds per frame of the foundation's rendering modes.
+
+Prints a table (volume size, image size, device, method, ms per frame) for the
+``emission``, ``single`` and ``path`` (per sample per pixel) modes on the built-in
+smoke plume. Absolute numbers mean something only on a GPU; on a CPU compare
+ratios within one run.
+
+Examples
+--------
+python benchmarks/bench_render.py --device cuda
+python benchmarks/bench_render.py --device cpu --volumes 64 --images 128
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from vtkillum.core.device import resolve_device
+from vtkillum.core.render import render
+from vtkillum.data.procedural import default_scene, smoke_plume
+
+
+def device_name(device: str) -> str:
+    import warp as wp
+
+    d = wp.get_device(device)
+    return d.name if d.is_cuda else f"cpu ({d.name})"
+
+
+def time_render(volume, scene, method, size, device, repeats, **options) -> float:
+    render(volume, scene, method, size, size, device, **options)  # compile and warm up
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        render(volume, scene, method, size, size, device, **options)
+        times.append(time.perf_counter() - t0)
+    return 1000.0 * float(np.median(times))
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--device", default=None, help="cpu, cuda (default: cuda if present)")
+    ap.add_argument("--volumes", type=int, nargs="+", default=[128, 256], help="cube edge sizes")
+    ap.add_argument("--images", type=int, nargs="+", default=[256, 512], help="square image sizes")
+    ap.add_argument("--methods", nargs="+", default=["emission", "single", "path"])
+    ap.add_argument("--path-spp", type=int, default=4, help="samples per pixel timed for path")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args(argv)
+    device = resolve_device(args.device)
+    name = device_name(device)
+    print(f"| volume | image | device | method | ms per frame |")
+    print(f"|---|---|---|---|---|")
+    for n in args.volumes:
+        volume = smoke_plume(shape=(n, n, n))
+        scene = default_scene("plume", volume)
+        for size in args.images:
+            for method in args.methods:
+                if method == "path":
+                    ms = time_render(volume, scene, method, size, device, args.repeats,
+                                     spp=args.path_spp) / args.path_spp
+                    label = "path (per spp)"
+                else:
+                    ms = time_render(volume, scene, method, size, device, args.repeats)
+                    label = method
+                print(f"| {n}³ | {size}² | {name} | {label} | {ms:.1f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
