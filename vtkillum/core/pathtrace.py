@@ -1,0 +1,461 @@
+"""Unbiased reference: a progressive volumetric path tracer.
+
+It solves the radiative transfer equation with the project's optical model
+(``DESIGN.md``): grey extinction ``sigma_t(s)``, scattering
+``sigma_s,c = albedo * color_c(s) * sigma_t``, the Henyey–Greenstein phase
+function, directional and point lights. The background is not a light: the
+radiance counts light that left a light and scattered at least once in the
+volume, and ``alpha = 1 - T`` along the primary ray, so
+``RenderResult.composite(background)`` puts the background behind it.
+
+Estimators
+----------
+Paths start at the camera (jittered sub-pixel position) and walk backwards
+towards the lights. At each step:
+
+* **Free flight: delta (Woodcock) tracking** against the global majorant
+  ``mu = max sigma_t`` (:attr:`Medium.majorant`). Tentative distances are drawn
+  from ``mu exp(-mu t)``; a tentative point ``x`` is a real collision with
+  probability ``sigma_t(x) / mu``. Real collisions are then distributed as
+  ``sigma_t T``. A path that leaves the volume ends (the background emits
+  nothing).
+* **Collision weight.** Every real collision scatters, and the throughput is
+  multiplied by the single-scattering albedo colour
+  ``sigma_s,c / sigma_t = albedo * color_c(s)`` (absorption as a weight rather
+  than as path termination, so RGB colours need no spectral sampling).
+* **Next-event estimation** at every scattering vertex to every light:
+  ``throughput * p(theta) * E * T_shadow`` with ``E`` the light's irradiance
+  (``I / d^2`` for point lights), ``theta`` between the light's travel direction
+  and the direction towards the previous vertex (the camera for the first one),
+  and ``T_shadow`` estimated by **ratio tracking** (product of
+  ``1 - sigma_t / mu`` over majorant-rate tentative points up to the box exit or
+  the point light). Lights are deltas, so NEE is their only contribution and
+  there is nothing to weight with MIS.
+* **Direction sampling** from the HG phase function itself (``sample_hg``), whose
+  weight ``p / pdf`` is exactly 1.
+* ``max_bounces`` is the number of scattering vertices that receive NEE;
+  ``max_bounces = 1`` is single scattering. The estimate is unbiased for the
+  radiance of paths with at most ``max_bounces`` scattering events.
+* **Russian roulette** from the ``RR_START``-th vertex on: the walk continues to
+  the next vertex with probability ``q = min(1, max_c throughput_c)`` and the
+  throughput is divided by ``q`` (unbiased; a path whose weight has dropped to
+  ``w < 1`` survives with probability ``w`` and then carries weight 1).
+  Shadow rays use a weight-window roulette: when their running transmittance
+  ``T`` drops below ``SHADOW_RR_THRESHOLD`` they survive with probability
+  ``T / threshold`` and carry on with ``T = threshold`` (unbiased too).
+* **Alpha**: ratio tracking along the whole primary ray (no roulette), an
+  unbiased estimate of the transmittance ``T`` in [0, 1]; ``alpha = 1 - T``.
+  This costs one extra traversal per sample but has far less variance than the
+  fraction of primary paths that collide.
+
+Random numbers: each kernel launch ("pass") seeds one PCG stream per pixel with
+``wp.rand_init(hash(seed, pass), pixel)``, so a fixed seed gives bit-identical
+images on one device, and passes are independent.
+
+Accumulation is in float64 on the device (running sums of radiance, its square
+and alpha), so thousands of passes lose no precision; :attr:`PathTracer.radiance`
+is the running mean.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+import warp as wp
+
+from vtkillum.core.device import resolve_device
+from vtkillum.core.render import RenderResult
+from vtkillum.core.warp_common import (
+    CameraParams,
+    Lights,
+    Medium,
+    camera_ray,
+    hg_phase,
+    light_incidence,
+    lookup_color,
+    lookup_sigma_t,
+    make_camera,
+    make_lights,
+    make_medium,
+    ray_box,
+    sample_hg,
+    sample_scalar,
+    sigma_t_at,
+)
+
+#: Russian roulette on the path starts after this many scattering vertices.
+RR_START = wp.constant(3)
+#: Shadow-ray transmittance below which weight-window roulette kicks in.
+SHADOW_RR_THRESHOLD = wp.constant(0.1)
+# PCG-RXS-M-XS constants (the generator behind wp.rand_init / wp.randf).
+PCG_MULTIPLIER = wp.constant(wp.uint32(747796405))
+PCG_INCREMENT = wp.constant(wp.uint32(2891336453))
+PCG_OUTPUT_MULTIPLIER = wp.constant(wp.uint32(277803737))
+
+
+def render_path(volume, scene, width: int, height: int, device: str | None = None, progress=None,
+                spp: int | None = None, max_bounces: int | None = None, seed: int | None = None,
+                **options) -> RenderResult:
+    """Path-trace ``volume`` with ``spp`` samples per pixel (the ``"path"`` method).
+
+    Parameters
+    ----------
+    volume : vtkillum.core.volume.Volume
+    scene : vtkillum.core.scene.Scene
+        Optical model, lights and camera; ``scene.options["path"]`` gives the defaults
+        of ``spp`` (64), ``max_bounces`` (16) and ``seed`` (0).
+    width, height : int
+        Image size in pixels.
+    device : str, optional
+        Warp device (see :func:`vtkillum.core.device.resolve_device`).
+    progress : callable, optional
+        Called as ``progress(fraction_done)`` after each pass (one sample per pixel).
+    spp : int, optional
+        Samples per pixel.
+    max_bounces : int, optional
+        Maximum number of scattering vertices receiving next-event estimation (1: single
+        scattering).
+    seed : int, optional
+        Random seed; the same seed gives the same image on one device.
+
+    Returns
+    -------
+    RenderResult
+        Linear radiance (H, W, 3), alpha = 1 - transmittance (H, W), and ``info`` with
+        ``spp``, ``max_bounces``, ``seed``, ``ms_per_pass``, ``samples_per_second`` (camera
+        paths per second, all pixels) and, from two passes on, the per-pixel
+        ``radiance_variance`` of the mean (H, W, 3).
+    """
+    if options:
+        raise ValueError(
+            f"path: unknown option(s) {sorted(options)}; the path tracer takes spp, "
+            "max_bounces and seed"
+        )
+    defaults = scene.options["path"]
+    spp = _positive_int(defaults["spp"] if spp is None else spp, "spp")
+    max_bounces = _positive_int(defaults["max_bounces"] if max_bounces is None else max_bounces,
+                                "max_bounces")
+    seed = _int(defaults["seed"] if seed is None else seed, "seed")
+    tracer = PathTracer(volume, scene, width, height, device=device, seed=seed,
+                        max_bounces=max_bounces)
+    for i in range(spp):
+        tracer.run(1)
+        if progress is not None:
+            progress((i + 1) / spp)
+    return tracer.result()
+
+
+class PathTracer:
+    """Progressive path tracer: accumulate passes of one sample per pixel, read the mean.
+
+    Parameters
+    ----------
+    volume : vtkillum.core.volume.Volume
+    scene : vtkillum.core.scene.Scene
+        Transfer function, unit distance, albedo, anisotropy, lights and camera
+        (``scene.resolved_camera(volume)`` when it has none).
+    width, height : int
+        Image size in pixels.
+    device : str, optional
+        Warp device.
+    seed : int
+        Random seed (pass ``p`` of pixel ``i`` uses ``rand_init(hash(seed, p), i)``).
+    max_bounces : int
+        Maximum number of scattering vertices receiving next-event estimation.
+    samples_per_pass : int
+        Samples per pixel taken by one kernel launch (more per launch amortises launch
+        overhead on a GPU; the variance estimate then is over per-pass means).
+
+    Examples
+    --------
+    >>> tracer = PathTracer(volume, scene, 64, 64, seed=1)      # doctest: +SKIP
+    >>> tracer.run(16).radiance.shape                            # doctest: +SKIP
+    (64, 64, 3)
+    """
+
+    def __init__(self, volume, scene, width: int, height: int, device: str | None = None,
+                 seed: int = 0, max_bounces: int = 16, samples_per_pass: int = 1) -> None:
+        self.device = resolve_device(device)
+        self.width = _positive_int(width, "width")
+        self.height = _positive_int(height, "height")
+        self.seed = _int(seed, "seed")
+        self.max_bounces = _positive_int(max_bounces, "max_bounces")
+        self.samples_per_pass = _positive_int(samples_per_pass, "samples_per_pass")
+        self._volume = volume
+        self.medium = make_medium(
+            volume, scene.resolved_transfer_function(volume), scene.resolved_unit_distance(volume),
+            scene.albedo, scene.anisotropy, self.device,
+        )
+        self.lights = make_lights(scene.lights, volume, self.device)
+        shape = (self.height, self.width)
+        self._sum = wp.zeros(shape, dtype=wp.vec3d, device=self.device)
+        self._sum2 = wp.zeros(shape, dtype=wp.vec3d, device=self.device)
+        self._sum_alpha = wp.zeros(shape, dtype=wp.float64, device=self.device)
+        self._seconds = 0.0
+        # Compile/load the kernels now so that the first pass's timing is the kernel's own.
+        wp.load_module(sys.modules[__name__], device=self.device)
+        self.reset(scene.resolved_camera(volume))
+
+    # --- progressive accumulation --------------------------------------------------------
+    def reset(self, camera=None) -> "PathTracer":
+        """Discard the accumulated samples (and pass counter); optionally move the camera.
+
+        Parameters
+        ----------
+        camera : vtkillum.core.camera.Camera, optional
+            New camera; the current one is kept when omitted.
+        """
+        if camera is not None:
+            if not callable(getattr(camera, "basis", None)):
+                raise ValueError(
+                    f"camera must be a vtkillum.core.camera.Camera, got {type(camera).__name__}; "
+                    "convert a vtkCamera with its position, focal point, view up and view angle"
+                )
+            self.camera = camera
+            self._cam: CameraParams = make_camera(camera, self._volume, self.width, self.height)
+        self._sum.zero_()
+        self._sum2.zero_()
+        self._sum_alpha.zero_()
+        self.passes = 0
+        self._seconds = 0.0
+        return self
+
+    def run(self, passes: int = 1) -> "PathTracer":
+        """Add ``passes`` kernel launches of ``samples_per_pass`` samples per pixel."""
+        passes = _positive_int(passes, "passes")
+        start = time.perf_counter()
+        for _ in range(passes):
+            wp.launch(
+                path_trace_kernel,
+                dim=(self.height, self.width),
+                inputs=[self.medium, self._cam, self.lights, pass_seed(self.seed, self.passes),
+                        self.samples_per_pass, self.max_bounces, self._sum, self._sum2,
+                        self._sum_alpha],
+                device=self.device,
+            )
+            self.passes += 1
+        wp.synchronize_device(self.device)
+        self._seconds += time.perf_counter() - start
+        return self
+
+    @property
+    def samples(self) -> int:
+        """Samples per pixel accumulated so far."""
+        return self.passes * self.samples_per_pass
+
+    @property
+    def radiance(self) -> np.ndarray:
+        """Running mean of the radiance, (H, W, 3) float32 (zeros before the first pass)."""
+        return (self._sum.numpy() / max(self.passes, 1)).astype(np.float32)
+
+    @property
+    def alpha(self) -> np.ndarray:
+        """Running mean of ``1 - T`` along the primary rays, (H, W) float32."""
+        return (self._sum_alpha.numpy() / max(self.passes, 1)).astype(np.float32)
+
+    @property
+    def radiance_variance(self) -> np.ndarray:
+        """Estimated variance of :attr:`radiance` (of the mean), (H, W, 3) float64.
+
+        ``(mean of squares - square of mean) / (passes - 1)`` over per-pass values; needs two
+        passes at least.
+        """
+        n = self.passes
+        if n < 2:
+            raise ValueError("the variance needs at least two passes; call run(2) first")
+        mean = self._sum.numpy() / n
+        var = np.maximum(self._sum2.numpy() / n - mean * mean, 0.0) * n / (n - 1)
+        return var / n
+
+    def result(self) -> RenderResult:
+        """The current image as a :class:`~vtkillum.core.render.RenderResult`."""
+        pixels = self.width * self.height * self.samples
+        info = {
+            "method": "path",
+            "spp": self.samples,
+            "passes": self.passes,
+            "max_bounces": self.max_bounces,
+            "seed": self.seed,
+            "device": self.device,
+            "ms_per_pass": 1000.0 * self._seconds / max(self.passes, 1),
+            "samples_per_second": pixels / self._seconds if self._seconds > 0 else float("nan"),
+        }
+        if self.passes >= 2:
+            info["radiance_variance"] = self.radiance_variance.astype(np.float32)
+        return RenderResult(self.radiance, self.alpha, info)
+
+
+def pass_seed(seed: int, pass_index: int) -> int:
+    """32-bit hash of ``(seed, pass_index)`` as a signed int for ``wp.rand_init``."""
+    mask = 0xFFFFFFFF
+    x = (int(seed) * 0x9E3779B1 + int(pass_index) * 0x85EBCA77 + 0x165667B1) & mask
+    x ^= x >> 16
+    x = (x * 0x7FEB352D) & mask
+    x ^= x >> 15
+    x = (x * 0x846CA68B) & mask
+    x ^= x >> 16
+    return x - (1 << 32) if x >= (1 << 31) else x
+
+
+def _is_integral(value) -> bool:
+    try:
+        return not isinstance(value, bool) and float(value).is_integer()
+    except (TypeError, ValueError, OverflowError):
+        return False
+
+
+def _positive_int(value, name: str) -> int:
+    if not _is_integral(value) or int(value) < 1:
+        raise ValueError(f"{name} must be a positive integer, got {value!r}")
+    return int(value)
+
+
+def _int(value, name: str) -> int:
+    if not _is_integral(value):
+        raise ValueError(f"{name} must be an integer, got {value!r}")
+    return int(value)
+
+
+# --- kernels and device functions ---------------------------------------------------------------
+@wp.func
+def uniform(state: wp.uint32):
+    """Advance a PCG state (as ``wp.rand_init`` does); returns ``(u in [0, 1), new state)``.
+
+    Written out rather than calling ``wp.randf`` because a ``wp.func`` receives the state by
+    value: returning the new state makes the stream explicit through helper functions.
+    """
+    b = state * PCG_MULTIPLIER + PCG_INCREMENT
+    c = ((b >> ((b >> wp.uint32(28)) + wp.uint32(4))) ^ b) * PCG_OUTPUT_MULTIPLIER
+    s = (c >> wp.uint32(22)) ^ c
+    return float(s >> wp.uint32(8)) * (1.0 / 16777216.0), s
+
+
+@wp.func
+def free_flight_distance(majorant: float, state: wp.uint32):
+    """Exponential distance with rate ``majorant``; returns ``(t, state)``."""
+    u, state = uniform(state)
+    return -wp.log(1.0 - u) / majorant, state
+
+
+@wp.func
+def delta_tracking(m: Medium, o: wp.vec3, d: wp.vec3, t_start: float, t_end: float,
+                   state: wp.uint32):
+    """Sample a real collision on ``o + t d``, ``t`` in ``(t_start, t_end)``.
+
+    Returns ``(collided, t, scalar value at the collision, state)``.
+    """
+    t = t_start
+    while True:
+        step, state = free_flight_distance(m.majorant, state)
+        t = t + step
+        if t >= t_end:
+            return False, t_end, 0.0, state
+        s = sample_scalar(m.scalars, m.inv_spacing, o + t * d)
+        u, state = uniform(state)
+        if u * m.majorant < lookup_sigma_t(m, s):
+            return True, t, s, state
+    return False, t_end, 0.0, state
+
+
+@wp.func
+def ratio_tracking(m: Medium, o: wp.vec3, d: wp.vec3, t_start: float, t_end: float,
+                   roulette: int, state: wp.uint32):
+    """Transmittance estimate along ``o + t d`` for ``t`` in ``(t_start, t_end)``.
+
+    With ``roulette != 0`` a weight-window Russian roulette ends hopeless estimates early.
+    Returns ``(T, state)``.
+    """
+    T = float(1.0)
+    t = t_start
+    while True:
+        step, state = free_flight_distance(m.majorant, state)
+        t = t + step
+        if t >= t_end:
+            return T, state
+        T = T * wp.max(0.0, 1.0 - sigma_t_at(m, o + t * d) / m.majorant)
+        if roulette != 0 and T < SHADOW_RR_THRESHOLD:
+            u, state = uniform(state)
+            if u * SHADOW_RR_THRESHOLD >= T:
+                return 0.0, state
+            T = SHADOW_RR_THRESHOLD
+    return T, state
+
+
+@wp.func
+def trace_path(m: Medium, lights: Lights, o: wp.vec3, d: wp.vec3, max_bounces: int,
+               state: wp.uint32):
+    """One camera path: returns ``(radiance, primary transmittance, state)``."""
+    radiance = wp.vec3(0.0)
+    box = ray_box(o, d, m.extent)
+    t_start = wp.max(box[0], 0.0)
+    t_end = box[1]
+    if t_end <= t_start:
+        return radiance, 1.0, state
+    T_primary, state = ratio_tracking(m, o, d, t_start, t_end, 0, state)
+
+    throughput = wp.vec3(1.0)
+    x = o
+    for bounce in range(max_bounces):
+        hit, t, s, state = delta_tracking(m, x, d, t_start, t_end, state)
+        if not hit:
+            break
+        x = x + t * d
+        throughput = wp.cw_mul(throughput, m.albedo * lookup_color(m, s))
+        if wp.max(throughput[0], wp.max(throughput[1], throughput[2])) <= 0.0:
+            break
+        # Next-event estimation: light arrives travelling along -wl and leaves towards -d,
+        # so cos(theta) = dot(-wl, -d) = dot(wl, d).
+        for li in range(lights.count):
+            wl, dist, irradiance = light_incidence(lights, li, x)
+            shadow_box = ray_box(x, wl, m.extent)
+            T_light, state = ratio_tracking(m, x, wl, 0.0, wp.min(shadow_box[1], dist), 1, state)
+            if T_light > 0.0:
+                radiance = radiance + (T_light * hg_phase(wp.dot(wl, d), m.g)) * wp.cw_mul(
+                    throughput, irradiance)
+        if bounce + 1 >= max_bounces:
+            break
+        if bounce + 1 >= RR_START:
+            q = wp.min(1.0, wp.max(throughput[0], wp.max(throughput[1], throughput[2])))
+            u, state = uniform(state)
+            if u >= q:
+                break
+            throughput = throughput / q
+        # New path direction d' with pdf p(dot(d, d')): the light scattered towards -d
+        # arrived travelling along -d', and dot(-d', -d) = dot(d, d').
+        u1, state = uniform(state)
+        u2, state = uniform(state)
+        d = sample_hg(d, m.g, u1, u2)
+        t_start = 0.0
+        t_end = ray_box(x, d, m.extent)[1]
+    return radiance, T_primary, state
+
+
+@wp.kernel
+def path_trace_kernel(m: Medium, cam: CameraParams, lights: Lights, seed: int, spp: int,
+                      max_bounces: int, sum_radiance: wp.array2d(dtype=wp.vec3d),
+                      sum_radiance2: wp.array2d(dtype=wp.vec3d),
+                      sum_alpha: wp.array2d(dtype=wp.float64)):
+    """One pass of ``spp`` camera paths per pixel, added to the running sums.
+
+    ``wp.tid()`` is ``(row, col)`` of the image, row 0 at the top. Radiance is in the
+    lights' units (irradiance E, or I / d^2, per steradian through the phase function);
+    ``sum_radiance2`` accumulates the square of the per-pass mean (for the variance).
+    """
+    row, col = wp.tid()
+    state = wp.rand_init(seed, row * cam.width + col)
+    total = wp.vec3(0.0)
+    alpha = float(0.0)
+    for _ in range(spp):
+        jx, state = uniform(state)
+        jy, state = uniform(state)
+        o, d = camera_ray(cam, float(col) + jx, float(row) + jy)
+        radiance, T, state = trace_path(m, lights, o, d, max_bounces, state)
+        total = total + radiance
+        alpha = alpha + (1.0 - T)
+    mean = total / float(spp)
+    md = wp.vec3d(wp.float64(mean[0]), wp.float64(mean[1]), wp.float64(mean[2]))
+    sum_radiance[row, col] = sum_radiance[row, col] + md
+    sum_radiance2[row, col] = sum_radiance2[row, col] + wp.cw_mul(md, md)
+    sum_alpha[row, col] = sum_alpha[row, col] + wp.float64(alpha / float(spp))
