@@ -1,0 +1,37 @@
+"""Device choice: explicit argument, then VTKILLUM_DEVICE, then CUDA when present."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from vtkillum.core.device import available_devices, resolve_device
+from vtkillum.core.warp_common import to_device
+
+
+def test_explicit_cpu_and_auto(monkeypatch):
+    monkeypatch.delenv("VTKILLUM_DEVICE", raising=False)
+    assert resolve_device("cpu") == "cpu"
+    expected = "cuda:0" if "cuda:0" in available_devices() else "cpu"
+    assert resolve_device(None) == expected == resolve_device("auto")
+
+
+def test_environment_variable_overrides_default(monkeypatch):
+    monkeypatch.setenv("VTKILLUM_DEVICE", "cpu")
+    assert resolve_device() == "cpu"
+    monkeypatch.setenv("VTKILLUM_DEVICE", "tpu")
+    with pytest.raises(ValueError, match="VTKILLUM_DEVICE"):
+        resolve_device()
+
+
+def test_unknown_device_names_what_exists():
+    with pytest.raises(ValueError, match="not available"):
+        resolve_device("cuda:7")
+
+
+def test_allocation_failure_says_what_to_do(monkeypatch):
+    def fail(*args, **kwargs):
+        raise RuntimeError("Failed to allocate")
+
+    monkeypatch.setattr(wp, "array", fail)
+    with pytest.raises(MemoryError, match="downsample"):
+        to_device(np.zeros((4, 4, 4), np.float32), wp.float32, "cpu")
