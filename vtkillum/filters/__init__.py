@@ -1,0 +1,18 @@
+"""VTK algorithms of vtkillum: one ``VTKPythonAlgorithmBase`` subclass per module.
+
+Every illumination filter derives from
+:class:`~vtkillum.filters.base.IlluminationFilterBase`, which holds the
+transfer functions, lights, output resolution, device and per-time-step cache;
+a filter implements only ``compute(volume, params) -> {name: array}``.
+"""
+
+from vtkillum.filters.base import IlluminationFilterBase, IlluminationParameters
+from vtkillum.filters.light_transmittance import LightTransmittanceFilter
+from vtkillum.filters.optical_properties import OpticalPropertiesFilter
+
+__all__ = [
+    "IlluminationFilterBase",
+    "IlluminationParameters",
+    "LightTransmittanceFilter",
+    "OpticalPropertiesFilter",
+]

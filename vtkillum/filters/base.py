@@ -1,0 +1,703 @@
+"""The base class of every illumination filter: VTK pipeline glue, parameters and time cache.
+
+A subclass implements one method, :meth:`IlluminationFilterBase.compute`, that
+turns a :class:`~vtkillum.core.volume.Volume` and an
+:class:`IlluminationParameters` into named numpy arrays on the output grid::
+
+    class MyFilter(IlluminationFilterBase):
+        def compute(self, volume, params):
+            phi = my_core_kernel(volume, params.transfer_function, params.unit_distance,
+                                 params.lights, shape=params.output_shape,
+                                 device=params.device, progress=params.progress)
+            return {"fluence": phi}        # (nx', ny', nz'[, c]) indexed [i, j, k]
+
+Everything else -- input checks and conversion, transfer functions, lights,
+output geometry at a chosen resolution, time steps, the per-time-step cache,
+progress and error reporting -- lives here.
+
+Pipeline passes
+---------------
+RequestInformation
+    Checks that the input is image data, passes ``TIME_STEPS``/``TIME_RANGE``
+    through and announces the output grid: the input's whole extent at full
+    resolution, else ``0 .. n' - 1`` covering the same box (same first and last
+    points, origin and direction; spacing ``(n - 1) s / (n' - 1)``).
+RequestUpdateExtent
+    Requests the whole input extent. Looks the request up in the cache (below).
+RequestData
+    Converts the input (:mod:`vtkillum.io.convert`), calls :meth:`compute` and
+    assembles the output, or copies the cached output.
+
+Time cache
+----------
+Outputs are kept per requested time in a :class:`~vtkillum.filters.time_cache.TimeStepCache`
+keyed by ``(time, upstream pipeline MTime, filter MTime)`` and bounded by
+``CacheSizeMB`` (least recently used entries go first). The filter MTime covers
+every property, the input-array selection and -- through observers -- edits of the
+transfer functions. VTK's executive brings the input up to date *before* it
+calls ``RequestData``, so a hit has to be decided earlier: in
+``RequestUpdateExtent`` the filter asks its input for the time step the input
+already holds (its ``DATA_TIME_STEP``), whose extent is also unchanged, so the
+upstream executive finds nothing to do and does not execute; ``RequestData``
+then copies the cached output and stamps it with the cached ``DATA_TIME_STEP``.
+Once either MTime moves on, older entries can never be hit and are dropped.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
+from vtkmodules.vtkCommonCore import vtkOutputWindow, vtkWeakReference
+from vtkmodules.vtkCommonDataModel import (
+    vtkDataObject,
+    vtkDataSetAttributes,
+    vtkImageData,
+    vtkPiecewiseFunction,
+)
+from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
+from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
+
+from vtkillum.core.lights import DirectionalLight, PointLight
+from vtkillum.core.scene import Scene
+from vtkillum.core.transfer_function import TransferFunction
+from vtkillum.filters.time_cache import CacheStatistics, TimeStepCache
+from vtkillum.io.convert import (
+    add_point_array,
+    check_image_data,
+    first_point,
+    image_like,
+    resampled_geometry,
+    transfer_function_from_vtk,
+    volume_from_image_data,
+)
+
+#: Default memory budget of the per-time-step cache.
+DEFAULT_CACHE_MB = 512.0
+
+DEVICES = ("auto", "cpu", "cuda")
+
+
+@dataclass
+class IlluminationParameters:
+    """What :meth:`IlluminationFilterBase.compute` gets besides the volume.
+
+    Attributes
+    ----------
+    transfer_function : TransferFunction
+        From the filter's colour and scalar-opacity functions (default: an opacity
+        ramp 0 .. 0.5 over the data range, white).
+    unit_distance : float
+        Opacity unit distance ``u`` in world units (resolved: 0 means mean spacing).
+    albedo, anisotropy : float
+        Single-scattering albedo Λ and Henyey–Greenstein ``g``.
+    lights : list of DirectionalLight / PointLight
+        World-space lights.
+    device : str
+        Resolved warp device (``"cpu"``, ``"cuda:0"``).
+    output_shape : (int, int, int)
+        Points of the output grid, which covers the volume's box (see
+        :func:`vtkillum.io.convert.image_like`).
+    progress : callable
+        ``progress(fraction)`` with fraction in [0, 1]; forwards to ``UpdateProgress``.
+    """
+
+    transfer_function: TransferFunction
+    unit_distance: float
+    albedo: float
+    anisotropy: float
+    lights: list
+    device: str
+    output_shape: tuple
+    progress: Callable[[float], None] = field(default=lambda fraction: None)
+
+    def scene(self, **fields) -> Scene:
+        """A core :class:`~vtkillum.core.scene.Scene` with these optical parameters.
+
+        ``fields`` set the remaining scene fields (camera, step_size, method options...).
+        """
+        return Scene(transfer_function=self.transfer_function,
+                     opacity_unit_distance=self.unit_distance, albedo=self.albedo,
+                     anisotropy=self.anisotropy, lights=list(self.lights), **fields)
+
+
+class IlluminationFilterBase(VTKPythonAlgorithmBase):
+    """Base of the illumination filters: one ``vtkImageData`` in, one ``vtkImageData`` out.
+
+    Subclassing: call ``super().__init__()``, implement :meth:`compute`, and give
+    each own property a ``SetX`` that validates and calls
+    ``self.set_parameter("_x", value)`` (``Modified()`` only on change) plus a
+    ``GetX``. Set the class attributes :attr:`requires_lights` and
+    :attr:`uses_device` where they differ. See the module docstring for the
+    pipeline passes and the time cache.
+
+    Parameters
+    ----------
+    ColorTransferFunction : vtkColorTransferFunction
+        Scattering colour (RGB in [0, 1]) as a function of the data value. Default white.
+    ScalarOpacity : vtkPiecewiseFunction
+        Opacity per ``ScalarOpacityUnitDistance``. Default: a ramp from 0 to 0.5 over
+        the data range. Edits of either function re-execute the filter.
+    ScalarOpacityUnitDistance : float
+        Opacity unit distance ``u``; 0 (default) means the input's mean spacing.
+    Albedo : float
+        Single-scattering albedo Λ in [0, 1]; default 0.9.
+    Anisotropy : float
+        Henyey–Greenstein ``g`` in (-1, 1); default 0.
+    Lights
+        Set with ``AddDirectionalLight``, ``AddPointLight``, ``SetLight``, ``SetLights``,
+        ``RemoveLight``, ``RemoveAllLights``. Default: one white directional light
+        travelling along (1, -1, -1).
+    Device : str
+        ``"auto"`` (default: CUDA when present, else CPU; ``VTKILLUM_DEVICE``
+        overrides), ``"cpu"``, ``"cuda"`` or ``"cuda:N"``.
+    OutputScale : float
+        Output resolution relative to the input, in (0, 1]; default 1.
+        ``n' = max(2, round(n * OutputScale))`` per axis.
+    OutputDimensions : (int, int, int)
+        Explicit output dimensions (each >= 2); take precedence over ``OutputScale``.
+        (0, 0, 0) (default) means "use OutputScale".
+    InputComponent : int or None
+        Component of a multi-component input array; -1 means the magnitude. Default
+        ``None``: multi-component input is an error that says so.
+    NaNPolicy : str
+        ``"raise"`` (default) or ``"fill"`` (replace NaN/Inf by the smallest finite value).
+    PassInputArrays : bool
+        At full output resolution, also pass the input's point and cell arrays
+        (shared, not copied). Default on.
+    CacheSizeMB : float
+        Memory budget of the per-time-step output cache; 0 disables it. Default 512.
+
+    Notes
+    -----
+    Units: world units are the input image's (spacing, origin). Extinction is
+    ``sigma_t = -ln(1 - alpha) / u`` in 1/world units; directional lights carry an
+    irradiance, point lights an intensity (irradiance ``I / d**2``), both RGB.
+    The input array is chosen with ``SetInputArrayToProcess(0, 0, 0, association,
+    name)``; default the active point scalars. Cell arrays are averaged onto the
+    points (``vtkCellDataToPointData``).
+    """
+
+    #: Whether :meth:`compute` needs at least one light (checked before it runs).
+    requires_lights = True
+    #: Whether :meth:`compute` runs warp kernels; if not, ``Device`` is not resolved (no warp
+    #: import, no error for an absent GPU) and ``params.device`` is ``"cpu"``.
+    uses_device = True
+
+    def __init__(self) -> None:
+        # vtkDataObject as input type so that any other input reaches RequestInformation
+        # and gets an error that says how to resample, not VTK's generic type error.
+        VTKPythonAlgorithmBase.__init__(self, nInputPorts=1, inputType="vtkDataObject",
+                                        nOutputPorts=1, outputType="vtkImageData")
+        self._color_tf = None
+        self._opacity_tf = None
+        self._tf_links: dict = {}  # attribute -> (function, observer tag)
+        self._unit_distance = 0.0
+        self._albedo = 0.9
+        self._anisotropy = 0.0
+        self._lights: list = [DirectionalLight((1.0, -1.0, -1.0))]
+        self._device = "auto"
+        self._output_scale = 1.0
+        self._output_dimensions = (0, 0, 0)
+        self._input_component = None
+        self._nan_policy = "raise"
+        self._pass_input_arrays = True
+        self._cache = TimeStepCache(int(DEFAULT_CACHE_MB * 2**20))
+        self._pending = None  # (key, cached output or None), from RequestUpdateExtent
+        self._last_error: Exception | None = None
+        self.SetInputArrayToProcess(0, 0, 0, vtkDataObject.FIELD_ASSOCIATION_POINTS,
+                                    vtkDataSetAttributes.SCALARS)
+
+    # === what a subclass implements ===========================================================
+    def compute(self, volume, params: IlluminationParameters) -> dict:
+        """Compute the output arrays.
+
+        Parameters
+        ----------
+        volume : vtkillum.core.volume.Volume
+            The input at its own resolution, in world units.
+        params : IlluminationParameters
+            Optical parameters, lights, device, ``output_shape`` and ``progress``.
+
+        Returns
+        -------
+        dict of str -> ndarray
+            Arrays of shape ``output_shape`` or ``output_shape + (components,)``,
+            indexed ``[i, j, k]``. The first becomes the active scalars.
+        """
+        raise NotImplementedError(f"{type(self).__name__} must implement compute(volume, params)")
+
+    # === properties ===========================================================================
+    def set_parameter(self, attribute: str, value) -> bool:
+        """Set ``self.<attribute>`` and call ``Modified()`` only if the value changed.
+
+        Subclasses use it for their own properties. Returns whether it changed.
+        """
+        old = getattr(self, attribute)
+        same = (np.array_equal(np.asarray(old), np.asarray(value))
+                if isinstance(value, (tuple, list, np.ndarray)) else old == value)
+        if same and type(old) is type(value):
+            return False
+        setattr(self, attribute, value)
+        self.Modified()
+        return True
+
+    def SetColorTransferFunction(self, function) -> None:
+        if function is not None and not isinstance(function, vtkColorTransferFunction):
+            raise TypeError("SetColorTransferFunction expects a vtkColorTransferFunction or None")
+        self._observe("_color_tf", function)
+
+    def GetColorTransferFunction(self):
+        return self._color_tf
+
+    def SetScalarOpacity(self, function) -> None:
+        if function is not None and not isinstance(function, vtkPiecewiseFunction):
+            raise TypeError("SetScalarOpacity expects a vtkPiecewiseFunction or None")
+        self._observe("_opacity_tf", function)
+
+    def GetScalarOpacity(self):
+        return self._opacity_tf
+
+    def SetTransferFunction(self, tf: TransferFunction) -> None:
+        """Convenience: set both VTK functions from a core :class:`TransferFunction`."""
+        from vtkillum.io.convert import transfer_function_to_vtk
+
+        color_tf, opacity_tf = transfer_function_to_vtk(tf)
+        self.SetColorTransferFunction(color_tf)
+        self.SetScalarOpacity(opacity_tf)
+
+    def SetScalarOpacityUnitDistance(self, u: float) -> None:
+        u = float(u)
+        if not (np.isfinite(u) and u >= 0):
+            raise ValueError(f"ScalarOpacityUnitDistance must be >= 0 (0: mean spacing), got {u}")
+        self.set_parameter("_unit_distance", u)
+
+    def GetScalarOpacityUnitDistance(self) -> float:
+        return self._unit_distance
+
+    def SetAlbedo(self, albedo: float) -> None:
+        albedo = float(albedo)
+        if not 0.0 <= albedo <= 1.0:
+            raise ValueError(f"Albedo must lie in [0, 1], got {albedo}")
+        self.set_parameter("_albedo", albedo)
+
+    def GetAlbedo(self) -> float:
+        return self._albedo
+
+    def SetAnisotropy(self, g: float) -> None:
+        g = float(g)
+        if not -1.0 < g < 1.0:
+            raise ValueError(f"Anisotropy (Henyey-Greenstein g) must lie in (-1, 1), got {g}")
+        self.set_parameter("_anisotropy", g)
+
+    def GetAnisotropy(self) -> float:
+        return self._anisotropy
+
+    def SetDevice(self, device: str) -> None:
+        d = str(device).lower()
+        if d not in DEVICES and not (d.startswith("cuda:") and d[5:].isdigit()):
+            raise ValueError(f"Device must be one of {DEVICES} or 'cuda:N', got {device!r}")
+        self.set_parameter("_device", d)
+
+    def GetDevice(self) -> str:
+        return self._device
+
+    def SetOutputScale(self, scale: float) -> None:
+        scale = float(scale)
+        if not 0.0 < scale <= 1.0:
+            raise ValueError(f"OutputScale must lie in (0, 1], got {scale}")
+        self.set_parameter("_output_scale", scale)
+
+    def GetOutputScale(self) -> float:
+        return self._output_scale
+
+    def SetOutputDimensions(self, nx, ny=None, nz=None) -> None:
+        dims = tuple(int(n) for n in (nx if ny is None else (nx, ny, nz)))
+        if len(dims) != 3 or not (dims == (0, 0, 0) or min(dims) >= 2):
+            raise ValueError(f"OutputDimensions must be three integers >= 2, or (0, 0, 0) to "
+                             f"use OutputScale; got {dims}")
+        self.set_parameter("_output_dimensions", dims)
+
+    def GetOutputDimensions(self) -> tuple:
+        return self._output_dimensions
+
+    def SetInputComponent(self, component) -> None:
+        if component is not None:
+            component = int(component)
+            if component < -1:
+                raise ValueError("InputComponent must be an index >= 0, -1 (magnitude) or None")
+        self.set_parameter("_input_component", component)
+
+    def GetInputComponent(self):
+        return self._input_component
+
+    def SetNaNPolicy(self, policy: str) -> None:
+        if policy not in ("raise", "fill"):
+            raise ValueError(f"NaNPolicy must be 'raise' or 'fill', got {policy!r}")
+        self.set_parameter("_nan_policy", policy)
+
+    def GetNaNPolicy(self) -> str:
+        return self._nan_policy
+
+    def SetPassInputArrays(self, on: bool) -> None:
+        self.set_parameter("_pass_input_arrays", bool(on))
+
+    def GetPassInputArrays(self) -> bool:
+        return self._pass_input_arrays
+
+    def SetCacheSizeMB(self, megabytes: float) -> None:
+        """Memory budget of the time cache; shrinking evicts at once. Does not re-execute."""
+        megabytes = float(megabytes)
+        if not (np.isfinite(megabytes) and megabytes >= 0):
+            raise ValueError(f"CacheSizeMB must be >= 0, got {megabytes}")
+        self._cache.max_bytes = int(megabytes * 2**20)
+
+    def GetCacheSizeMB(self) -> float:
+        return self._cache.max_bytes / 2**20
+
+    def GetCacheStatistics(self) -> CacheStatistics:
+        """Hits, misses, evictions, invalidations, entries and bytes of the time cache."""
+        return self._cache.statistics()
+
+    def ClearCache(self) -> None:
+        self._cache.clear()
+
+    # --- lights ---------------------------------------------------------------------------------
+    def AddDirectionalLight(self, direction, irradiance=(1.0, 1.0, 1.0)) -> int:
+        """Add a light travelling along ``direction`` (world space); returns its index."""
+        return self._add_light(DirectionalLight(direction, irradiance))
+
+    def AddPointLight(self, position, intensity=(1.0, 1.0, 1.0)) -> int:
+        """Add a point light at ``position`` (world space); returns its index."""
+        return self._add_light(PointLight(position, intensity))
+
+    def SetLight(self, index: int, kind: str, vector, rgb=(1.0, 1.0, 1.0)) -> None:
+        """Replace light ``index``: ``kind`` "directional" (vector = travel direction,
+        rgb = irradiance) or "point" (vector = position, rgb = intensity)."""
+        self._check_light_index(index)
+        light = _make_light(kind, vector, rgb)
+        if light.to_dict() != self._lights[index].to_dict():
+            self._lights[index] = light
+            self.Modified()
+
+    def SetLights(self, lights) -> None:
+        """Replace all lights by core ``DirectionalLight``/``PointLight`` objects."""
+        lights = list(lights)
+        for light in lights:
+            if not isinstance(light, (DirectionalLight, PointLight)):
+                raise TypeError(f"expected DirectionalLight or PointLight, got {type(light).__name__}")
+        if [l.to_dict() for l in lights] != [l.to_dict() for l in self._lights]:
+            self._lights = lights
+            self.Modified()
+
+    def GetLight(self, index: int):
+        self._check_light_index(index)
+        return self._lights[index]
+
+    def GetLights(self) -> list:
+        return list(self._lights)
+
+    def GetNumberOfLights(self) -> int:
+        return len(self._lights)
+
+    def RemoveLight(self, index: int) -> None:
+        self._check_light_index(index)
+        del self._lights[index]
+        self.Modified()
+
+    def RemoveAllLights(self) -> None:
+        if self._lights:
+            self._lights = []
+            self.Modified()
+
+    def _add_light(self, light) -> int:
+        self._lights.append(light)
+        self.Modified()
+        return len(self._lights) - 1
+
+    def _check_light_index(self, index: int) -> None:
+        if not 0 <= int(index) < len(self._lights):
+            raise IndexError(f"light index {index} out of range; the filter has "
+                             f"{len(self._lights)} light(s)")
+
+    # === Python convenience ======================================================================
+    def SetInputData(self, data) -> None:
+        """Use ``data`` (a vtkImageData or pyvista.ImageData) as input, like vtkImageAlgorithm."""
+        self.SetInputDataObject(0, data)
+
+    def execute(self, data=None, time: float | None = None):
+        """Update (at ``time``) and return the output; raise the error if the update failed.
+
+        Parameters
+        ----------
+        data : vtkDataObject, optional
+            Set as input data first (``SetInputDataObject``).
+        time : float, optional
+            Time to request (``UpdateTimeStep``).
+        """
+        if data is not None:
+            self.SetInputData(data)
+        if self.GetNumberOfInputConnections(0) == 0:
+            raise ValueError(f"{type(self).__name__} has no input; pass data or connect one")
+        self._last_error = None
+        ok = self.Update() if time is None else self.UpdateTimeStep(float(time))
+        if self._last_error is not None:
+            raise self._last_error
+        if not ok:
+            raise RuntimeError(f"{type(self).__name__}: the pipeline update failed (see VTK errors)")
+        return self.GetOutputDataObject(0)
+
+    def GetLastError(self) -> str | None:
+        """Message of the error of the last failed execution, or ``None``."""
+        return None if self._last_error is None else str(self._last_error)
+
+    # === pipeline =============================================================================
+    def RequestInformation(self, request, inInfo, outInfo):
+        in_info = inInfo[0].GetInformationObject(0)
+        out_info = outInfo.GetInformationObject(0)
+        try:
+            self._last_error = None
+            check_image_data(in_info.Get(vtkDataObject.DATA_OBJECT()))
+            whole = in_info.Get(SDDP.WHOLE_EXTENT())
+            spacing = in_info.Get(vtkDataObject.SPACING()) or (1.0, 1.0, 1.0)
+            origin = in_info.Get(vtkDataObject.ORIGIN()) or (0.0, 0.0, 0.0)
+            direction = (in_info.Get(vtkDataObject.DIRECTION())
+                         if in_info.Has(vtkDataObject.DIRECTION()) else np.eye(3).reshape(-1))
+            extent, origin, spacing = self._output_grid(whole, origin, spacing, direction)
+            out_info.Set(SDDP.WHOLE_EXTENT(), extent, 6)
+            out_info.Set(vtkDataObject.ORIGIN(), origin, 3)
+            out_info.Set(vtkDataObject.SPACING(), spacing, 3)
+            out_info.Set(vtkDataObject.DIRECTION(), tuple(float(v) for v in direction), 9)
+            for key in (SDDP.TIME_STEPS(), SDDP.TIME_RANGE()):
+                if in_info.Has(key):
+                    out_info.CopyEntry(in_info, key)
+                else:
+                    out_info.Remove(key)
+            # The output's arrays are not the input's: drop the copied scalar metadata.
+            out_info.Remove(vtkDataObject.POINT_DATA_VECTOR())
+            return 1
+        except Exception as err:  # reported through VTK, see _report
+            self._report(err)
+            return 0
+
+    def RequestUpdateExtent(self, request, inInfo, outInfo):
+        in_info = inInfo[0].GetInformationObject(0)
+        out_info = outInfo.GetInformationObject(0)
+        if in_info.Has(SDDP.WHOLE_EXTENT()):
+            in_info.Set(SDDP.UPDATE_EXTENT(), in_info.Get(SDDP.WHOLE_EXTENT()), 6)
+        self._pending = None
+        if self._cache.max_bytes == 0:
+            return 1
+        key = self._cache_key(out_info)
+        self._cache.keep_only(lambda k: k[1:] == key[1:])
+        cached = self._cache.lookup(key)
+        self._pending = (key, cached)
+        if cached is not None:
+            self._request_current_input(in_info)
+        return 1
+
+    def RequestData(self, request, inInfo, outInfo):
+        out_info = outInfo.GetInformationObject(0)
+        output = vtkImageData.GetData(out_info)
+        key, cached = self._pending if self._pending is not None else (None, None)
+        self._pending = None
+        try:
+            self._last_error = None
+            if cached is None:
+                image = inInfo[0].GetInformationObject(0).Get(vtkDataObject.DATA_OBJECT())
+                cached = self._execute(image, out_info)
+                if key is not None:
+                    self._cache.store(key, cached, cached.GetActualMemorySize() * 1024)
+            output.ShallowCopy(cached)
+            info = cached.GetInformation()
+            if info.Has(vtkDataObject.DATA_TIME_STEP()):
+                output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(),
+                                            info.Get(vtkDataObject.DATA_TIME_STEP()))
+            self.UpdateProgress(1.0)
+            return 1
+        except Exception as err:  # reported through VTK, see _report
+            output.Initialize()
+            self._report(err)
+            return 0
+
+    # === internals ==============================================================================
+    def _execute(self, image, out_info) -> vtkImageData:
+        """Convert, compute and assemble one output (a new vtkImageData)."""
+        check_image_data(image)
+        self.UpdateProgress(0.0)
+        name, association = self._selected_array(image)
+        component = self._input_component
+        if component == -1:
+            component = "magnitude"
+        volume = volume_from_image_data(image, name, component, self._nan_policy, association)
+        if self.requires_lights and not self._lights:
+            raise ValueError(f"{type(self).__name__} has no lights; add one with "
+                             "AddDirectionalLight(direction, irradiance) or AddPointLight(...)")
+        shape = self._output_shape(volume.dims)
+        params = IlluminationParameters(
+            transfer_function=self._transfer_function(volume),
+            unit_distance=self._unit_distance or volume.mean_spacing(),
+            albedo=self._albedo, anisotropy=self._anisotropy, lights=list(self._lights),
+            device=self._resolved_device(), output_shape=shape,
+            progress=lambda fraction: self.UpdateProgress(float(np.clip(fraction, 0.0, 1.0))),
+        )
+        arrays = self.compute(volume, params)
+        if not isinstance(arrays, dict) or not arrays:
+            raise TypeError(f"{type(self).__name__}.compute must return a non-empty dict of arrays")
+
+        same = shape == volume.dims
+        output = image_like(image) if same else image_like(volume, shape)
+        if same and self._pass_input_arrays:
+            for source, target in ((image.GetPointData(), output.GetPointData()),
+                                   (image.GetCellData(), output.GetCellData())):
+                for i in range(source.GetNumberOfArrays()):
+                    target.AddArray(source.GetAbstractArray(i))
+        for index, (array_name, values) in enumerate(arrays.items()):
+            values = np.asarray(values)
+            if values.dtype.kind == "f":
+                values = values.astype(np.float32, copy=False)
+            if values.shape[:3] != shape:
+                raise ValueError(f"{type(self).__name__}.compute returned {array_name!r} with shape "
+                                 f"{values.shape}; expected {shape} (+ components)")
+            add_point_array(output, array_name, values, set_active=index == 0)
+        time = self._input_time(image, out_info)
+        if time is not None:
+            output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), time)
+        return output
+
+    def _resolved_device(self) -> str:
+        if not self.uses_device:
+            return "cpu"
+        from vtkillum.core.device import resolve_device  # imports warp: only when needed
+
+        return resolve_device(self._device)
+
+    def _transfer_function(self, volume) -> TransferFunction:
+        if self._opacity_tf is not None and self._opacity_tf.GetSize() > 0:
+            return transfer_function_from_vtk(self._color_tf, self._opacity_tf)
+        lo, hi = volume.value_range
+        ramp = TransferFunction.ramp(lo, hi if hi > lo else lo + 1.0, 0.5)
+        if self._color_tf is None or self._color_tf.GetSize() == 0:
+            return ramp
+        from vtkillum.io.convert import transfer_function_to_vtk
+
+        return transfer_function_from_vtk(self._color_tf, transfer_function_to_vtk(ramp)[1])
+
+    def _selected_array(self, image):
+        """(name or None for the default choice, association) of the input array to process."""
+        info = self.GetInputArrayInformation(0)
+        association = {vtkDataObject.FIELD_ASSOCIATION_POINTS: "points",
+                       vtkDataObject.FIELD_ASSOCIATION_CELLS: "cells"}.get(
+            info.Get(vtkDataObject.FIELD_ASSOCIATION()), None)
+        if info.Has(vtkDataObject.FIELD_NAME()):
+            return info.Get(vtkDataObject.FIELD_NAME()), association
+        # An attribute (e.g. SCALARS): the active array of that association, if any.
+        data = image.GetCellData() if association == "cells" else image.GetPointData()
+        active = data.GetAttribute(info.Get(vtkDataObject.FIELD_ATTRIBUTE_TYPE()))
+        if active is not None and association == "cells":
+            return active.GetName(), association
+        return None, None  # active point scalars, else the documented fallbacks
+
+    def _output_shape(self, dims) -> tuple:
+        if self._output_dimensions != (0, 0, 0):
+            return tuple(self._output_dimensions)
+        if self._output_scale == 1.0:
+            return tuple(int(n) for n in dims)
+        return tuple(max(2, int(round(n * self._output_scale))) for n in dims)
+
+    def _output_grid(self, whole, origin, spacing, direction):
+        """Output (whole extent, origin, spacing) for an input grid, as the data will have."""
+        dims = np.array(whole[1::2]) - np.array(whole[0::2]) + 1
+        if np.any(dims < 1):
+            raise ValueError(f"the input image is empty (whole extent {tuple(whole)}); update "
+                             "the algorithm that produces it or check the reader's file name")
+        shape = self._output_shape(dims)
+        if shape == tuple(int(n) for n in dims):
+            return tuple(whole), tuple(origin), tuple(spacing)
+        if np.any(dims < 2):
+            raise ValueError(f"input dimensions {tuple(dims)}: at least 2 points per axis are "
+                             "needed for a volume")
+        d = np.asarray(direction, dtype=np.float64).reshape(3, 3)
+        start = first_point(origin, whole, spacing, d)
+        new_spacing = resampled_geometry(dims, spacing, shape)
+        extent = (0, shape[0] - 1, 0, shape[1] - 1, 0, shape[2] - 1)
+        return extent, tuple(float(v) for v in start), tuple(float(v) for v in new_spacing)
+
+    def _cache_key(self, out_info) -> tuple:
+        # Without TIME_RANGE the input is static: every requested time gives the same output.
+        temporal = out_info.Has(SDDP.UPDATE_TIME_STEP()) and out_info.Has(SDDP.TIME_RANGE())
+        time = out_info.Get(SDDP.UPDATE_TIME_STEP()) if temporal else None
+        upstream = self.GetInputAlgorithm(0, 0).GetExecutive().GetPipelineMTime() \
+            if self.GetNumberOfInputConnections(0) else 0
+        return (time, upstream, self.GetMTime())
+
+    @staticmethod
+    def _request_current_input(in_info) -> None:
+        """Ask the input for the time step it already holds, so that it does not execute."""
+        if not in_info.Has(SDDP.UPDATE_TIME_STEP()):
+            return
+        data = in_info.Get(vtkDataObject.DATA_OBJECT())
+        if data is not None and data.GetInformation().Has(vtkDataObject.DATA_TIME_STEP()):
+            in_info.Set(SDDP.UPDATE_TIME_STEP(),
+                        data.GetInformation().Get(vtkDataObject.DATA_TIME_STEP()))
+        else:
+            in_info.Remove(SDDP.UPDATE_TIME_STEP())
+
+    @staticmethod
+    def _input_time(image, out_info):
+        info = image.GetInformation()
+        if info.Has(vtkDataObject.DATA_TIME_STEP()):
+            return info.Get(vtkDataObject.DATA_TIME_STEP())
+        if out_info.Has(SDDP.UPDATE_TIME_STEP()):
+            return out_info.Get(SDDP.UPDATE_TIME_STEP())
+        return None
+
+    def _observe(self, attribute: str, function) -> None:
+        """Hold a transfer function and re-execute (Modified) whenever it is edited.
+
+        The observer holds only a vtkWeakReference to the filter, so the function does
+        not keep the filter alive (no reference cycle through the observer). It is
+        removed when the function is replaced, or at the function's first edit after
+        the filter is gone.
+        """
+        old = getattr(self, attribute)
+        if old is function:
+            return
+        link = self._tf_links.pop(attribute, None)
+        if link is not None:
+            link[0].RemoveObserver(link[1])
+        setattr(self, attribute, function)
+        if function is not None:
+            ref = vtkWeakReference()
+            ref.Set(self)
+            tag = []
+
+            def modified(caller, event, ref=ref, tag=tag):
+                target = ref.Get()
+                if target is not None:
+                    target.Modified()
+                elif tag:
+                    caller.RemoveObserver(tag.pop())
+
+            tag.append(function.AddObserver("ModifiedEvent", modified))
+            self._tf_links[attribute] = (function, tag[0])
+        self.Modified()
+
+    def _report(self, err: Exception) -> None:
+        """Record ``err`` and show it the VTK way (ErrorEvent observers or the output window)."""
+        self._last_error = err
+        message = f"{type(self).__name__}: {err}"
+        if self.HasObserver("ErrorEvent"):
+            self.InvokeEvent("ErrorEvent", message)
+        else:
+            vtkOutputWindow.GetInstance().DisplayErrorText(message + "\n")
+
+
+def _make_light(kind: str, vector, rgb):
+    if kind == "directional":
+        return DirectionalLight(vector, rgb)
+    if kind == "point":
+        return PointLight(vector, rgb)
+    raise ValueError(f"light kind must be 'directional' or 'point', got {kind!r}")
