@@ -76,8 +76,8 @@ def test_point_light_inverse_square_in_empty_space(device):
     T, phi = light_transmittance(volume, tf, 1.0, [outside, inside], device=device)
     np.testing.assert_allclose(T, 1.0, atol=1e-6)
     x = grid_points(volume, volume.dims)
-    expected = sum(l.intensity / np.sum((x - l.position) ** 2, -1)[..., None]
-                   for l in (outside, inside))
+    expected = sum(light.intensity / np.sum((x - light.position) ** 2, -1)[..., None]
+                   for light in (outside, inside))
     np.testing.assert_allclose(phi, expected, rtol=1e-4)
 
 

@@ -193,7 +193,8 @@ def test_parameters_reach_compute(make_image):
     volume, params = f.calls[-1]
     assert params.unit_distance == pytest.approx(0.4)  # 0: mean spacing
     assert (params.albedo, params.anisotropy, params.device) == (0.6, -0.2, "cpu")
-    assert isinstance(params.lights[0], DirectionalLight) and isinstance(params.lights[1], PointLight)
+    assert isinstance(params.lights[0], DirectionalLight)
+    assert isinstance(params.lights[1], PointLight)
     np.testing.assert_allclose(params.lights[0].direction, (0, 0, -1))
     # No transfer function set: an opacity ramp 0 .. 0.5 over the data range, white.
     lo, hi = volume.value_range
@@ -215,7 +216,7 @@ def test_progress_is_reported(make_image):
     assert 0.5 in seen and seen[-1] == 1.0
 
 
-# --- time steps and the cache ----------------------------------------------------------------------
+# --- time steps and the cache -------------------------------------------------------------------
 def test_time_steps_pass_through(time_source):
     f = Recorder()
     f.SetInputConnection(time_source.GetOutputPort())
@@ -301,7 +302,7 @@ def test_static_input_is_computed_once_for_any_time(make_image):
     assert len(f.calls) == 1
 
 
-# --- input handling --------------------------------------------------------------------------------
+# --- input handling -----------------------------------------------------------------------------
 def test_non_image_input_is_told_to_resample():
     f = Recorder()
     with pytest.raises(TypeError, match="vtkResampleToImage"):

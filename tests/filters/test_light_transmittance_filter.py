@@ -35,7 +35,8 @@ def test_arrays_and_beer_lambert_in_world_space(make_image):
     f.AddDirectionalLight((0, -1, 0), (1.0, 2.0, 3.0))
     f.AddPointLight((0, 0, 0), (1.0, 1.0, 1.0))
     out = f.execute(img)
-    names = [out.GetPointData().GetArrayName(i) for i in range(out.GetPointData().GetNumberOfArrays())]
+    pd = out.GetPointData()
+    names = [pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())]
     assert names == ["density", "fluence", "transmittance_0", "transmittance_1"]
     assert out.GetPointData().GetScalars().GetName() == "fluence"
     T0 = point_array(out, "transmittance_0")

@@ -135,12 +135,12 @@ def transmittance_kernel(medium: Medium, lights: Lights, first_light: int, grid_
                          step_size: float, out: wp.array4d(dtype=wp.float32)):
     """Shadow ray from one light-grid point towards one light.
 
-    ``wp.tid()`` = ``(l, i, j, k)``: light ``first_light + l``, grid point ``[i, j, k]``
+    ``wp.tid()`` = ``(o, i, j, k)``: light ``first_light + o``, grid point ``[i, j, k]``
     (x, y, z) at local position ``(i, j, k) * grid_spacing`` (world units).
-    Writes the transmittance (unitless) to ``out[first_light + l, i, j, k]``.
+    Writes the transmittance (unitless) to ``out[first_light + o, i, j, k]``.
     """
-    l, i, j, k = wp.tid()
-    li = first_light + l
+    offset, i, j, k = wp.tid()
+    li = first_light + offset
     p = grid_point(i, j, k, grid_spacing)
     w, dist, _irradiance = light_incidence(lights, li, p)
     t = ray_box(p, w, medium.extent)

@@ -387,8 +387,9 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         lights = list(lights)
         for light in lights:
             if not isinstance(light, (DirectionalLight, PointLight)):
-                raise TypeError(f"expected DirectionalLight or PointLight, got {type(light).__name__}")
-        if [l.to_dict() for l in lights] != [l.to_dict() for l in self._lights]:
+                raise TypeError("expected DirectionalLight or PointLight, got "
+                                f"{type(light).__name__}")
+        if [x.to_dict() for x in lights] != [x.to_dict() for x in self._lights]:
             self._lights = lights
             self.Modified()
 
@@ -442,12 +443,18 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         if self.GetNumberOfInputConnections(0) == 0:
             raise ValueError(f"{type(self).__name__} has no input; pass data or connect one")
         self._last_error = None
-        ok = self.Update() if time is None else self.UpdateTimeStep(float(time))
+        # Update()'s return value differs between VTK versions (void in 9.2): check the output.
+        if time is None:
+            self.Update()
+        else:
+            self.UpdateTimeStep(float(time))
         if self._last_error is not None:
             raise self._last_error
-        if not ok:
-            raise RuntimeError(f"{type(self).__name__}: the pipeline update failed (see VTK errors)")
-        return self.GetOutputDataObject(0)
+        output = self.GetOutputDataObject(0)
+        if output is None or output.GetNumberOfPoints() == 0:
+            raise RuntimeError(f"{type(self).__name__}: the pipeline update failed "
+                               "(see VTK errors)")
+        return output
 
     def GetLastError(self) -> str | None:
         """Message of the error of the last failed execution, or ``None``."""
@@ -559,8 +566,8 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             if values.dtype.kind == "f":
                 values = values.astype(np.float32, copy=False)
             if values.shape[:3] != shape:
-                raise ValueError(f"{type(self).__name__}.compute returned {array_name!r} with shape "
-                                 f"{values.shape}; expected {shape} (+ components)")
+                raise ValueError(f"{type(self).__name__}.compute returned {array_name!r} with "
+                                 f"shape {values.shape}; expected {shape} (+ components)")
             add_point_array(output, array_name, values, set_active=index == 0)
         time = self._input_time(image, out_info)
         if time is not None:

@@ -62,5 +62,5 @@ class LightTransmittanceFilter(IlluminationFilterBase):
             shape=params.output_shape, step_size=self._step_size or None,
             device=params.device, progress=params.progress)
         arrays = {"fluence": fluence}
-        arrays.update({f"transmittance_{l}": t for l, t in enumerate(transmittance)})
+        arrays.update({f"transmittance_{i}": t for i, t in enumerate(transmittance)})
         return arrays
