@@ -1,0 +1,28 @@
+"""Turning data and illumination into pixels inside VTK windows.
+
+* :class:`IlluminatedVolume` -- OpenGL path: a ``vtkVolume`` whose GPU ray caster
+  is shaded by an illumination volume (interactive windows, pyvista ``add_actor``).
+* :class:`ComputeVolumeRenderer` -- compute path: any registered warp method
+  (``emission``, ``single``, ``illumination``, progressive ``path``, ...) shown in a
+  VTK renderer.
+* :mod:`~vtkillum.mappers.camera_bridge` -- cameras and scenes between VTK and the core.
+"""
+
+from vtkillum.mappers.camera_bridge import (
+    apply_camera_to_vtk,
+    apply_scene_to_volume_property,
+    camera_from_vtk,
+    scene_from_vtk,
+)
+from vtkillum.mappers.compute_mapper import ComputeVolumeRenderer
+from vtkillum.mappers.illuminated_volume_mapper import IlluminatedVolume, ScalarFluenceImage
+
+__all__ = [
+    "ComputeVolumeRenderer",
+    "IlluminatedVolume",
+    "ScalarFluenceImage",
+    "apply_camera_to_vtk",
+    "apply_scene_to_volume_property",
+    "camera_from_vtk",
+    "scene_from_vtk",
+]

@@ -1,0 +1,341 @@
+"""The warp renderers shown in a VTK window: the compute path.
+
+:class:`ComputeVolumeRenderer` renders a volume with any method registered in
+:data:`vtkillum.core.render.METHODS` (``emission``, ``single``, ``illumination``
+with an illumination volume, ``path``, and whatever registers later, e.g. methods
+that gather per sample) at the size and camera of a ``vtkRenderer``, and shows the
+tone-mapped image as that renderer's textured background. It re-renders when
+the camera or the viewport size changes (checked in the renderer's
+``StartEvent``, so the new image is in the same frame). The ``path`` method is
+progressive: each camera change restarts a :class:`~vtkillum.core.pathtrace.PathTracer`
+with one pass, and :meth:`ComputeVolumeRenderer.refine` -- called by hand or by a
+repeating interactor timer (:meth:`ComputeVolumeRenderer.start_refinement`) while the
+camera rests -- adds passes up to ``spp``.
+
+Display: ``tonemap(exposure * radiance, alpha, background, gamma=gamma)`` with the
+renderer's background colour, ``gamma = 1`` by default (linear, like VTK's own
+ray caster writes its frame buffer). Other props of the renderer are drawn over
+the image; they are not depth-composited with the volume.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+from vtkmodules.util.numpy_support import numpy_to_vtk
+from vtkmodules.vtkCommonCore import vtkCommand, vtkWeakReference
+from vtkmodules.vtkCommonDataModel import vtkImageData
+from vtkmodules.vtkRenderingCore import vtkRenderer, vtkTexture
+
+from vtkillum.core.device import resolve_device
+from vtkillum.core.illumination import IlluminationVolume
+from vtkillum.core.render import METHODS, RenderResult, render
+from vtkillum.core.scene import Scene
+from vtkillum.core.tonemap import tonemap
+from vtkillum.core.volume import Volume
+from vtkillum.io.convert import point_array, volume_from_image_data
+from vtkillum.mappers.camera_bridge import camera_from_vtk
+
+#: The method rendered progressively.
+PROGRESSIVE = "path"
+
+
+class ComputeVolumeRenderer:
+    """Show a warp rendering of ``volume`` in ``renderer``, following its camera.
+
+    Parameters
+    ----------
+    renderer : vtkRenderer
+        Also ``pyvista.Plotter.renderer``. Its background becomes the rendered image.
+    volume : Volume or vtkImageData
+        The data (image data is converted with ``array_name``).
+    scene : Scene, optional
+        Optical model, lights, shading and method options; its camera is ignored (the
+        renderer's is used). Default ``Scene()``.
+    method : str
+        A registered method name (see :data:`vtkillum.core.render.METHODS`).
+    illumination : IlluminationVolume, ndarray or vtkImageData, optional
+        The fluence for ``method="illumination"`` (image data: its ``fluence`` point array).
+    device : str, optional
+        Warp device.
+    exposure, gamma : float
+        Tone map of the display (see the module docstring).
+    resolution_scale : float
+        Render at this fraction of the viewport size (in (0, 1]); the texture is then
+        interpolated up. Useful for the slower methods on a CPU.
+    array_name : str, optional
+        Point array of image data to render.
+    **options
+        Method options (e.g. ``step_size``, ``jitter`` for the ray casters; ``spp``,
+        ``max_bounces``, ``seed`` for ``path``, where ``spp`` is the number of passes
+        refinement stops at; default ``scene.options["path"]``).
+
+    Notes
+    -----
+    The renderer's observer keeps this object alive (no need to hold a reference);
+    this object refers to the renderer and the interactor only weakly, so nothing
+    leaks when the window goes away. :meth:`detach` stops it.
+    """
+
+    def __init__(self, renderer: vtkRenderer, volume, scene: Scene | None = None,
+                 method: str = "emission", illumination=None, device: str | None = None,
+                 exposure: float = 1.0, gamma: float = 1.0, resolution_scale: float = 1.0,
+                 array_name: str | None = None, **options) -> None:
+        if not isinstance(renderer, vtkRenderer):
+            raise TypeError(f"renderer must be a vtkRenderer, got {type(renderer).__name__}")
+        self._renderer = vtkWeakReference()
+        self._renderer.Set(renderer)
+        self.device = resolve_device(device)
+        self.volume = _as_volume(volume, array_name)
+        self.scene = scene if scene is not None else Scene()
+        if not isinstance(self.scene, Scene):
+            raise TypeError(f"scene must be a vtkillum Scene, got {type(self.scene).__name__}")
+        self.exposure = _positive(exposure, "exposure")
+        self.gamma = _positive(gamma, "gamma")
+        self.resolution_scale = float(resolution_scale)
+        if not 0.0 < self.resolution_scale <= 1.0:
+            raise ValueError(f"resolution_scale must lie in (0, 1], got {resolution_scale}")
+        self.illumination = None
+        self.set_illumination(illumination)
+        self.method = None
+        self.options: dict = {}
+        self.set_method(method, **options)
+        self.result: RenderResult | None = None
+        self._tracer = None
+        self._key = None  # (camera state, width, height) of the image shown
+        self._timer = None  # (weak interactor, timer id, observer tag)
+
+        self._image = vtkImageData()
+        self.texture = vtkTexture()
+        self.texture.SetInputData(self._image)
+        self.texture.SetColorModeToDirectScalars()
+        self.texture.SetInterpolate(self.resolution_scale < 1.0)
+        self._saved_background = (renderer.GetTexturedBackground(), renderer.GetBackgroundTexture())
+        renderer.SetBackgroundTexture(self.texture)
+        renderer.TexturedBackgroundOn()
+        # The observer holds this object; it holds the renderer weakly (no reference cycle).
+        self._start_tag = renderer.AddObserver(vtkCommand.StartEvent,
+                                               lambda caller, event: self.update())
+
+    @property
+    def renderer(self) -> vtkRenderer:
+        """The renderer drawn into (``ValueError`` once it has been deleted)."""
+        renderer = self._renderer.Get()
+        if renderer is None:
+            raise ValueError("the renderer of this ComputeVolumeRenderer has been deleted")
+        return renderer
+
+    # --- configuration --------------------------------------------------------------------------
+    def set_method(self, method: str, **options) -> None:
+        """Switch to a registered method with its options; the next render redraws."""
+        if method not in METHODS:
+            raise ValueError(f"unknown method {method!r}; choose one of {sorted(METHODS)}")
+        if method == "illumination" and self.illumination is None:
+            raise ValueError(
+                "method 'illumination' needs an illumination volume: pass illumination=... "
+                "(an IlluminationVolume or an illumination filter's output image)"
+            )
+        self.method = method
+        self.options = dict(options)
+        self.invalidate()
+
+    def set_scene(self, scene: Scene) -> None:
+        """Use a new scene (optical model, lights, options); the next render redraws."""
+        if not isinstance(scene, Scene):
+            raise TypeError(f"scene must be a vtkillum Scene, got {type(scene).__name__}")
+        self.scene = scene
+        self.invalidate()
+
+    def set_illumination(self, illumination) -> None:
+        """The fluence for ``illumination``: IlluminationVolume, array or image data."""
+        if illumination is None:
+            self.illumination = None
+        elif isinstance(illumination, IlluminationVolume):
+            illumination.check_matches(self.volume)
+            self.illumination = illumination
+        elif isinstance(illumination, np.ndarray):
+            self.illumination = IlluminationVolume.for_volume(self.volume, illumination)
+        elif isinstance(illumination, vtkImageData):
+            fluence = point_array(illumination, "fluence")
+            if fluence.ndim == 3:
+                fluence = np.repeat(fluence[..., None], 3, axis=-1)
+            self.illumination = IlluminationVolume.for_volume(self.volume, fluence)
+        else:
+            raise TypeError(
+                "illumination must be an IlluminationVolume, an (nx, ny, nz, 3) array or image "
+                f"data with a 'fluence' point array, got {type(illumination).__name__}"
+            )
+        self.invalidate()
+
+    def invalidate(self) -> None:
+        """Forget the image shown: the next render of the renderer recomputes it."""
+        self._key = None
+        self._tracer = None
+
+    def detach(self) -> None:
+        """Stop drawing: remove the observers and restore the renderer's background."""
+        self.stop_refinement()
+        renderer = self._renderer.Get()
+        if renderer is None:
+            return
+        if self._start_tag is not None:
+            renderer.RemoveObserver(self._start_tag)
+            self._start_tag = None
+        textured, texture = self._saved_background
+        renderer.SetBackgroundTexture(texture)
+        renderer.SetTexturedBackground(textured)
+
+    # --- rendering --------------------------------------------------------------------------
+    def viewport_size(self) -> tuple[int, int]:
+        """Image size ``(width, height)``: the renderer's size times ``resolution_scale``."""
+        w, h = self.renderer.GetSize()
+        s = self.resolution_scale
+        return max(1, int(round(w * s))), max(1, int(round(h * s)))
+
+    def update(self) -> bool:
+        """Re-render if the camera, the viewport size or the configuration changed.
+
+        Returns True when a new image was computed. Called from the renderer's
+        ``StartEvent``; call it by hand to render without a window render.
+        """
+        w, h = self.renderer.GetSize()
+        if w < 1 or h < 1:
+            return False
+        width, height = self.viewport_size()
+        camera = camera_from_vtk(self.renderer.GetActiveCamera(), aspect=width / height)
+        key = (_camera_state(camera), width, height)
+        if key == self._key:
+            return False
+        scene = copy.copy(self.scene)
+        scene.camera = camera
+        if self.method == PROGRESSIVE:
+            if self._tracer is None or (self._tracer.width, self._tracer.height) != (width, height):
+                from vtkillum.core.pathtrace import PathTracer
+
+                path = {**scene.options["path"], **self.options}
+                self._tracer = PathTracer(self.volume, scene, width, height, device=self.device,
+                                          seed=int(path["seed"]),
+                                          max_bounces=int(path["max_bounces"]))
+            else:
+                self._tracer.reset(camera)
+            self._tracer.run(1)
+            self.result = self._tracer.result()
+        else:
+            options = dict(self.options)
+            if self.method == "illumination":
+                options["illumination"] = self.illumination
+            self.result = render(self.volume, scene, self.method, width, height, self.device,
+                                 **options)
+        self._key = key
+        self._show(self.result)
+        return True
+
+    def refine(self, passes: int = 1) -> int:
+        """Add ``passes`` path-tracing passes (``path`` only) and show the new mean.
+
+        Stops at ``spp`` passes. Returns the number of passes accumulated. Does not
+        render the window: call ``render_window.Render()`` to see the result.
+        """
+        if self.method != PROGRESSIVE:
+            raise ValueError(f"refine() is for the progressive 'path' method, not {self.method!r}")
+        if self._tracer is None:
+            self.update()
+            if self._tracer is None:
+                return 0
+        limit = int({**self.scene.options["path"], **self.options}["spp"])
+        passes = min(int(passes), limit - self._tracer.passes)
+        if passes > 0:
+            self._tracer.run(passes)
+            self.result = self._tracer.result()
+            self._show(self.result)
+        return self._tracer.passes
+
+    def start_refinement(self, interactor=None, interval_ms: int = 30,
+                         passes_per_tick: int = 1) -> None:
+        """Refine ``path`` images on a repeating interactor timer while the camera rests.
+
+        Each tick adds ``passes_per_tick`` passes when the camera has not moved since
+        the image shown, then renders the window; a moved camera restarts the image
+        at the window's next render (the renderer's ``StartEvent``).
+        """
+        self.stop_refinement()
+        if interactor is None:
+            window = self.renderer.GetRenderWindow()
+            interactor = window.GetInteractor() if window is not None else None
+        if interactor is None:
+            raise ValueError("no interactor: pass interactor=... or call refine() yourself")
+
+        def on_timer(caller, event):
+            renderer = self._renderer.Get()
+            if renderer is None or self.method != PROGRESSIVE:
+                return
+            w, h = self.viewport_size()
+            camera = camera_from_vtk(renderer.GetActiveCamera(), aspect=w / h)
+            resting = self._key == (_camera_state(camera), w, h)
+            before = self.passes
+            if resting and self.refine(passes_per_tick) == before:
+                return  # converged to spp: nothing new to show
+            renderer.GetRenderWindow().Render()
+
+        tag = interactor.AddObserver(vtkCommand.TimerEvent, on_timer)
+        timer_id = interactor.CreateRepeatingTimer(int(interval_ms))
+        weak = vtkWeakReference()
+        weak.Set(interactor)
+        self._timer = (weak, timer_id, tag)
+
+    def stop_refinement(self) -> None:
+        """Stop the refinement timer (if any)."""
+        if self._timer is not None:
+            weak, timer_id, tag = self._timer
+            interactor = weak.Get()
+            if interactor is not None:
+                interactor.DestroyTimer(timer_id)
+                interactor.RemoveObserver(tag)
+            self._timer = None
+
+    @property
+    def passes(self) -> int:
+        """Path-tracing passes in the image shown (0 for the other methods)."""
+        return self._tracer.passes if self._tracer is not None else 0
+
+    # --- display --------------------------------------------------------------------------------
+    def display_image(self) -> np.ndarray:
+        """The 8-bit RGB image shown, ``(H, W, 3)``, row 0 at the top."""
+        if self.result is None:
+            raise ValueError("nothing rendered yet: render the window or call update()")
+        background = self.renderer.GetBackground()
+        return tonemap(self.exposure * self.result.radiance, self.result.alpha, background,
+                       exposure=1.0, gamma=self.gamma)
+
+    def _show(self, result: RenderResult) -> None:
+        rgb = self.display_image()
+        h, w, _ = rgb.shape
+        pixels = numpy_to_vtk(np.ascontiguousarray(rgb[::-1]).reshape(-1, 3), deep=True)
+        pixels.SetName("display")
+        self._image.SetDimensions(w, h, 1)
+        self._image.GetPointData().SetScalars(pixels)
+        self._image.Modified()
+
+
+def _camera_state(camera) -> tuple:
+    return (tuple(camera.position), tuple(camera.focal_point), tuple(camera.view_up),
+            camera.view_angle, camera.parallel_projection, camera.parallel_scale)
+
+
+def _as_volume(volume, array_name):
+    if isinstance(volume, Volume):
+        return volume
+    if isinstance(volume, vtkImageData):
+        return volume_from_image_data(volume, array_name)
+    raise TypeError(
+        f"volume must be a vtkillum Volume or vtkImageData, got {type(volume).__name__}"
+    )
+
+
+def _positive(value, name: str) -> float:
+    value = float(value)
+    if not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive number, got {value}")
+    return value
