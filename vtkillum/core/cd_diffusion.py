@@ -1,0 +1,557 @@
+"""Diffusion of the composed light volume (Zhang & Ma 2013, §5.6, eq. 23).
+
+The equation and what "implicit" means
+--------------------------------------
+Eq. 23, ``dL/dt = sigma_hat_s laplace(L)`` per RGB channel with a pure Neumann
+boundary, is integrated from the composed light ``L0`` (eq. 22) to ``t = 1`` with
+one implicit (backward Euler) step of length 1, as the paper does with
+Gauss–Seidel:
+
+    (I - sigma_hat_s laplace) L = L0.
+
+That one step *is* a steady-state problem, the screened Poisson equation, and
+it has a physical reading: it is the steady diffusion approximation of multiple
+scattering, ``-D laplace(phi) + sigma_a phi = S``, divided by ``sigma_a``, with
+diffusion length ``l = sqrt(sigma_hat_s)``. Its Green's function is
+``exp(-r / l) / (4 pi sigma_hat_s r)``, the diffusion-theory response to a point
+source. So ``sigma_hat_s`` is an *area* (world units squared): the square of the
+distance over which light spreads. For a medium with extinction ``sigma_t``,
+albedo ``Λ`` and anisotropy ``g``, diffusion theory suggests
+``sigma_hat_s = D / sigma_a = 1 / (3 sigma_t (1 - g Λ) sigma_t (1 - Λ))``
+(:func:`diffusion_length_squared`). Several smaller explicit or implicit steps
+would approach a Gaussian blur instead; the single step is cheaper and closer to
+transport theory.
+
+Discretisation
+--------------
+Finite volumes on the light grid, one control volume per grid point, 7-point
+Laplacian with spacing ``h_a`` per axis; a missing neighbour beyond the box
+contributes no flux (zero normal derivative). The matrix ``A = I + sum_a
+sigma_hat_s / h_a**2 * (graph Laplacian along a)`` is symmetric positive definite
+and its columns sum to 1, so ``sum(L) = sum(L0)`` exactly: diffusion moves light,
+it never creates or destroys it. (The grid points stand for equal cells of size
+``h``; trapezoid weights would not be conserved.)
+
+Solvers (``method``)
+--------------------
+``"multigrid"`` (default)
+    Geometric V(2,2) cycles with red–black Gauss–Seidel smoothing, cell-centred
+    restriction and trilinear prolongation, an exact dense solve on the coarsest
+    grid (:mod:`vtkillum.core.cd_multigrid`). Convergence per cycle is independent
+    of the grid size and of ``sigma_hat_s``.
+``"cg"``
+    Conjugate gradients with the diagonal as preconditioner, per channel, all
+    scalars kept on the device. Iterations grow like ``sqrt(sigma_hat_s) / h``.
+``"gauss-seidel"``
+    Red–black Gauss–Seidel (the paper's solver, in a parallel ordering).
+    Iterations grow like ``sigma_hat_s / h**2``.
+``"dct"``
+    Exact direct solve on the host with numpy FFTs: the Neumann Laplacian is
+    diagonal in the DCT-II basis. One "iteration"; used as the reference.
+
+Iteration counts are V-cycles, CG iterations or red+black sweeps respectively;
+``residuals`` holds the relative residual ``max_c ||b - A x||_c / ||b||_c`` before
+the first and after every iteration.
+
+Precision: light volumes are float32, and ``b - A x`` cancels about
+``log10(cond A)`` digits, so the relative residual cannot go much below
+``2 eps32 (1 + 2 max(sigma_hat_s) sum_a 1 / h_a**2)`` (:func:`residual_floor`). A requested
+tolerance below that floor is raised to it, so that a solve with a long diffusion
+length on a fine grid stops when it has done all it can instead of spinning to the
+iteration cap.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from vtkillum.core.device import resolve_device
+
+SOLVERS = ("multigrid", "cg", "gauss-seidel", "dct")
+
+
+@dataclass
+class DiffusionReport:
+    """What one call of :meth:`DiffusionSolver.solve` did.
+
+    Attributes
+    ----------
+    iterations : int
+        Iterations performed (V-cycles, CG iterations, red+black sweeps, or 1 for DCT).
+    residuals : list of float
+        Relative residual before the first and after each iteration.
+    converged : bool
+        Whether the last residual is at or below the tolerance.
+    """
+
+    iterations: int = 0
+    residuals: list = field(default_factory=list)
+    converged: bool = False
+
+
+def residual_floor(scattering, spacing) -> float:
+    """Smallest relative residual float32 arithmetic can show for this operator."""
+    c = float(np.max(scattering)) * float(np.sum(1.0 / np.asarray(spacing, dtype=np.float64) ** 2))
+    return 2.0 * float(np.finfo(np.float32).eps) * (1.0 + 2.0 * c)
+
+
+def diffusion_length_squared(sigma_t: float, albedo: float, anisotropy: float = 0.0) -> float:
+    """``sigma_hat_s = D / sigma_a`` of diffusion theory for a homogeneous medium (world units²).
+
+    ``D = 1 / (3 sigma_t')`` with the reduced extinction ``sigma_t' = sigma_t (1 - g Λ)``
+    and ``sigma_a = sigma_t (1 - Λ)``. Use it to pick ``scattering`` for a material;
+    ``albedo = 1`` (no absorption) has an infinite diffusion length and is refused.
+    """
+    if not (sigma_t > 0 and 0 <= albedo < 1 and -1 < anisotropy < 1):
+        raise ValueError("need sigma_t > 0, albedo in [0, 1) and anisotropy in (-1, 1)")
+    return 1.0 / (3.0 * sigma_t * (1.0 - anisotropy * albedo) * sigma_t * (1.0 - albedo))
+
+
+class DiffusionSolver:
+    """Solve ``(I - sigma_hat_s laplace) x = b`` per RGB channel on one light grid.
+
+    Parameters
+    ----------
+    shape : (3,) int
+        Light-grid points per axis.
+    spacing : (3,) float
+        Light-grid spacing (world units).
+    scattering : (3,) float
+        ``sigma_hat_s`` per channel (world units², >= 0).
+    method : str
+        One of :data:`SOLVERS`.
+    device : str, optional
+        Warp device.
+    """
+
+    def __init__(self, shape, spacing, scattering, method: str = "multigrid",
+                 device: str | None = None):
+        if method not in SOLVERS:
+            raise ValueError(f"unknown diffusion solver {method!r}; choose one of {SOLVERS}")
+        s = np.asarray(scattering, dtype=np.float64).reshape(-1)
+        if s.shape != (3,) or not np.all(np.isfinite(s)) or np.any(s < 0):
+            raise ValueError(
+                f"scattering (sigma_hat_s) must be three non-negative numbers (world units², "
+                f"one per RGB channel), got {scattering!r}"
+            )
+        self.shape = tuple(int(n) for n in shape)
+        self.spacing = np.asarray(spacing, dtype=np.float64)
+        self.scattering = s
+        self.method = method
+        self.device = resolve_device(device)
+        self.coeffs = axis_coefficients(s, self.spacing)
+        #: Relative residual below which float32 round-off dominates.
+        self.floor = residual_floor(s, self.spacing)
+        self._norms = wp.zeros(6, dtype=wp.float64, device=self.device)
+        self._work = {}
+        self._multigrid = None
+        if method == "multigrid":
+            from vtkillum.core.cd_multigrid import Multigrid  # imports this module's kernels
+
+            self._multigrid = Multigrid(self.shape, self.spacing, s, self.device)
+
+    # --- public ----------------------------------------------------------------------------
+    def solve(self, b: wp.array3d, x: wp.array3d, max_iterations: int = 100,
+              tolerance: float = 1e-4) -> DiffusionReport:
+        """Improve ``x`` in place towards the solution for right-hand side ``b``.
+
+        Parameters
+        ----------
+        b : warp.array3d of vec3
+            The composed light ``L0`` (eq. 22).
+        x : warp.array3d of vec3
+            Initial guess (``b``, or a previous solution for a warm start); overwritten.
+        max_iterations : int
+            Iteration budget of this call (progressive refinement continues in the next).
+        tolerance : float
+            Stop once the relative residual is at or below this (or below
+            :func:`residual_floor`, whichever is larger).
+        """
+        self._check(b)
+        self._check(x)
+        tolerance = max(float(tolerance), self.floor)
+        report = DiffusionReport()
+        b_norm = self._b_norm(b)
+        report.residuals.append(self.residual(x, b, b_norm))
+        if not np.any(self.scattering > 0):  # A = I
+            wp.copy(x, b)
+            report.residuals.append(0.0)
+            report.iterations, report.converged = 1, True
+            return report
+        if report.residuals[-1] <= tolerance:
+            report.converged = True
+            return report
+        if self.method == "dct":
+            x.assign(diffuse_dct(b.numpy(), self.scattering, self.spacing))
+            report.iterations = 1
+            report.residuals.append(self.residual(x, b, b_norm))
+        elif self.method == "cg":
+            self._cg(b, x, b_norm, max_iterations, tolerance, report)
+        else:
+            step = self._multigrid.vcycle if self.method == "multigrid" else self._gs_sweep
+            for _ in range(int(max_iterations)):
+                step(x, b)
+                report.iterations += 1
+                report.residuals.append(self.residual(x, b, b_norm))
+                if report.residuals[-1] <= tolerance:
+                    break
+        report.converged = report.residuals[-1] <= tolerance
+        return report
+
+    def residual(self, x: wp.array3d, b: wp.array3d, b_norm=None) -> float:
+        """Relative residual ``max_c ||b - A x||_c / ||b||_c`` (0 for a zero ``b``)."""
+        if b_norm is None:
+            b_norm = self._b_norm(b)
+        self._norms.zero_()
+        wp.launch(residual_norm_kernel, dim=(self.shape[1], self.shape[2]), device=self.device,
+                  inputs=[x, b, *self.coeffs, self._norms])
+        r = np.sqrt(self._norms.numpy()[:3])
+        return float(np.max(np.where(b_norm > 0, r / np.maximum(b_norm, 1e-300), 0.0)))
+
+    def apply(self, x: wp.array3d, out: wp.array3d | None = None) -> wp.array3d:
+        """``A x`` (for tests and diagnostics)."""
+        out = wp.empty_like(x) if out is None else out
+        wp.launch(apply_operator_kernel, dim=self.shape, device=self.device,
+                  inputs=[x, out, *self.coeffs])
+        return out
+
+    # --- internals -------------------------------------------------------------------------
+    def _check(self, a) -> None:
+        if tuple(a.shape) != self.shape or a.dtype != wp.vec3:
+            raise ValueError(f"expected a vec3 array of shape {self.shape}, got {a.dtype} {a.shape}")
+
+    def _b_norm(self, b) -> np.ndarray:
+        self._norms.zero_()
+        wp.launch(sum_squares_kernel, dim=(self.shape[1], self.shape[2]), device=self.device,
+                  inputs=[b, self._norms])
+        return np.sqrt(self._norms.numpy()[:3])
+
+    def _gs_sweep(self, x, b) -> None:
+        gauss_seidel(x, b, self.coeffs, 1)
+
+    def _buffers(self, *names):
+        for name in names:
+            if name not in self._work:
+                self._work[name] = wp.empty(self.shape, dtype=wp.vec3, device=self.device)
+        return [self._work[n] for n in names]
+
+    def _cg(self, b, x, b_norm, max_iterations, tolerance, report) -> None:
+        r, z, p, q = self._buffers("r", "z", "p", "q")
+        scal = wp.zeros(CG_SCALARS, dtype=wp.float64, device=self.device)
+        lines = (self.shape[1], self.shape[2])
+        wp.launch(cg_init_kernel, dim=lines, device=self.device,
+                  inputs=[x, b, r, z, p, *self.coeffs, scal])
+        wp.launch(cg_shift_kernel, dim=1, device=self.device, inputs=[scal])
+        scale = 1.0 / np.maximum(b_norm, 1e-300)
+        for _ in range(int(max_iterations)):
+            wp.launch(matvec_dot_kernel, dim=lines, device=self.device,
+                      inputs=[p, q, *self.coeffs, scal])
+            wp.launch(cg_update_kernel, dim=lines, device=self.device,
+                      inputs=[x, r, z, p, q, *self.coeffs, scal])
+            wp.launch(cg_direction_kernel, dim=self.shape, device=self.device,
+                      inputs=[z, p, scal])
+            # The recursive residual r tracks b - A x up to round-off; its norm costs nothing.
+            rr = np.sqrt(np.maximum(scal.numpy()[9:12], 0.0))
+            wp.launch(cg_shift_kernel, dim=1, device=self.device, inputs=[scal])
+            report.iterations += 1
+            report.residuals.append(float(np.max(np.where(b_norm > 0, rr * scale, 0.0))))
+            if report.residuals[-1] <= tolerance:
+                break
+        report.residuals[-1] = self.residual(x, b, b_norm)
+
+
+def axis_coefficients(scattering, spacing):
+    """``sigma_hat_s / h_a**2`` per axis, as three RGB ``wp.vec3``."""
+    s = np.asarray(scattering, dtype=np.float64)
+    return [wp.vec3(*(s / float(h) ** 2).astype(np.float32)) for h in spacing]
+
+
+def gauss_seidel(x: wp.array3d, b: wp.array3d, coeffs, sweeps: int, reverse: bool = False) -> None:
+    """``sweeps`` red–black Gauss–Seidel sweeps of ``A x = b`` in place.
+
+    ``reverse`` visits black before red (the post-smoother that makes a V-cycle symmetric).
+    """
+    nx, ny, nz = x.shape
+    dim = (nx, ny, (nz + 1) // 2)
+    colors = (1, 0) if reverse else (0, 1)
+    for _ in range(int(sweeps)):
+        for color in colors:
+            wp.launch(red_black_kernel, dim=dim, device=x.device, inputs=[x, b, *coeffs, color])
+
+
+def diffuse_dct(b: np.ndarray, scattering, spacing) -> np.ndarray:
+    """Exact solution of ``(I - sigma_hat_s laplace) x = b`` with numpy FFTs (host).
+
+    The finite-volume Neumann Laplacian along an axis of ``n`` points has the DCT-II
+    vectors ``cos(pi k (i + 1/2) / n)`` as eigenvectors, with eigenvalues
+    ``-4 sin(pi k / (2 n))**2 / h**2``.
+
+    Parameters
+    ----------
+    b : ndarray (nx, ny, nz, 3)
+    scattering : (3,) float
+    spacing : (3,) float
+
+    Returns
+    -------
+    ndarray (nx, ny, nz, 3) float32
+    """
+    b = np.asarray(b, dtype=np.float64)
+    s = np.asarray(scattering, dtype=np.float64)
+    coef = dct2(dct2(dct2(b, 0), 1), 2)
+    lam = np.zeros(b.shape[:3])
+    for a, n in enumerate(b.shape[:3]):
+        k = np.arange(n)
+        ev = 4.0 * np.sin(np.pi * k / (2 * n)) ** 2 / float(spacing[a]) ** 2
+        lam = lam + ev.reshape([-1 if i == a else 1 for i in range(3)])
+    coef /= 1.0 + lam[..., None] * s
+    return idct2(idct2(idct2(coef, 0), 1), 2).astype(np.float32)
+
+
+def dct2(x: np.ndarray, axis: int) -> np.ndarray:
+    """Unnormalised DCT-II ``X_k = sum_i x_i cos(pi k (2 i + 1) / (2 n))`` along ``axis``."""
+    n = x.shape[axis]
+    y = np.concatenate([x, np.flip(x, axis)], axis=axis)
+    f = np.fft.rfft(y, axis=axis)
+    f = np.take(f, np.arange(n), axis=axis)
+    shape = [1] * x.ndim
+    shape[axis] = n
+    phase = np.exp(-0.5j * np.pi * np.arange(n) / n).reshape(shape)
+    return 0.5 * np.real(f * phase)
+
+
+def idct2(c: np.ndarray, axis: int) -> np.ndarray:
+    """Inverse of :func:`dct2`."""
+    n = c.shape[axis]
+    shape = [1] * c.ndim
+    shape[axis] = n
+    phase = np.exp(0.5j * np.pi * np.arange(n) / n).reshape(shape)
+    f = 2.0 * c * phase
+    pad = [(0, 0)] * c.ndim
+    pad[axis] = (0, 1)  # the Nyquist coefficient of the even extension is zero
+    y = np.fft.irfft(np.pad(f, pad), n=2 * n, axis=axis)
+    return np.take(y, np.arange(n), axis=axis)
+
+
+# --- device functions ------------------------------------------------------------------------------
+#: Layout of the CG scalars (float64): rz, pq, rz_new, rr, three channels each.
+RZ = wp.constant(0)
+PQ = wp.constant(3)
+RZ_NEW = wp.constant(6)
+RR = wp.constant(9)
+CG_SCALARS = 12
+
+
+@wp.func
+def neighbours(x: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int, cx: wp.vec3, cy: wp.vec3,
+               cz: wp.vec3):
+    """Off-diagonal sum ``sum c_a x_nbr`` and diagonal ``1 + sum c_a`` over existing neighbours."""
+    nx = x.shape[0]
+    ny = x.shape[1]
+    nz = x.shape[2]
+    off = wp.vec3(0.0)
+    diag = wp.vec3(1.0, 1.0, 1.0)
+    if i > 0:
+        off += wp.cw_mul(cx, x[i - 1, j, k])
+        diag += cx
+    if i < nx - 1:
+        off += wp.cw_mul(cx, x[i + 1, j, k])
+        diag += cx
+    if j > 0:
+        off += wp.cw_mul(cy, x[i, j - 1, k])
+        diag += cy
+    if j < ny - 1:
+        off += wp.cw_mul(cy, x[i, j + 1, k])
+        diag += cy
+    if k > 0:
+        off += wp.cw_mul(cz, x[i, j, k - 1])
+        diag += cz
+    if k < nz - 1:
+        off += wp.cw_mul(cz, x[i, j, k + 1])
+        diag += cz
+    return off, diag
+
+
+@wp.func
+def diagonal(shape: wp.vec3i, i: int, j: int, k: int, cx: wp.vec3, cy: wp.vec3, cz: wp.vec3):
+    """Diagonal of ``A`` at a point (``1 + sum c_a`` over its existing neighbours)."""
+    d = wp.vec3(1.0, 1.0, 1.0)
+    if i > 0:
+        d += cx
+    if i < shape[0] - 1:
+        d += cx
+    if j > 0:
+        d += cy
+    if j < shape[1] - 1:
+        d += cy
+    if k > 0:
+        d += cz
+    if k < shape[2] - 1:
+        d += cz
+    return d
+
+
+@wp.func
+def add_channels(acc: wp.array(dtype=wp.float64), offset: int, v: wp.vec3):
+    wp.atomic_add(acc, offset + 0, wp.float64(v[0]))
+    wp.atomic_add(acc, offset + 1, wp.float64(v[1]))
+    wp.atomic_add(acc, offset + 2, wp.float64(v[2]))
+
+
+@wp.func
+def channel_ratio(acc: wp.array(dtype=wp.float64), num: int, den: int, c: int):
+    d = acc[den + c]
+    if d == wp.float64(0.0):
+        return 0.0
+    return float(acc[num + c] / d)
+
+
+# --- kernels -----------------------------------------------------------------------------------------
+@wp.kernel
+def red_black_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3), cx: wp.vec3,
+                     cy: wp.vec3, cz: wp.vec3, color: int):
+    """Gauss–Seidel update of the points with ``(i + j + k) % 2 == color``.
+
+    ``wp.tid() = (i, j, kk)``; the point is ``k = 2 kk + ((i + j + color) % 2)``.
+    ``cx, cy, cz`` are ``sigma_hat_s / h**2`` (RGB) along x, y, z.
+    """
+    i, j, kk = wp.tid()
+    k = 2 * kk + (i + j + color) % 2
+    if k >= x.shape[2]:
+        return
+    off, diag = neighbours(x, i, j, k, cx, cy, cz)
+    x[i, j, k] = wp.cw_div(b[i, j, k] + off, diag)
+
+
+@wp.kernel
+def apply_operator_kernel(x: wp.array3d(dtype=wp.vec3), y: wp.array3d(dtype=wp.vec3), cx: wp.vec3,
+                          cy: wp.vec3, cz: wp.vec3):
+    """``y = A x`` at point ``wp.tid() = (i, j, k)``."""
+    i, j, k = wp.tid()
+    off, diag = neighbours(x, i, j, k, cx, cy, cz)
+    y[i, j, k] = wp.cw_mul(diag, x[i, j, k]) - off
+
+
+@wp.kernel
+def residual_field_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
+                          r: wp.array3d(dtype=wp.vec3), cx: wp.vec3, cy: wp.vec3, cz: wp.vec3):
+    """``r = b - A x`` at point ``wp.tid() = (i, j, k)``."""
+    i, j, k = wp.tid()
+    off, diag = neighbours(x, i, j, k, cx, cy, cz)
+    r[i, j, k] = b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
+
+
+@wp.kernel
+def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3), cx: wp.vec3,
+                         cy: wp.vec3, cz: wp.vec3, acc: wp.array(dtype=wp.float64)):
+    """Add ``sum_i |b - A x|**2`` per channel of line ``wp.tid() = (j, k)`` to ``acc[0:3]``.
+
+    Threads walk along x so that neighbouring threads read neighbouring k (coalesced).
+    """
+    j, k = wp.tid()
+    s = wp.vec3(0.0)
+    for i in range(x.shape[0]):
+        off, diag = neighbours(x, i, j, k, cx, cy, cz)
+        r = b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
+        s += wp.cw_mul(r, r)
+    add_channels(acc, 0, s)
+
+
+@wp.kernel
+def sum_squares_kernel(a: wp.array3d(dtype=wp.vec3), acc: wp.array(dtype=wp.float64)):
+    """Add ``sum_i a**2`` per channel of line ``wp.tid() = (j, k)`` to ``acc[0:3]``."""
+    j, k = wp.tid()
+    s = wp.vec3(0.0)
+    for i in range(a.shape[0]):
+        s += wp.cw_mul(a[i, j, k], a[i, j, k])
+    add_channels(acc, 0, s)
+
+
+@wp.kernel
+def cg_init_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
+                   r: wp.array3d(dtype=wp.vec3), z: wp.array3d(dtype=wp.vec3),
+                   p: wp.array3d(dtype=wp.vec3), cx: wp.vec3, cy: wp.vec3, cz: wp.vec3,
+                   scal: wp.array(dtype=wp.float64)):
+    """``r = b - A x``, ``z = p = D^-1 r``; adds ``r.z`` to ``RZ_NEW`` and ``r.r`` to ``RR``.
+
+    ``wp.tid() = (j, k)`` is a line along x.
+    """
+    j, k = wp.tid()
+    rz = wp.vec3(0.0)
+    rr = wp.vec3(0.0)
+    for i in range(x.shape[0]):
+        off, diag = neighbours(x, i, j, k, cx, cy, cz)
+        res = b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
+        pre = wp.cw_div(res, diag)
+        r[i, j, k] = res
+        z[i, j, k] = pre
+        p[i, j, k] = pre
+        rz += wp.cw_mul(res, pre)
+        rr += wp.cw_mul(res, res)
+    add_channels(scal, RZ_NEW, rz)
+    add_channels(scal, RR, rr)
+
+
+@wp.kernel
+def matvec_dot_kernel(p: wp.array3d(dtype=wp.vec3), q: wp.array3d(dtype=wp.vec3), cx: wp.vec3,
+                      cy: wp.vec3, cz: wp.vec3, scal: wp.array(dtype=wp.float64)):
+    """``q = A p`` along line ``wp.tid() = (j, k)``; adds ``p.q`` per channel to ``PQ``."""
+    j, k = wp.tid()
+    pq = wp.vec3(0.0)
+    for i in range(p.shape[0]):
+        off, diag = neighbours(p, i, j, k, cx, cy, cz)
+        v = wp.cw_mul(diag, p[i, j, k]) - off
+        q[i, j, k] = v
+        pq += wp.cw_mul(p[i, j, k], v)
+    add_channels(scal, PQ, pq)
+
+
+@wp.kernel
+def cg_update_kernel(x: wp.array3d(dtype=wp.vec3), r: wp.array3d(dtype=wp.vec3),
+                     z: wp.array3d(dtype=wp.vec3), p: wp.array3d(dtype=wp.vec3),
+                     q: wp.array3d(dtype=wp.vec3), cx: wp.vec3, cy: wp.vec3, cz: wp.vec3,
+                     scal: wp.array(dtype=wp.float64)):
+    """``x += α p``, ``r -= α q``, ``z = D^-1 r`` with ``α = rz / pq`` per channel.
+
+    ``wp.tid() = (j, k)`` is a line along x; adds the new ``r.z`` to ``RZ_NEW`` and
+    ``r.r`` to ``RR``.
+    """
+    j, k = wp.tid()
+    alpha = wp.vec3(channel_ratio(scal, RZ, PQ, 0), channel_ratio(scal, RZ, PQ, 1),
+                    channel_ratio(scal, RZ, PQ, 2))
+    shape = wp.vec3i(x.shape[0], x.shape[1], x.shape[2])
+    rz = wp.vec3(0.0)
+    rr = wp.vec3(0.0)
+    for i in range(x.shape[0]):
+        x[i, j, k] = x[i, j, k] + wp.cw_mul(alpha, p[i, j, k])
+        res = r[i, j, k] - wp.cw_mul(alpha, q[i, j, k])
+        pre = wp.cw_div(res, diagonal(shape, i, j, k, cx, cy, cz))
+        r[i, j, k] = res
+        z[i, j, k] = pre
+        rz += wp.cw_mul(res, pre)
+        rr += wp.cw_mul(res, res)
+    add_channels(scal, RZ_NEW, rz)
+    add_channels(scal, RR, rr)
+
+
+@wp.kernel
+def cg_direction_kernel(z: wp.array3d(dtype=wp.vec3), p: wp.array3d(dtype=wp.vec3),
+                        scal: wp.array(dtype=wp.float64)):
+    """``p = z + β p`` with ``β = rz_new / rz`` per channel, at ``wp.tid() = (i, j, k)``."""
+    i, j, k = wp.tid()
+    beta = wp.vec3(channel_ratio(scal, RZ_NEW, RZ, 0), channel_ratio(scal, RZ_NEW, RZ, 1),
+                   channel_ratio(scal, RZ_NEW, RZ, 2))
+    p[i, j, k] = z[i, j, k] + wp.cw_mul(beta, p[i, j, k])
+
+
+@wp.kernel
+def cg_shift_kernel(scal: wp.array(dtype=wp.float64)):
+    """Single thread: ``rz = rz_new``; clear the accumulators for the next iteration."""
+    for c in range(3):
+        scal[RZ + c] = scal[RZ_NEW + c]
+        scal[RZ_NEW + c] = wp.float64(0.0)
+        scal[PQ + c] = wp.float64(0.0)
+        scal[RR + c] = wp.float64(0.0)
