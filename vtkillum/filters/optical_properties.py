@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from vtkillum.filters.base import IlluminationFilterBase
-from vtkillum.io.convert import resample_point_array
+from vtkillum.core.resample import resample_points
 
 
 class OpticalPropertiesFilter(IlluminationFilterBase):
@@ -44,7 +44,7 @@ class OpticalPropertiesFilter(IlluminationFilterBase):
     def compute(self, volume, params):
         scalars = volume.scalars
         if params.output_shape != volume.dims:
-            scalars = resample_point_array(scalars, params.output_shape)
+            scalars = resample_points(scalars, params.output_shape)
         tf = params.transfer_function
         sigma_t = tf.sigma_t(scalars, params.unit_distance)
         params.progress(0.5)

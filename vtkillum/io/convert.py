@@ -34,6 +34,7 @@ from vtkmodules.vtkCommonDataModel import (
 from vtkmodules.vtkFiltersCore import vtkCellDataToPointData
 from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
 
+from vtkillum.core.resample import resample_points as resample_point_array  # noqa: F401 (re-export)
 from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.core.volume import Volume
 
@@ -351,32 +352,6 @@ def add_point_array(image, name: str, array, set_active: bool = False):
     if set_active:
         pd.SetActiveScalars(name)
     return vtk_array
-
-
-def resample_point_array(array, shape) -> np.ndarray:
-    """Trilinear values of a point-centred ``[i, j, k(, c)]`` array on a grid of ``shape`` points.
-
-    The new grid covers the same box (same first and last points), as
-    :func:`image_like` with ``shape`` does; its points are interpolated from the
-    ``2 x 2 x 2`` old points around them, the way VTK and the kernels sample data.
-    Linear interpolation on aligned grids is separable, so it runs axis by axis.
-    """
-    a = np.asarray(array)
-    shape = tuple(int(n) for n in shape)
-    if a.ndim not in (3, 4) or len(shape) != 3 or min(shape) < 2 or min(a.shape[:3]) < 2:
-        raise ValueError(f"cannot resample an array of shape {a.shape} to {shape}: both need "
-                         ">= 2 points per axis")
-    out = a.astype(np.float32 if a.dtype != np.float64 else np.float64)
-    for axis in range(3):
-        n, m = out.shape[axis], shape[axis]
-        if n == m:
-            continue
-        x = np.arange(m) * ((n - 1) / (m - 1))
-        i0 = np.clip(np.floor(x).astype(np.int64), 0, n - 2)
-        f = (x - i0).reshape((-1,) + (1,) * (out.ndim - axis - 1))
-        lo, hi = np.take(out, i0, axis=axis), np.take(out, i0 + 1, axis=axis)
-        out = lo + (hi - lo) * f.astype(out.dtype)
-    return out
 
 
 def point_array(image, name: str) -> np.ndarray:

@@ -67,13 +67,13 @@ from vtkillum.core.illumination import GRADIENT_EPS, IlluminationVolume, shading
 from vtkillum.core.lights import DIRECTIONAL, pack_lights
 from vtkillum.core.scene import Scene
 from vtkillum.core.volume import Volume
+from vtkillum.core.resample import resample_points
 from vtkillum.io.convert import (
     add_point_array,
     direction_matrix,
     first_point,
     image_data_from_volume,
     point_array,
-    resample_point_array,
     volume_from_image_data,
 )
 from vtkillum.mappers.camera_bridge import GridSummary, apply_scene_to_volume_property
@@ -456,7 +456,7 @@ class ScalarFluenceImage(VTKPythonAlgorithmBase):
         else:
             fluence = unshadowed_fluence(volume, self._lights)
         if fluence.shape[:3] != volume.dims:
-            fluence = resample_point_array(fluence, volume.dims)
+            fluence = resample_points(fluence, volume.dims)
         combined = np.empty(volume.dims + (4,), dtype=np.float32)
         combined[..., 0] = volume.scalars
         combined[..., 1:] = fluence
