@@ -1,0 +1,48 @@
+"""The ``transmittance`` method: a cached single-scattering light volume, then ray casting.
+
+The baseline that later illumination methods are compared with: the unscattered
+fluence ``phi = sum_l T_l E_l`` is computed once on a light grid
+(:func:`vtkillum.core.light_transmittance.light_transmittance`, what
+``LightTransmittanceFilter`` caches) and the image is ray cast with it
+(:func:`vtkillum.core.raycast.render_illuminated`). With isotropic scattering and the
+default shading this equals ``single`` up to the light grid's interpolation; unlike
+``single`` it ignores the anisotropy ``g`` (the fluence has no direction).
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from vtkillum.core.illumination import IlluminationVolume
+from vtkillum.core.light_transmittance import light_transmittance
+from vtkillum.core.raycast import render_illuminated
+
+
+def render_transmittance(volume, scene, width, height, device=None, progress=None,
+                         light_volume_scale: float = 1.0, **options):
+    """Render with a light-transmittance illumination volume (registry signature).
+
+    Parameters
+    ----------
+    light_volume_scale : float
+        Light-grid resolution relative to the data (0 < scale <= 1; at least 2 points
+        per axis).
+    **options
+        Ray-casting options of :func:`vtkillum.core.raycast.render_illuminated`.
+    """
+    if not (0.0 < float(light_volume_scale) <= 1.0):
+        raise ValueError(f"light_volume_scale must lie in (0, 1], got {light_volume_scale}")
+    shape = tuple(max(2, int(round((n - 1) * light_volume_scale)) + 1) for n in volume.dims)
+    t0 = time.perf_counter()
+    _, fluence = light_transmittance(
+        volume, scene.resolved_transfer_function(volume), scene.resolved_unit_distance(volume),
+        scene.lights, shape=shape, device=device)
+    t1 = time.perf_counter()
+    result = render_illuminated(volume, scene, width, height, device, progress,
+                                illumination=IlluminationVolume.for_volume(volume, fluence),
+                                **options)
+    result.info.update(method="transmittance", light_volume_s=t1 - t0,
+                       light_volume_shape=shape, fluence_max=float(np.max(fluence)))
+    return result
