@@ -26,6 +26,7 @@ METHODS: dict[str, str] = {
     "single": "vtkillum.core.raycast:render_single",
     "illumination": "vtkillum.core.raycast:render_illuminated",
     "path": "vtkillum.core.pathtrace:render_path",
+    "transmittance": "vtkillum.core.transmittance_render:render_transmittance",
 }
 
 
