@@ -66,7 +66,7 @@ def assert_close_dicts(a, b):
         assert a == b
 
 
-# --- plume ------------------------------------------------------------------------------------------
+# --- plume ----------------------------------------------------------------------------------------
 def test_plume_geometry_and_value_ranges():
     vol = smoke_plume((32, 32, 48))
     np.testing.assert_allclose(vol.bounds, [-1, 1, -1, 1, 0, 47 * 2 / 31], atol=1e-12)
@@ -127,7 +127,7 @@ def test_plume_series():
         plume_series(steps=0)
 
 
-# --- Cornell box -------------------------------------------------------------------------------------
+# --- Cornell box ----------------------------------------------------------------------------------
 def test_cornell_box_materials():
     vol = cornell_box(48)
     np.testing.assert_allclose(vol.bounds, [-1, 1] * 3)
@@ -143,7 +143,7 @@ def test_cornell_box_materials():
     assert value_at(vol, (0.0, 0.0, 1.0)) < 0.25  # open front
 
 
-# --- CT phantom --------------------------------------------------------------------------------------
+# --- CT phantom -----------------------------------------------------------------------------------
 def test_ct_phantom_materials():
     vol = ct_phantom(96)
     np.testing.assert_allclose(vol.bounds, [-120, 120] * 3)
@@ -175,7 +175,7 @@ def test_ct_phantom_noise():
     np.testing.assert_array_equal(noisy.scalars, ct_phantom(24, noise=0.05, seed=1).scalars)
 
 
-# --- Marschner-Lobb ----------------------------------------------------------------------------------
+# --- Marschner-Lobb -------------------------------------------------------------------------------
 def test_marschner_lobb_matches_the_formula():
     vol = marschner_lobb()
     assert vol.dims == (41, 41, 41)
@@ -193,7 +193,7 @@ def test_marschner_lobb_matches_the_formula():
         rho(0, 0, 0, 2, 0.5), abs=1e-6)
 
 
-# --- scenes ------------------------------------------------------------------------------------------
+# --- scenes ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("name,vol", [
     ("plume", smoke_plume((16, 16, 24))),
     ("cornell", cornell_box(24)),
@@ -231,7 +231,7 @@ def test_default_scene_unknown_name():
         default_scene("teapot", marschner_lobb(8))
 
 
-# --- builtin specs -----------------------------------------------------------------------------------
+# --- builtin specs --------------------------------------------------------------------------------
 @pytest.mark.parametrize("spec,expected", [
     ("builtin:plume", ("plume", 64)),
     ("builtin:plume:128", ("plume", 128)),

@@ -2,7 +2,9 @@
 
 Every generator returns a :class:`~vtkillum.core.volume.Volume` with values in
 [0, 1], isotropic spacing and a world placement that does not depend on the
-resolution (a larger ``n`` samples the same object more finely). The value
+resolution: a larger ``n`` samples the same object more finely (except that the
+Cornell box's walls are kept at least two voxels thick, so they thicken below
+``n = 51``, and the CT phantom's borders are anti-aliased over one voxel). The value
 ranges each dataset uses are listed in its docstring and in :data:`VALUE_RANGES`;
 :func:`default_scene` gives each one a transfer function, lights and a camera
 that show shadows and scattering.
@@ -201,11 +203,11 @@ def cornell_box(n: int = 64) -> Volume:
 def ct_phantom(n: int = 64, noise: float = 0.0, seed: int = 0) -> Volume:
     """A CT-like head-and-neck phantom of nested ellipsoids (in the spirit of 3D Shepp–Logan).
 
-    World units are millimetres: the grid spans [-120, 120] mm on every axis,
-    x to the patient's left... as a plain right-handed frame: x across the head,
-    y towards the face (+y anterior), z up (+z superior). Materials, painted in
-    this order (later ones replace earlier ones), with borders anti-aliased over
-    one voxel (so values between two materials occur only at their border):
+    World units are millimetres: the grid spans [-120, 120] mm on every axis in
+    a right-handed, RAS-like frame (+x the patient's right, +y anterior: the face
+    looks along +y, +z superior). Materials, painted in this order (later ones
+    replace earlier ones), with borders anti-aliased over one voxel (so values
+    between two materials occur only at their border):
 
     ======================  =======  =========================================
     material                value    where
@@ -213,9 +215,9 @@ def ct_phantom(n: int = 64, noise: float = 0.0, seed: int = 0) -> Volume:
     air                     0.0      outside; trachea
     skin (and fat)          0.3      6 mm shell around head and neck
     soft tissue             0.5      brain, neck muscles
-    bone                    0.9      skull (6 mm shell), vertebral column, jaw
+    bone                    0.9      skull (6-10 mm shell), vertebral column, jaw
     fluid                   0.4      ventricles, eyes
-    lesion                  0.65     a 12 mm sphere in the right hemisphere
+    lesion                  0.65     a sphere of radius 12 mm, left hemisphere
     ======================  =======  =========================================
 
     Parameters
@@ -267,7 +269,7 @@ def ct_phantom(n: int = 64, noise: float = 0.0, seed: int = 0) -> Volume:
         paint(CT_FLUID, _ellipsoid(X, Y, Z, (cx, -5.0, 40.0), (7.0, 28.0, 11.0), h))
     for cx in (-30.0, 30.0):
         paint(CT_FLUID, _ellipsoid(X, Y, Z, (cx, 68.0, 20.0), (11.0, 11.0, 11.0), h))
-    # A lesion in the right hemisphere (patient's right is -x here).
+    # A lesion in the left hemisphere (-x).
     paint(CT_LESION, _ellipsoid(X, Y, Z, (-32.0, 20.0, 55.0), (12.0, 12.0, 12.0), h))
 
     if noise > 0:
@@ -344,7 +346,8 @@ def _plume_scene(volume: Volume) -> Scene:
     tf = TransferFunction(
         [0.0, 0.02, 0.3, 0.7, 1.0],
         [0.0, 0.0, 0.35, 0.8, 0.95],
-        [[1.0, 1.0, 1.0], [0.95, 0.95, 0.97], [0.92, 0.9, 0.88], [0.85, 0.8, 0.75], [0.8, 0.72, 0.65]],
+        [[1.0, 1.0, 1.0], [0.95, 0.95, 0.97], [0.92, 0.9, 0.88], [0.85, 0.8, 0.75],
+         [0.8, 0.72, 0.65]],
     )
     camera = _framing_camera(volume, direction=(0.25, 1.0, -0.12), view_up=(0.0, 0.0, 1.0),
                              zoom=1.2)
@@ -361,11 +364,12 @@ def _plume_scene(volume: Volume) -> Scene:
 
 
 def _cornell_scene(volume: Volume) -> Scene:
-    fog, white, red, green = (CORNELL_FOG_LOW + CORNELL_FOG_HIGH) / 2, CORNELL_WHITE, CORNELL_RED, \
-        CORNELL_GREEN
+    fog = (CORNELL_FOG_LOW + CORNELL_FOG_HIGH) / 2
+    white, red, green = CORNELL_WHITE, CORNELL_RED, CORNELL_GREEN
     w = 0.04  # half-width of the narrow opacity peaks of the solid materials
     tf = TransferFunction(
-        [0.0, 0.09, fog, 0.25, white - w, white, white + w, red - w, red, red + w, green - w, green],
+        [0.0, 0.09, fog, 0.25, white - w, white, white + w, red - w, red, red + w, green - w,
+         green],
         [0.0, 0.001, 0.0015, 0.0, 0.0, 0.4, 0.0, 0.0, 0.4, 0.0, 0.0, 0.4],
         [[1, 1, 1], [0.9, 0.92, 1.0], [0.9, 0.92, 1.0], [0.9, 0.92, 1.0],
          [0.8, 0.8, 0.8], [0.8, 0.8, 0.8], [0.8, 0.8, 0.8],
@@ -388,7 +392,8 @@ def _ct_scene(volume: Volume) -> Scene:
     # Narrow peaks: a border between two materials passes through the values between
     # them (e.g. tissue -> bone crosses the lesion's 0.65) over one voxel only.
     tf = TransferFunction(
-        [0.0, 0.12, CT_SKIN, 0.42, 0.45, CT_TISSUE, 0.55, 0.62, CT_LESION, 0.68, 0.75, CT_BONE, 1.0],
+        [0.0, 0.12, CT_SKIN, 0.42, 0.45, CT_TISSUE, 0.55, 0.62, CT_LESION, 0.68, 0.75, CT_BONE,
+         1.0],
         [0.0, 0.0, 0.08, 0.0, 0.0, 0.008, 0.0, 0.0, 0.5, 0.0, 0.0, 0.85, 0.9],
         [[1, 1, 1], [0.95, 0.75, 0.6], [0.95, 0.75, 0.6], [0.95, 0.75, 0.6],
          [0.85, 0.45, 0.4], [0.85, 0.45, 0.4], [0.85, 0.45, 0.4],
