@@ -42,10 +42,11 @@ METHOD_OPTIONS: dict[str, dict] = {
     },
     "ambient_scattering": {
         "radius": 4.0,                 # sphere radius r
-        "radius_units": "voxels",      # "voxels" or "world"
+        "radius_units": "voxels",      # "voxels" (x mean spacing) or "world"
         "radiance_cache_scale": 0.5,   # radiance-cache resolution relative to the data
-        "specular": 0.0,
-        "ambient_occlusion": False,
+        "specular": 0.0,               # weight of the specular lobe (0: off)
+        "ambient_occlusion": False,    # add the SAT-based ambient-occlusion term
+        "ambient_occlusion_strength": 0.25,  # its ambient fluence / sum of light irradiances
     },
 }
 

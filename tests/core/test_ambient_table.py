@@ -1,0 +1,214 @@
+"""The ambient-scattering preintegration table: boundary condition, energy, anisotropy, MC error."""
+
+import numpy as np
+import pytest
+
+from vtkillum.core.ambient import table as table_module
+from vtkillum.core.ambient.table import (
+    FORMAT_VERSION,
+    PreintegrationTable,
+    generate_table,
+    load_table,
+)
+
+
+def hg(cos_theta, g):
+    return (1 - g * g) / (4 * np.pi * (1 + g * g - 2 * g * np.asarray(cos_theta)) ** 1.5)
+
+
+@pytest.fixture(scope="module")
+def shipped():
+    return load_table(0.9, generate=False)
+
+
+def test_shipped_table_parameters(shipped):
+    assert shipped.albedo == pytest.approx(0.9)
+    assert shipped.theta[0] == 0 and shipped.theta[-1] == pytest.approx(np.pi)
+    assert shipped.sigma[0] == 0 and shipped.sigma_max == pytest.approx(20.0)
+    assert shipped.g[0] == pytest.approx(-0.9) and shipped.g[-1] == pytest.approx(0.9)
+    assert shipped.g.size == 19 and shipped.samples >= 1000
+    assert np.all(np.isfinite(shipped.radiance)) and np.all(shipped.radiance >= 0)
+
+
+def test_zero_extinction_gives_the_boundary_condition(device):
+    # sigma -> 0: nothing scatters, every path crosses the sphere and reads eq. 11 at the
+    # antipode, so L~o(theta, 0, g) = p(cos theta; g) exactly.
+    th = np.linspace(0, np.pi, 9)
+    t = generate_table(theta=th, sigma=[0.0, 1e-3], g=[-0.6, 0.0, 0.6], samples=64, seed=3,
+                       device=device, progress=False)
+    for k, g in enumerate(t.g):
+        np.testing.assert_allclose(t.radiance[:, 0, k], hg(np.cos(th), g), rtol=1e-5)
+        np.testing.assert_allclose(t.radiance[:, 1, k], hg(np.cos(th), g), rtol=0.02)
+    assert np.all(t.rel_stderr[:, 0] == 0)
+    np.testing.assert_allclose(t.transmittance[0], 1.0)
+
+
+def test_shipped_zero_extinction_column(shipped):
+    for k, g in enumerate(shipped.g):
+        # float16 storage of ln L: relative quantisation below 0.3 %
+        np.testing.assert_allclose(shipped.radiance[:, 0, k], hg(np.cos(shipped.theta), g),
+                                   rtol=3e-3)
+
+
+def test_absorbing_sphere_is_analytic(device):
+    # Albedo 0: only unscattered light leaves; the path crosses 2 radii and the boundary
+    # value carries exp(-d sigma) with d = max(0, -2 cos theta) at the antipode.
+    th = np.linspace(0, np.pi, 7)
+    sg = np.array([0.0, 0.25, 0.5, 0.75])
+    g = 0.4
+    t = generate_table(theta=th, sigma=sg, g=[g], samples=4000, albedo=0.0, seed=5,
+                       device=device, progress=False)
+    ref = (np.exp(-(2 + np.maximum(0, -2 * np.cos(th)))[:, None] * sg[None])
+           * hg(np.cos(th), g)[:, None])
+    se = t.stderr[:, :, 0]
+    assert np.all(np.abs(t.radiance[:, :, 0] - ref) <= 5 * se + 1e-7)
+    # Front transmittance of an absorbing sphere along its axis: Beer-Lambert over 2 radii.
+    tt, tse = t.transmittance[:, 0], t.transmittance_stderr[:, 0]
+    assert np.all(np.abs(tt - np.exp(-2 * sg)) <= 5 * tse + 1e-7)
+
+
+def energy_with_error(t):
+    w = np.sin(t.theta)
+    dth = np.gradient(t.theta)
+    energy = t.outgoing_energy()
+    err = 2 * np.pi * np.sqrt(np.sum((t.stderr * (w * dth)[:, None, None]) ** 2, axis=0))
+    return energy, err
+
+
+def test_energy_bounded_and_decreasing(shipped):
+    energy, err = energy_with_error(shipped)
+    # sigma = 0: the phase function's normalisation (trapezoidal rule resolves |g| <= 0.5)
+    mid = np.abs(shipped.g) <= 0.5 + 1e-9
+    np.testing.assert_allclose(energy[0, mid], 1.0, atol=2e-3)
+    # never more than what came in (relative to the same quadrature of the sigma = 0 row)
+    assert np.all(energy <= energy[0] + 4 * err + 1e-4)
+    # albedo < 1: more extinction, less energy out
+    step = np.diff(energy, axis=0)
+    bound = 4 * np.sqrt(err[1:] ** 2 + err[:-1] ** 2) + 1e-4
+    assert np.all(step <= bound)
+    assert np.all(energy[-1] < 0.5 * energy[0])
+
+
+def test_energy_decreases_on_device(device):
+    t = generate_table(n_theta=64, sigma=np.linspace(0, 8, 5), g=[0.0], samples=400, seed=9,
+                       device=device, progress=False)
+    energy, err = energy_with_error(t)
+    assert np.all(np.diff(energy[:, 0]) <= 4 * np.sqrt(err[1:, 0] ** 2 + err[:-1, 0] ** 2))
+    assert energy[-1, 0] < energy[0, 0] <= 1.0 + 1e-3
+
+
+def test_forward_scattering_puts_more_radiance_at_small_theta(shipped):
+    small = shipped.theta < np.pi / 4
+    fwd = shipped.g_slice(0.6)[small].mean(axis=0)
+    bwd = shipped.g_slice(-0.6)[small].mean(axis=0)
+    thin = shipped.sigma <= 10
+    assert np.all(fwd[thin] > bwd[thin])
+    # in thin spheres backward scattering sends more light back towards the light
+    large = shipped.theta > 3 * np.pi / 4
+    very_thin = shipped.sigma <= 0.5
+    assert np.all(shipped.g_slice(-0.6)[large].mean(axis=0)[very_thin]
+                  > shipped.g_slice(0.6)[large].mean(axis=0)[very_thin])
+
+
+def test_front_transmittance(shipped):
+    t = shipped.transmittance
+    np.testing.assert_allclose(t[0], 1.0)
+    se = shipped.transmittance_stderr
+    assert np.all(np.diff(t, axis=0) <= 4 * np.sqrt(se[1:] ** 2 + se[:-1] ** 2) + 1e-6)
+    k_fwd = int(np.argmin(np.abs(shipped.g - 0.6)))
+    k_bwd = int(np.argmin(np.abs(shipped.g + 0.6)))
+    assert np.all(t[1:40, k_fwd] > t[1:40, k_bwd])
+    assert np.all(t <= 1.0)
+
+
+def test_row_regenerated_with_another_seed_agrees(shipped, device):
+    k_sigma = int(np.argmin(np.abs(shipped.sigma - 2.0)))
+    k_g = int(np.argmin(np.abs(shipped.g - 0.3)))
+    row = generate_table(theta=shipped.theta, sigma=[shipped.sigma[k_sigma]],
+                         g=[shipped.g[k_g]], albedo=shipped.albedo, samples=4096,
+                         seed=shipped.seed + 777, device=device, progress=False)
+    a = shipped.radiance[:, k_sigma, k_g]
+    b = row.radiance[:, 0, 0]
+    quant = 2e-3 * a  # float16 storage of ln L
+    sigma = np.sqrt(shipped.stderr[:, k_sigma, k_g] ** 2 + row.stderr[:, 0, 0] ** 2 + quant**2)
+    z = (a - b) / sigma
+    assert np.max(np.abs(z)) < 5.0
+    assert np.mean(z**2) < 2.0
+    # and the estimate is not trivially within a huge error bar
+    assert np.median(row.rel_stderr[:, 0, 0]) < 0.05
+
+
+def test_g_slice_interpolates_geometrically(shipped):
+    k = int(np.argmin(np.abs(shipped.g - 0.5)))
+    np.testing.assert_allclose(shipped.g_slice(shipped.g[k]), shipped.radiance[:, :, k])
+    mid = 0.5 * (shipped.g[k] + shipped.g[k + 1])
+    sl = shipped.g_slice(mid)
+    a, b = shipped.radiance[:, 0, k], shipped.radiance[:, 0, k + 1]
+    np.testing.assert_allclose(sl[:, 0], np.sqrt(a * b), rtol=1e-5)
+    # the sigma = 0 column follows the HG peak much better than a linear blend would
+    exact = hg(1.0, mid)
+    assert abs(sl[0, 0] - exact) < 0.5 * abs(0.5 * (a[0] + b[0]) - exact)
+    np.testing.assert_allclose(shipped.g_slice(5.0), shipped.radiance[:, :, -1])
+
+
+def test_lookup_matches_grid_values(shipped):
+    i, j, k = 10, 20, 12
+    val = shipped.lookup(shipped.theta[i], shipped.sigma[j], shipped.g[k])
+    assert float(val) == pytest.approx(float(shipped.radiance[i, j, k]), rel=1e-6)
+
+
+def test_file_round_trip_and_version_check(tmp_path, device):
+    t = generate_table(n_theta=5, n_sigma=4, n_g=3, samples=32, seed=1, device=device,
+                       progress=False)
+    path = t.save(tmp_path / "t.npz")
+    u = PreintegrationTable.load(path)
+    # float16 ln L: half a unit in the last place is 2^-11 |ln L|
+    pos = t.radiance > 0
+    assert np.all(u.radiance[~pos] == 0)
+    assert np.all(np.abs(np.log(u.radiance[pos]) - np.log(t.radiance[pos]))
+                  <= 2.0**-11 * np.abs(np.log(t.radiance[pos])) + 1e-6)
+    np.testing.assert_allclose(u.transmittance, t.transmittance)
+    assert (u.albedo, u.samples, u.seed) == (t.albedo, t.samples, t.seed)
+    np.testing.assert_array_equal(u.sigma, t.sigma)
+    data = dict(np.load(path))
+    data["format_version"] = np.int32(FORMAT_VERSION + 1)
+    np.savez(tmp_path / "old.npz", **data)
+    with pytest.raises(ValueError, match="regenerate"):
+        PreintegrationTable.load(tmp_path / "old.npz")
+    np.savez(tmp_path / "junk.npz", x=np.zeros(3))
+    with pytest.raises(ValueError, match="not an ambient-scattering table"):
+        PreintegrationTable.load(tmp_path / "junk.npz")
+
+
+def test_generate_progress_and_bad_input(device):
+    seen = []
+    generate_table(n_theta=3, n_sigma=3, n_g=1, samples=8, device=device, progress=seen.append)
+    assert seen and seen[-1] == 1.0
+    with pytest.raises(ValueError, match="albedo"):
+        generate_table(albedo=1.5, n_theta=3, n_sigma=3, n_g=1, samples=8, device=device)
+    with pytest.raises(ValueError, match="samples"):
+        generate_table(n_theta=3, n_sigma=3, n_g=1, samples=1, device=device)
+
+
+def test_missing_albedo_is_generated_on_demand_and_cached(tmp_path, monkeypatch):
+    monkeypatch.setenv("VTKILLUM_CACHE_DIR", str(tmp_path))
+    monkeypatch.setattr(table_module, "ON_DEMAND",
+                        {"n_theta": 6, "n_sigma": 5, "n_g": 3, "samples": 16})
+    monkeypatch.setattr(table_module, "_LOADED", {})
+    with pytest.raises(FileNotFoundError, match="python -m vtkillum.core.ambient.table"):
+        load_table(0.55, generate=False)
+    t = load_table(0.55, device="cpu", progress=False)
+    assert t.albedo == pytest.approx(0.55) and t.shape == (6, 5, 3)
+    assert (tmp_path / "ambient_table_a0.55.npz").exists()
+    monkeypatch.setattr(table_module, "_LOADED", {})
+    again = load_table(0.55, generate=False)
+    np.testing.assert_array_equal(again.radiance, t.radiance)
+
+
+def test_command_line(tmp_path, capsys):
+    out = tmp_path / "cli.npz"
+    assert table_module.main(["--device", "cpu", "--theta", "4", "--sigma", "3", "--g", "3",
+                              "--samples", "16", "--quiet", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "Monte-Carlo error" in text and "paths/s" in text and out.exists()
+    assert PreintegrationTable.load(out).shape == (4, 3, 3)

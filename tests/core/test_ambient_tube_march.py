@@ -1,0 +1,121 @@
+"""Light distribution by tube marching (Ament et al. 2013, eqs. 14-17)."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+from vtkillum.core.ambient.tube_march import radiance_cache
+from vtkillum.core.lights import DirectionalLight, PointLight
+from vtkillum.core.volume import Volume
+from vtkillum.core.warp_common import make_lights
+
+SIGMA_MAX = 20.0
+TAU = np.linspace(0.0, SIGMA_MAX, 201)
+
+
+def grid(shape, value, device):
+    return wp.array(np.full(shape, value, np.float32), dtype=wp.float32, device=device)
+
+
+def cache_points(shape, extent):
+    axes = [np.linspace(0, e, n) for n, e in zip(shape, extent)]
+    return np.stack(np.meshgrid(*axes, indexing="ij"), -1)
+
+
+def test_empty_space_carries_the_unattenuated_light(device):
+    shape = (9, 8, 7)
+    vol = Volume(np.zeros(shape, np.float32), spacing=(1.0, 1.0, 1.0))
+    lights = [DirectionalLight((1, -2, 0.5), (1.0, 0.5, 0.25)),
+              PointLight((4.0, 3.0, 10.0), (20.0, 10.0, 5.0))]
+    lw = make_lights(lights, vol, device)
+    trans = np.exp(-2 * TAU)  # anything with T(0) = 1
+    cache = radiance_cache(grid(shape, 0.0, device), vol.spacing, vol.extent, lw, trans,
+                           SIGMA_MAX, radius=1.5, scale=1.0, device=device).numpy()
+    np.testing.assert_allclose(cache[0], np.broadcast_to([1.0, 0.5, 0.25], cache[0].shape),
+                               rtol=1e-6)
+    p = cache_points(shape, vol.extent)
+    d2 = np.sum((p - np.array([4.0, 3.0, 10.0])) ** 2, axis=-1)
+    np.testing.assert_allclose(cache[1], np.array([20.0, 10.0, 5.0]) / d2[..., None], rtol=1e-5)
+
+
+@pytest.mark.parametrize("radius", [0.75, 2.0])
+def test_homogeneous_medium_follows_eqs_15_to_17(device, radius):
+    # Constant sigma~: after k whole steps of 2r the front is E T^k; in between it is
+    # interpolated linearly (eq. 17). Light enters at x = 0 travelling along +x.
+    shape = (21, 3, 3)
+    extent = np.array([10.0, 1.0, 1.0])
+    spacing = extent / (np.array(shape) - 1)
+    sig = 0.3
+    trans = np.exp(-1.3 * TAU) * (0.9 + 0.1 * np.cos(TAU))  # some decreasing table
+    vol = Volume(np.zeros(shape, np.float32), spacing=spacing)
+    lw = make_lights([DirectionalLight((1, 0, 0), (2.0, 2.0, 2.0))], vol, device)
+    cache = radiance_cache(grid(shape, sig, device), spacing, extent, lw, trans, SIGMA_MAX,
+                           radius=radius, scale=1.0, device=device).numpy()[0, :, 1, 1, 0]
+    t = np.interp(radius * sig, TAU, trans)
+    x = np.linspace(0, extent[0], shape[0])
+    steps = x / (2 * radius)
+    k = np.floor(steps)
+    eta = steps - k
+    ref = 2.0 * ((1 - eta) * t**k + eta * t ** (k + 1))
+    np.testing.assert_allclose(cache, ref, rtol=2e-5)
+
+
+def test_absorbing_medium_is_beer_lambert(device):
+    # With the albedo-0 transmittance exp(-2 tau), whole steps reproduce exp(-sigma x).
+    shape = (41, 2, 2)
+    extent = np.array([8.0, 1.0, 1.0])
+    spacing = extent / (np.array(shape) - 1)
+    vol = Volume(np.zeros(shape, np.float32), spacing=spacing)
+    lw = make_lights([DirectionalLight((-1, 0, 0), (1.0, 1.0, 1.0))], vol, device)
+    sig, radius = 0.5, 0.2
+    cache = radiance_cache(grid(shape, sig, device), spacing, extent, lw, np.exp(-2 * TAU),
+                           SIGMA_MAX, radius=radius, scale=1.0, device=device).numpy()
+    x = np.linspace(0, extent[0], shape[0])
+    depth = extent[0] - x  # the light comes from +x
+    whole = np.isclose(np.mod(depth / (2 * radius) + 0.5, 1.0), 0.5)  # on a step boundary
+    assert whole.sum() == 21
+    got = cache[0, :, 0, 0, 0]
+    np.testing.assert_allclose(got[whole], np.exp(-sig * depth[whole]), rtol=1e-5)
+    # in between, eq. 17 interpolates linearly: a little above the exponential
+    assert np.all(got[~whole] >= np.exp(-sig * depth[~whole]))
+    np.testing.assert_allclose(got[~whole], np.exp(-sig * depth[~whole]), rtol=6e-3)
+
+
+def test_point_light_inside_starts_at_the_light(device):
+    shape = (11, 11, 11)
+    vol = Volume(np.zeros(shape, np.float32))
+    pos = np.array([5.0, 5.0, 5.0])
+    lw = make_lights([PointLight(pos, (1.0, 1.0, 1.0))], vol, device)
+    sig, radius = 0.2, 0.5
+    cache = radiance_cache(grid(shape, sig, device), vol.spacing, vol.extent, lw,
+                           np.exp(-2 * TAU), SIGMA_MAX, radius=radius, scale=1.0,
+                           device=device).numpy()[0, ..., 0]
+    p = cache_points(shape, vol.extent)
+    d = np.linalg.norm(p - pos, axis=-1)
+    far = d > 0.5
+    # marching starts at the light (a light outside would start at the box face)
+    t = np.exp(-2 * radius * sig)
+    k = np.floor(d / (2 * radius))
+    eta = d / (2 * radius) - k
+    ref = ((1 - eta) * t**k + eta * t ** (k + 1)) / np.maximum(d, 1e-6) ** 2
+    np.testing.assert_allclose(cache[far], ref[far], rtol=1e-4)
+
+
+def test_shadow_behind_an_occluder_and_cache_resolution(device):
+    shape = (17, 9, 9)
+    sig = np.zeros(shape, np.float32)
+    sig[4:7, :, :] = 3.0  # a slab across the light's path
+    vol = Volume(np.zeros(shape, np.float32))
+    lw = make_lights([DirectionalLight((1, 0, 0))], vol, device)
+    cache = radiance_cache(wp.array(sig, dtype=wp.float32, device=device), vol.spacing,
+                           vol.extent, lw, np.exp(-1.5 * TAU), SIGMA_MAX, radius=1.0,
+                           scale=0.5, device=device)
+    assert cache.shape == (9, 5, 5)
+    line = cache.numpy()[0, :, 2, 2, 0]
+    assert line[0] == pytest.approx(1.0)
+    assert np.all(np.diff(line) <= 1e-7)
+    # one step of 2r = 2 crosses the slab (tau = r sigma = 3): T = exp(-1.5 * 3)
+    assert line[-1] == pytest.approx(np.exp(-4.5), rel=1e-3)
+    with pytest.raises(ValueError, match="radiance_cache_scale"):
+        radiance_cache(wp.array(sig, dtype=wp.float32, device=device), vol.spacing, vol.extent,
+                       lw, np.exp(-TAU), SIGMA_MAX, radius=1.0, scale=0.0, device=device)

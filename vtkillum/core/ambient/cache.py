@@ -1,0 +1,285 @@
+"""What ambient scattering keeps between frames, and what each edit invalidates.
+
+The paper's Table 1 separates three kinds of interaction; this cache recomputes
+exactly the stages each one needs:
+
+==========================  ===============================================
+edit                        recomputed
+==========================  ===============================================
+transfer function (or data) σt grid and its SAT, ``σ̃t``, radiance cache
+ambient radius ``r``        ``σ̃t`` (from the kept SAT), radiance cache
+anisotropy ``g``, albedo,   radiance cache only
+lights, cache resolution
+camera, image size          nothing (only the gather runs)
+==========================  ===============================================
+
+Each stage is keyed by everything it depends on; :attr:`AmbientScatteringCache.stats`
+counts how often each ran, and :attr:`AmbientState.recomputed` /
+:attr:`AmbientState.timings` say what the last update did and how long it took
+(milliseconds, device synchronised). The data is recognised by the array's
+identity, shape, spacing and a strided fingerprint of its values; a different
+array object is compared by a hash of all its values (so a filter's fresh
+conversion of unchanged data keeps the caches). After editing a volume's array
+in place call :meth:`AmbientScatteringCache.invalidate`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import warp as wp
+
+from vtkillum.core.ambient.sat import ambient_extinction, sigma_t_grid, summed_area_table
+from vtkillum.core.ambient.table import PreintegrationTable, load_table
+from vtkillum.core.ambient.tube_march import RadianceCache, radiance_cache
+from vtkillum.core.device import resolve_device
+from vtkillum.core.lights import pack_lights
+from vtkillum.core.warp_common import Lights, Medium, make_lights, to_device
+
+#: Values hashed for the data fingerprint (strided over the array).
+FINGERPRINT_SAMPLES = 1 << 16
+
+
+@dataclass
+class AmbientState:
+    """Everything the gather needs, as left by :meth:`AmbientScatteringCache.update`.
+
+    Attributes
+    ----------
+    medium : Medium
+        Data and optical model on the device (albedo and g set).
+    sigma_t : wp.array3d(float32)
+        σt at the grid points.
+    sigma_tilde : wp.array3d(float32)
+        Ambient extinction ``σ̃t`` on the data grid.
+    radiance : RadianceCache or None
+        Tube-marched radiance per light (None after :meth:`~AmbientScatteringCache.update_extinction`).
+    lights : Lights or None
+        Lights in the local frame, in cache order.
+    table : PreintegrationTable or None
+        The preintegration table used.
+    table_slice : wp.array2d(float32) or None
+        ``L̃o(θ, r σ̃t)`` at the scene's ``g``.
+    radius : float
+        Sphere radius in world units.
+    recomputed : list of str
+        Stages the last update ran: ``"sat"``, ``"extinction"``, ``"radiance"``.
+    timings : dict
+        Milliseconds per stage of the last update (``sat_ms``, ``extinction_ms``,
+        ``radiance_ms``; 0 for a stage that was kept).
+    """
+
+    medium: Medium
+    sigma_t: object
+    sigma_tilde: object
+    radiance: RadianceCache | None
+    lights: Lights | None
+    table: PreintegrationTable | None
+    table_slice: object
+    radius: float
+    recomputed: list = field(default_factory=list)
+    timings: dict = field(default_factory=dict)
+
+
+class AmbientScatteringCache:
+    """SAT, ambient extinction and radiance cache, recomputed only when invalidated.
+
+    Parameters
+    ----------
+    device : str, optional
+        Warp device every array lives on.
+    """
+
+    def __init__(self, device: str | None = None) -> None:
+        self.device = resolve_device(device)
+        self.stats = {"sat": 0, "extinction": 0, "radiance": 0}
+        self.invalidate()
+
+    def invalidate(self) -> None:
+        """Forget everything (the next update recomputes all stages)."""
+        self._data_identity = None
+        self._data_key = None
+        self._scalars = None
+        self._tf_key = None
+        self._medium = None
+        self._sigma_t = None
+        self._sat = None
+        self._ext_key = None
+        self._sigma_tilde = None
+        self._rad_key = None
+        self._radiance = None
+        self._lights = None
+        self._slice_key = None
+        self._slice = None
+
+    def update(self, volume, transfer_function, unit_distance: float, albedo: float,
+               anisotropy: float, lights, radius: float, radius_units: str = "voxels",
+               cache_scale: float = 0.5, table: PreintegrationTable | None = None,
+               cache_shape=None) -> AmbientState:
+        """Bring every stage up to date with the given parameters.
+
+        Parameters
+        ----------
+        volume : vtkillum.core.volume.Volume
+        transfer_function : vtkillum.core.transfer_function.TransferFunction
+        unit_distance : float
+            Opacity unit distance (world units).
+        albedo, anisotropy : float
+            ``Λ`` and HG ``g``.
+        lights : list of DirectionalLight / PointLight
+        radius : float
+            Ambient sphere radius ``r``.
+        radius_units : {"voxels", "world"}
+            ``"voxels"``: ``r`` times the mean spacing; ``"world"``: world units.
+        cache_scale : float
+            Radiance-cache resolution relative to the data, in (0, 1].
+        table : PreintegrationTable, optional
+            Table to use; default :func:`~vtkillum.core.ambient.table.load_table` for ``albedo``.
+        cache_shape : (int, int, int), optional
+            Explicit radiance-cache grid (overrides ``cache_scale``).
+        """
+        if table is None:
+            table = load_table(albedo, device=self.device)
+        state = self.update_extinction(volume, transfer_function, unit_distance, radius,
+                                       radius_units)
+        device = self.device
+        self._medium.albedo = float(albedo)
+        self._medium.g = float(anisotropy)
+
+        slice_key = (id(table), round(float(anisotropy), 9))
+        if slice_key != self._slice_key:
+            self._slice = (wp.array(table.g_slice(anisotropy), dtype=wp.float32, device=device),
+                           wp.array(table.transmittance_slice(anisotropy), dtype=wp.float32,
+                                    device=device))
+            self._slice_key = slice_key
+
+        kinds, vecs, rgb = pack_lights(lights, volume.direction, volume.origin)
+        rad_key = (self._ext_key, slice_key, kinds.tobytes(), vecs.tobytes(), rgb.tobytes(),
+                   float(cache_scale), None if cache_shape is None else tuple(cache_shape))
+        if rad_key != self._rad_key:
+            t = time.perf_counter()
+            self._lights = make_lights(lights, volume, device)
+            self._radiance = radiance_cache(self._sigma_tilde, volume.spacing, volume.extent,
+                                            self._lights, self._slice[1], table.sigma_max,
+                                            state.radius, cache_scale, device, cache_shape)
+            wp.synchronize_device(device)
+            state.timings["radiance_ms"] = 1e3 * (time.perf_counter() - t)
+            self._rad_key = rad_key
+            self.stats["radiance"] += 1
+            state.recomputed.append("radiance")
+        state.radiance = self._radiance
+        state.lights = self._lights
+        state.table = table
+        state.table_slice = self._slice[0]
+        return state
+
+    def update_extinction(self, volume, transfer_function, unit_distance: float, radius: float,
+                          radius_units: str = "voxels") -> AmbientState:
+        """Bring only the σt grid, its SAT and ``σ̃t`` up to date (no lights needed).
+
+        The returned state has ``radiance``, ``lights``, ``table`` and ``table_slice``
+        set to ``None``; parameters as for :meth:`update`.
+        """
+        device = self.device
+        recomputed = []
+        timings = {"sat_ms": 0.0, "extinction_ms": 0.0, "radiance_ms": 0.0}
+        radius_world = world_radius(radius, radius_units, volume.spacing)
+
+        identity = _data_identity(volume)
+        if identity != self._data_identity:
+            # Another array object (e.g. a filter's fresh conversion): compare contents.
+            data_key = _data_digest(volume)
+            if data_key != self._data_key:
+                self.invalidate()
+                self._scalars = to_device(volume.scalars, wp.float32, device)
+                self._data_key = data_key
+            self._data_identity = identity
+        data_key = self._data_key
+
+        tf_key = (data_key, _tf_key(transfer_function, unit_distance, volume.value_range))
+        if tf_key != self._tf_key:
+            t = time.perf_counter()
+            self._medium = _medium(self._scalars, volume, transfer_function, unit_distance,
+                                   device)
+            self._sigma_t = sigma_t_grid(self._medium, device)
+            self._sat = summed_area_table(self._sigma_t, device)
+            wp.synchronize_device(device)
+            timings["sat_ms"] = 1e3 * (time.perf_counter() - t)
+            self._tf_key = tf_key
+            self.stats["sat"] += 1
+            recomputed.append("sat")
+
+        ext_key = (tf_key, round(radius_world, 12))
+        if ext_key != self._ext_key:
+            t = time.perf_counter()
+            self._sigma_tilde = ambient_extinction(self._sigma_t, volume.spacing, radius_world,
+                                                   device, sat=self._sat)
+            wp.synchronize_device(device)
+            timings["extinction_ms"] = 1e3 * (time.perf_counter() - t)
+            self._ext_key = ext_key
+            self.stats["extinction"] += 1
+            recomputed.append("extinction")
+
+        return AmbientState(self._medium, self._sigma_t, self._sigma_tilde, None, None, None,
+                            None, radius_world, recomputed, timings)
+
+
+def world_radius(radius: float, units: str, spacing) -> float:
+    """The ambient radius in world units (``"voxels"`` means times the mean spacing)."""
+    if isinstance(radius, bool) or not isinstance(radius, (int, float, np.floating, np.integer)):
+        raise ValueError(f"ambient_scattering.radius must be a number, got {radius!r}")
+    radius = float(radius)
+    if not (np.isfinite(radius) and radius > 0):
+        raise ValueError(f"ambient_scattering.radius must be positive, got {radius}")
+    if units == "voxels":
+        return radius * float(np.mean(spacing))
+    if units == "world":
+        return radius
+    raise ValueError(f"ambient_scattering.radius_units must be 'voxels' or 'world', got {units!r}")
+
+
+def _data_identity(volume) -> tuple:
+    """Cheap identity of the data: the array object, its shape and spacing, a strided sample."""
+    s = volume.scalars
+    stride = max(1, s.size // FINGERPRINT_SAMPLES)
+    sample = hashlib.blake2b(np.ascontiguousarray(s.reshape(-1)[::stride]).tobytes(),
+                             digest_size=16).hexdigest()
+    return (id(s), s.__array_interface__["data"][0], s.shape,
+            tuple(np.asarray(volume.spacing).tolist()), sample)
+
+
+def _data_digest(volume) -> tuple:
+    """Content key of the data: every value, the shape and the spacing."""
+    s = np.ascontiguousarray(volume.scalars)
+    digest = hashlib.blake2b(s.tobytes(), digest_size=16).hexdigest()
+    return (s.shape, tuple(np.asarray(volume.spacing).tolist()), digest)
+
+
+def _tf_key(tf, unit_distance: float, value_range) -> str:
+    text = json.dumps([tf.to_dict(), float(unit_distance), [float(v) for v in value_range]])
+    return hashlib.blake2b(text.encode(), digest_size=16).hexdigest()
+
+
+def _medium(scalars, volume, tf, unit_distance: float, device: str) -> Medium:
+    """A :class:`Medium` around already-uploaded scalars (the tables as ``make_medium`` builds them).
+
+    Kept here so that a transfer-function edit re-uploads the 4096-entry tables only,
+    not the volume.
+    """
+    sig, col, lo, hi = tf.lookup_tables(unit_distance, volume.value_range)
+    m = Medium()
+    m.scalars = scalars
+    m.extent = wp.vec3(*volume.extent.astype(np.float32))
+    m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
+    m.sigma_table = wp.array(sig, dtype=wp.float32, device=device)
+    m.color_table = wp.array(col, dtype=wp.vec3, device=device)
+    m.table_lo = float(lo)
+    m.table_scale = float((len(sig) - 1) / (hi - lo))
+    m.albedo = 0.9
+    m.g = 0.0
+    m.majorant = float(sig.max()) * 1.0001 + 1e-12
+    return m
