@@ -355,3 +355,11 @@ def test_missing_and_unknown_files(tmp_path):
         (tmp_path / name).write_text("garbage")
         with pytest.raises(ValueError, match="not a readable"):
             read_volume(tmp_path / name)
+
+
+def test_legacy_vtk_that_is_not_an_image(tmp_path):
+    sphere = vtk.vtkSphereSource()
+    sphere.Update()
+    path = write(vtk.vtkPolyDataWriter(), tmp_path / "mesh.vtk", sphere.GetOutput())
+    with pytest.raises(ValueError, match="mesh.vtk: vtkPolyData is not image data.*resample"):
+        read_volume(path)

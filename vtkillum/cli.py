@@ -36,7 +36,7 @@ DEMO_DATASET = "builtin:plume"
 
 OUTPUT_HELP = """\
 output formats (by extension):
-  .png  8-bit sRGB-like picture: the linear radiance L composited over the scene
+  .png  8-bit RGB picture: the linear radiance L composited over the scene
         background (L + (1 - alpha) * background), multiplied by the exposure,
         clipped to [0, 1] and raised to 1/2.2 (gamma 2.2), see vtkillum.core.tonemap.
   .npy  linear radiance, float32 array (H, W, 3), row 0 at the top, background NOT
@@ -152,10 +152,13 @@ def _add_input_options(parser) -> None:
 
 def _add_render_options(parser, methods, default_method: str, default_size) -> None:
     parser.add_argument("--method", "-m", default=default_method, choices=methods,
-                        help=f"rendering method (default {default_method})")
+                        metavar="METHOD",
+                        help=f"rendering method, one of: {', '.join(methods)} "
+                             f"(default {default_method})")
     parser.add_argument("--size", nargs=2, type=int, metavar=("W", "H"),
                         default=list(default_size),
-                        help="image width and height in pixels (default %(default)s)")
+                        help="image width and height in pixels (default "
+                             f"{default_size[0]} {default_size[1]})")
     parser.add_argument("--device", default=None,
                         help="warp device: cpu, cuda, cuda:N (default: CUDA when present; the "
                              "VTKILLUM_DEVICE environment variable overrides)")

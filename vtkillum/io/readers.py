@@ -24,7 +24,8 @@ convention of DICOM, ITK and MetaImage:
 - NIfTI stores RAS coordinates: the qform/sform is applied and then x and y are
   negated (as ITK does), so a NIfTI and a DICOM copy of a scan coincide. The
   sform is used when present (the NIfTI "aligned" transform), else the qform,
-  else the voxel sizes alone; ``scl_slope``/``scl_inter`` are applied.
+  else the voxel sizes alone; ``scl_slope``/``scl_inter`` are applied. Lengths
+  are taken in the file's units (``xyzt_units``, almost always millimetres).
 - NRRD files are parsed here rather than with ``vtkNrrdReader``, which ignores
   ``space directions`` other than their lengths, guesses that a fastest axis of
   nine or fewer samples holds vector components, and flips rows for LAS spaces.
