@@ -388,15 +388,9 @@ def _quiet_libraries() -> None:
 
     Errors that matter reach the user as exceptions, reported in one line.
     """
-    try:
-        import warp as wp
+    from vtkillum.core.device import init_warp
 
-        wp.config.quiet = True
-        # warp >= 1.10 prints its banner through a logger with levels (30: warnings).
-        if isinstance(getattr(wp.config, "log_level", None), int):
-            wp.config.log_level = max(wp.config.log_level, 30)
-    except ImportError:
-        pass
+    init_warp()
     try:
         from vtkmodules.vtkCommonCore import vtkLogger
 

@@ -17,8 +17,11 @@ ENV_VAR = "VTKILLUM_DEVICE"
 
 @lru_cache(maxsize=1)
 def init_warp() -> None:
-    """Initialise warp once, quietly."""
+    """Initialise warp once, quietly (no start-up banner)."""
     wp.config.quiet = True
+    # warp >= 1.10 prints its banner through a logger with levels (30: warnings only).
+    if isinstance(getattr(wp.config, "log_level", None), int):
+        wp.config.log_level = max(wp.config.log_level, 30)
     wp.init()
 
 
