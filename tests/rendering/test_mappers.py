@@ -447,3 +447,42 @@ def test_bad_inputs_raise_clear_errors(setup):
     add_point_array(wrong_box, "fluence", np.ones((8, 8, 8, 3)))
     with pytest.raises(ValueError, match="does not cover"):
         IlluminatedVolume(image, scene, illumination=wrong_box)
+
+
+def test_cli_transmittance_matches_opengl_mapper(tmp_path):
+    """Three ways, one picture: the CLI's ``transmittance`` render (shadow volume computed by
+    the core, ray cast by warp), and the OpenGL mapper fed the same shadow volume, agree
+    within the OpenGL-vs-warp tolerance."""
+    cli = pytest.importorskip("vtkillum.cli")
+    from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
+
+    from vtkillum.core.light_transmittance import light_transmittance
+    from vtkillum.core.scene import save_scene
+
+    volume = blob_volume()
+    scene = make_scene(volume)
+    scene.lights = [DirectionalLight((0.6, -1.0, 0.2), IRRADIANCE)]
+    writer = vtkXMLImageDataWriter()
+    writer.SetFileName(str(tmp_path / "blobs.vti"))
+    writer.SetInputData(image_data_from_volume(volume))
+    writer.Write()
+    save_scene(scene, tmp_path / "scene.json")
+    status = cli.main(["render", str(tmp_path / "blobs.vti"), "--scene", str(tmp_path / "scene.json"),
+                       "--method", "transmittance", "--size", str(WIDTH), str(HEIGHT),
+                       "--option", "jitter=false", "--option", f"early_termination={EARLY_STOP}",
+                       "--device", "cpu", "--quiet", "--output", str(tmp_path / "cli.npz")])
+    assert status == 0
+    cli_radiance = np.load(tmp_path / "cli.npz")["radiance"]
+    assert cli_radiance.max() > 0.3
+
+    _, fluence = light_transmittance(volume, scene.transfer_function, UNIT, scene.lights,
+                                     device="cpu")
+    renderer = vtkRenderer()
+    actor = IlluminatedVolume(image_data_from_volume(volume), scene,
+                              illumination=IlluminationVolume.for_volume(volume, fluence))
+    renderer.AddVolume(actor)
+    window = vtk_window(renderer, scene.camera)
+    errors = rel_errors(grab(window), cli_radiance)
+    print(f"CLI transmittance vs OpenGL: mean {errors[0]:.2e}, p99 {errors[1]:.2e}")
+    assert within(errors), errors
+    window.Finalize()
