@@ -32,57 +32,65 @@ Boundary conditions (eqs. 6–11, 14–15)
   outward normal ``n`` has ``n . u < 0`` (directional, eq. 6) or
   ``n . (x - x_P) < 0`` with the light beyond that face (point light outside,
   eq. 8). Outside the box is vacuum.
-* Outflow faces need no condition: the upwind stencil never reads across them.
-  This *is* the zero-gradient (Neumann) condition of eqs. 7, 9, 10 for a
-  first-order upwind scheme.
+* Outflow faces need no condition: the stencils never read across them. This
+  *is* the zero-gradient (Neumann) condition of eqs. 7, 9, 10 for an upwind
+  scheme.
 * Point lights: points closer than the source radius ``r_s`` to the light are a
   Dirichlet region (eqs. 11, 14, 15; the paper's ``r_s = 2 dx``) with
   ``T = exp(-sigma(x) d)``, the transmittance through a locally homogeneous
   medium (the paper's ``rho_P``, i.e. ``T = 1``, in vacuum).
 
-Discretisation and the one-sweep solution
------------------------------------------
-First-order upwind differences (eqs. 17–20) on the light grid (spacing
-``h_a`` per axis) give, at steady state, one equation per point ``p``:
+Discretisations (``scheme``)
+----------------------------
+``"upwind"`` — the paper's first-order upwind differences (eqs. 17–20) on the
+light grid (spacing ``h_a`` per axis). At steady state, one equation per point:
 
     sum_a w_a (T_p - T_up(a)) + sigma_p T_p = 0,    w_a = |u_a| / h_a,
 
-i.e. ``T_p = sum_a w_a T_up(a) / (sum_a w_a + sigma_p)``, where ``up(a)`` is the
-neighbour one step against the light along axis ``a`` (``scheme="upwind"``).
+i.e. ``T_p = sum_a w_a T_up(a) / (sum_a w_a + sigma_p)``, ``up(a)`` the neighbour
+one step against the light along axis ``a``.
 
-Exponential fitting (``scheme="exponential"``, the default) replaces the
-attenuation factor ``1 / (1 + sigma Δs)`` by ``exp(-sigma Δs)``, with
-``Δs = 1 / sum_a w_a`` the distance from ``p`` back along ``-u`` to the plane
-through its upwind neighbours (whose weighted average ``sum_a w_a T_up(a) / sum_a
-w_a`` is the value there):
+``"exponential"`` — the same stencil with exponential fitting: the factor
+``1 / (1 + sigma Δs)`` becomes ``exp(-sigma Δs)``, ``Δs = 1 / sum_a w_a`` being the
+distance from ``p`` back along ``-u`` to the plane through its upwind neighbours:
+``T_p = exp(-sigma_p Δs) sum_a w_a T_up(a) / sum_a w_a``. The plain factor lets
+``1 / (1 + sigma h)`` through an opaque point (10 % for ``sigma h = 9``, a one-voxel
+wall on a half-resolution light grid, where ``exp(-9) = 0.01 %`` is right). It is
+the upwind system with ``sigma' = (exp(sigma Δs) - 1) / Δs``.
 
-    T_p = exp(-sigma_p Δs) sum_a w_a T_up(a) / sum_a w_a.
+``"characteristics"`` (default) — short characteristics: follow the ray from
+``p`` back towards the light to where it first crosses a grid plane (at distance
+``t = min_a h_a / |u_a|``), interpolate ``T`` bilinearly there from the four
+upstream points of that plane, and attenuate over ``t`` with the trapezoidal
+mean extinction: ``T_p = T(q) exp(-t (sigma_p + sigma(q)) / 2)``. Same upstream
+points (plus one diagonal), but far less crosswind smearing: the mean error of
+``T`` against ray-marched transmittance is about half the upwind scheme's on a
+smoke plume, and exact for axis-aligned and for 45° light in homogeneous media.
 
-Both agree to first order where ``sigma Δs`` is small, but the plain upwind factor
-lets ``1 / (1 + sigma h)`` through an opaque point (10 % for ``sigma h = 9``, a
-one-voxel opaque wall on a half-resolution light grid), where the exact answer
-is ``exp(-9) = 0.01 %``. The fitted scheme is exact for axis-aligned light in
-homogeneous media, keeps ``0 <= T <= 1``, and is the upwind scheme with ``sigma``
-replaced by ``sigma' = (exp(sigma Δs) - 1) / Δs``, so everything said here about the
-upwind system holds for it too. The paper reaches this
-steady state by explicit time stepping (eq. 16, CFL 1/2), "4–5 iterations per
-layer". But every point depends only on its upwind neighbours, so the system
-is triangular: visiting points in an order where each comes after its upwind
-neighbours solves it *exactly in one pass*. A single layer along the dominant
-axis is not such an order for oblique light (a point also depends on its
-in-layer neighbours, which is why the paper iterates each layer). The order used
-here is by *wavefronts*: with ``r_a(i) = max(i - hi_a, lo_a - i, 0)`` the index
-distance from the light along axis ``a`` (``lo_a = hi_a`` = the inflow face for a
-directional light; ``lo_a, hi_a`` = floor/ceil of the light's grid coordinate
-for a point light), the upwind neighbour of a point has ``r`` one less on that
-axis, so all points with ``m = r_x + r_y + r_z`` depend only on points with
-``m - 1``. One launch per wavefront ``m = 0, 1, ...`` updates all its points in
-parallel. For an axis-aligned light the wavefronts are exactly the paper's layers.
-:func:`convect_light_iterated` implements the paper's iteration, which converges
-to the same numbers (tested).
+All three keep ``0 <= T <= 1`` and are exact for axis-aligned light in homogeneous
+media except ``"upwind"`` (first order: ``(1 + sigma h)^-i``).
+
+The one-sweep solution
+----------------------
+The paper reaches the steady state by explicit time stepping (eq. 16, CFL 1/2),
+"4–5 iterations per layer". But every point depends only on upstream points, so
+the system is triangular: visiting points in an order where each comes after
+its upstream points solves it *exactly in one pass*. A single layer along the
+dominant axis is not such an order for oblique light (a point also depends on
+its in-layer neighbours, which is why the paper iterates each layer). The order
+used here is by *wavefronts*: with ``r_a(i) = max(i - hi_a, lo_a - i, 0)`` the
+index distance from the light along axis ``a`` (``lo_a = hi_a`` = the inflow face
+for a directional light; ``lo_a, hi_a`` = floor/ceil of the light's grid
+coordinate for a point light), an upstream point has ``r`` one less on every axis
+it steps along, so all points with ``m = r_x + r_y + r_z`` depend only on points
+with smaller ``m``. One launch per wavefront ``m = 0, 1, ...`` updates all its
+points in parallel. For an axis-aligned light the wavefronts are exactly the
+paper's layers. :func:`convect_light_iterated` implements the paper's iteration
+(Jacobi sweeps for ``"characteristics"``), which converges to the same numbers
+(tested).
 
 For point lights, the grid planes that straddle the light (``lo_a <= i <= hi_a``)
-take no upwind term along ``a``: their upwind neighbour would lie on the other
+take no upstream step along ``a``: their upwind neighbour would lie on the other
 side of the light, and keeping it would make the two planes depend on each
 other. There ``|u_a| < h_a / d``, so the dropped term is small away from the source
 region. Directional components below ``1e-6`` are treated as zero.
@@ -101,10 +109,10 @@ from vtkillum.core.lights import DIRECTIONAL, POINT
 PARALLEL_EPS = 1.0e-6
 POINT_KIND = wp.constant(POINT)
 
-#: Attenuation per step: ``"upwind"`` (the paper, ``1 / (1 + sigma ds)``) or
-#: ``"exponential"`` (``exp(-sigma ds)``).
-SCHEMES = {"upwind": 0, "exponential": 1}
+#: Discretisations, see the module docstring.
+SCHEMES = {"upwind": 0, "exponential": 1, "characteristics": 2}
 EXPONENTIAL = wp.constant(1)
+CHARACTERISTICS = wp.constant(2)
 #: Largest optical depth of one step evaluated in the exponential (beyond: T = 0 anyway).
 MAX_STEP_DEPTH = wp.constant(80.0)
 
@@ -176,7 +184,7 @@ def sweep_plan(kind: int, vec, shape, spacing) -> SweepPlan:
 
 
 def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: float = 0.0,
-                  out: wp.array3d | None = None, scheme: str = "exponential") -> wp.array3d:
+                  out: wp.array3d | None = None, scheme: str = "characteristics") -> wp.array3d:
     """Steady-state upwind transmittance of one light, exactly, in one ordered sweep.
 
     Parameters
@@ -195,7 +203,7 @@ def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: flo
     out : warp.array3d of float32, optional
         Where to write (same shape and device as ``sigma``); allocated when omitted.
     scheme : str
-        ``"exponential"`` (default) or ``"upwind"`` (the paper's attenuation).
+        ``"characteristics"`` (default), ``"exponential"`` or ``"upwind"`` (the paper's).
 
     Returns
     -------
@@ -232,14 +240,16 @@ def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: flo
 def convect_light_iterated(sigma: wp.array3d, spacing, kind: int, vec, source_radius: float = 0.0,
                            max_iterations: int = 100000, tolerance: float = 1e-7,
                            initial: wp.array3d | None = None, check_every: int = 16,
-                           scheme: str = "exponential"):
+                           scheme: str = "characteristics"):
     """The paper's scheme: explicit upwind time steps (eq. 16) until the steady state.
 
     Every point is advanced by ``c dt = min(h) / 2`` (the paper's CFL number 1/2) per
     iteration, with the same stencil and boundary handling as :func:`convect_light`;
     absorption is treated implicitly per step, ``T <- (T - c dt sum_a w_a (T - T_up)) /
     (1 + c dt sigma)``, which is stable for any ``sigma`` and has the same fixed point
-    (with ``sigma'`` of the module docstring for ``scheme="exponential"``).
+    (with ``sigma'`` of the module docstring for ``scheme="exponential"``). Short
+    characteristics have no time-dependent form; for them each iteration is a Jacobi
+    sweep of the steady equations (exact after as many sweeps as there are wavefronts).
     Used to verify the one-sweep solution and to count the iterations it saves.
 
     Parameters
@@ -382,6 +392,63 @@ def upwind_sums(T: wp.array3d(dtype=wp.float32), idx: wp.vec3i, u: wp.vec3, h: w
 
 
 @wp.func
+def axis_offset(axis: int, value: int):
+    """``value`` times the unit index vector of ``axis``."""
+    return wp.vec3i(wp.where(axis == 0, value, 0), wp.where(axis == 1, value, 0),
+                    wp.where(axis == 2, value, 0))
+
+
+@wp.func
+def upstream_step(i: int, lo: int, hi: int):
+    """+1 if the upwind neighbour is at ``i - 1``, -1 if at ``i + 1``, 0 if there is none."""
+    if i > hi:
+        return 1
+    if i < lo:
+        return -1
+    return 0
+
+
+@wp.func
+def characteristic_value(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.float32),
+                         idx: wp.vec3i, u: wp.vec3, h: wp.vec3, lo: wp.vec3i, hi: wp.vec3i):
+    """Short characteristic: ``T`` interpolated where the ray back towards the light first
+    crosses a grid plane, times the transmittance of that step (trapezoidal ``sigma``)."""
+    s = wp.vec3i(upstream_step(idx[0], lo[0], hi[0]), upstream_step(idx[1], lo[1], hi[1]),
+                 upstream_step(idx[2], lo[2], hi[2]))
+    c = wp.vec3(wp.where(s[0] != 0, wp.abs(u[0]) / h[0], 0.0),
+                wp.where(s[1] != 0, wp.abs(u[1]) / h[1], 0.0),
+                wp.where(s[2] != 0, wp.abs(u[2]) / h[2], 0.0))
+    d = 0
+    if c[1] > c[d]:
+        d = 1
+    if c[2] > c[d]:
+        d = 2
+    if c[d] <= 0.0:
+        return 1.0  # no upstream point: the light's own cell
+    t = 1.0 / c[d]
+    a = (d + 1) % 3
+    b = (d + 2) % 3
+    fa = wp.min(c[a] * t, 1.0)
+    fb = wp.min(c[b] * t, 1.0)
+    p00 = idx - axis_offset(d, s[d])
+    pa = axis_offset(a, s[a])
+    pb = axis_offset(b, s[b])
+    p10 = p00 - pa
+    p01 = p00 - pb
+    p11 = p10 - pb
+    w00 = (1.0 - fa) * (1.0 - fb)
+    w10 = fa * (1.0 - fb)
+    w01 = (1.0 - fa) * fb
+    w11 = fa * fb
+    tq = (w00 * T[p00[0], p00[1], p00[2]] + w10 * T[p10[0], p10[1], p10[2]]
+          + w01 * T[p01[0], p01[1], p01[2]] + w11 * T[p11[0], p11[1], p11[2]])
+    sq = (w00 * sigma[p00[0], p00[1], p00[2]] + w10 * sigma[p10[0], p10[1], p10[2]]
+          + w01 * sigma[p01[0], p01[1], p01[2]] + w11 * sigma[p11[0], p11[1], p11[2]])
+    depth = 0.5 * (sigma[idx[0], idx[1], idx[2]] + sq) * t
+    return tq * wp.exp(-wp.min(depth, MAX_STEP_DEPTH))
+
+
+@wp.func
 def upwind_point(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.float32),
                  idx: wp.vec3i, lo: wp.vec3i, hi: wp.vec3i, inflow: wp.vec3i, kind: int,
                  vec: wp.vec3, h: wp.vec3, source_radius: float, scheme: int):
@@ -394,7 +461,9 @@ def upwind_point(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.flo
     u, dist = light_direction_at(kind, vec, x)
     s = sigma[idx[0], idx[1], idx[2]]
     value = boundary_value(idx, inflow, kind, dist, source_radius, s)
-    if value < 0.0:
+    if value < 0.0 and scheme == CHARACTERISTICS:
+        value = characteristic_value(sigma, T, idx, u, h, lo, hi)
+    elif value < 0.0:
         value = 1.0
         num, den = upwind_sums(T, idx, u, h, lo, hi)
         if den > 0.0:
@@ -461,7 +530,9 @@ def upwind_step_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=
     old = T[i, j, k]
     s = sigma[i, j, k]
     value = boundary_value(idx, inflow, kind, dist, source_radius, s)
-    if value < 0.0:
+    if value < 0.0 and scheme == CHARACTERISTICS:
+        value = characteristic_value(sigma, T, idx, u, h, lo, hi)  # explicit: Jacobi sweeps
+    elif value < 0.0:
         value = 1.0
         num, den = upwind_sums(T, idx, u, h, lo, hi)
         if den > 0.0:

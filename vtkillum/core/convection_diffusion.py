@@ -5,9 +5,9 @@ Pipeline (the paper's Fig. 2 and Algorithm 1)
 ---------------------------------------------
 1. **Opacity volume** — extinction ``sigma_t`` on the light grid (default half the
    data's resolution), footprint-averaged (:mod:`vtkillum.core.cd_opacity`).
-2. **Convection per light** — steady upwind transmittance ``T_l``, exact in one
-   wavefront-ordered sweep instead of the paper's 4–5 iterations per layer
-   (:mod:`vtkillum.core.cd_convection`).
+2. **Convection per light** — steady transmittance ``T_l`` (short characteristics
+   by default, or the paper's upwind scheme), exact in one wavefront-ordered sweep
+   instead of the paper's 4–5 iterations per layer (:mod:`vtkillum.core.cd_convection`).
 3. **Composition** (eq. 22) — ``L0(x) = sum_l T_l(x) E_l(x)`` with ``E_l`` the light's
    RGB irradiance (``I / max(d, r_s)**2`` for point lights): the single-scattering
    fluence of the project's convention (:mod:`vtkillum.core.illumination`).
@@ -47,7 +47,12 @@ import warp as wp
 
 from vtkillum.core.cd_convection import POINT_KIND, SCHEMES, convect_light
 from vtkillum.core.cd_diffusion import SOLVERS, DiffusionReport, DiffusionSolver
-from vtkillum.core.cd_opacity import light_grid_shape, light_grid_sigma, light_grid_spacing
+from vtkillum.core.cd_opacity import (
+    light_grid_shape,
+    light_grid_sigma,
+    light_grid_spacing,
+    medium_for,
+)
 from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.lights import pack_lights
@@ -96,7 +101,8 @@ def render_convection_diffusion(volume, scene, width, height, device=None, progr
     source_radius : float
         Point lights' source region (world units); 0: two light-grid spacings (eq. 15).
     convection_scheme : str
-        ``"exponential"`` (default) or ``"upwind"`` (not a scene field).
+        ``"characteristics"`` (default), ``"exponential"`` or ``"upwind"`` (the paper's
+        eqs. 16–20); not a scene field.
     **options
         Ray-casting options of :func:`vtkillum.core.raycast.render_illuminated`
         (``step_size``, ``jitter``, ``seed``, ``early_termination``).
@@ -112,7 +118,7 @@ def render_convection_diffusion(volume, scene, width, height, device=None, progr
     for key in OPTIONS:
         if key in options:
             cd[key] = options.pop(key)
-    scheme = options.pop("convection_scheme", "exponential")
+    scheme = options.pop("convection_scheme", "characteristics")
     solver = ConvectionDiffusionSolver(device=device, convection_scheme=scheme,
                                        **{k: cd.get(k, v) for k, v in OPTIONS.items()})
     stats = solver.update(volume, scene.resolved_transfer_function(volume),
@@ -196,8 +202,8 @@ class ConvectionDiffusionSolver:
     warm_start : bool
         Start each diffusion solve from the previous solution (see the module docstring).
     convection_scheme : str
-        ``"exponential"`` (default: exponentially fitted upwind, exact attenuation per
-        step) or ``"upwind"`` (the paper's eqs. 16–20); see
+        ``"characteristics"`` (default: short characteristics), ``"exponential"``
+        (exponentially fitted upwind) or ``"upwind"`` (the paper's eqs. 16–20); see
         :mod:`vtkillum.core.cd_convection`.
     device : str, optional
         Warp device.
@@ -206,7 +212,7 @@ class ConvectionDiffusionSolver:
     def __init__(self, light_volume_scale: float = 0.5, light_volume_shape=None,
                  scattering=(0.0, 0.0, 0.0), solver: str = "multigrid", tolerance: float = 1e-4,
                  iterations: int = 0, source_radius: float = 0.0, warm_start: bool = True,
-                 convection_scheme: str = "exponential", device: str | None = None):
+                 convection_scheme: str = "characteristics", device: str | None = None):
         self.light_volume_scale = light_volume_scale
         self.light_volume_shape = light_volume_shape
         self.scattering = scattering
@@ -224,6 +230,7 @@ class ConvectionDiffusionSolver:
         self._grid_key = None
         self._opacity_key = None
         self._opacity_version = 0
+        self._scalars = None  # (volume key, data on the device)
         self._sigma = None
         self._transmittance = {}  # geometry key -> (opacity version, array)
         self._compose_key = None
@@ -283,8 +290,13 @@ class ConvectionDiffusionSolver:
         opacity_key = (volume_key, tf_key, float(unit_distance))
         if opacity_key != self._opacity_key:
             t = time.perf_counter()
+            if self._scalars is None or self._scalars[0] != volume_key:
+                self._scalars = (volume_key, None)  # upload once per data set
+            medium = medium_for(volume, transfer_function, unit_distance, self.device,
+                                self._scalars[1])
+            self._scalars = (volume_key, medium.scalars)
             self._sigma = light_grid_sigma(volume, transfer_function, unit_distance, shape,
-                                           self.device)
+                                           self.device, medium=medium)
             self._opacity_key = opacity_key
             self._opacity_version += 1
             stats.opacity = True

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 from vtkmodules.vtkCommonDataModel import vtkDataObject
 
+from vtkillum.core.cd_convection import SCHEMES
 from vtkillum.core.cd_diffusion import SOLVERS
 from vtkillum.core.convection_diffusion import ConvectionDiffusionSolver, UpdateStats
 from vtkillum.filters.base import IlluminationFilterBase
@@ -52,6 +53,9 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         ``"multigrid"`` (default), ``"cg"``, ``"gauss-seidel"`` or ``"dct"`` (host).
     SourceRadius : float
         Point lights' source region in world units; 0 (default): two light-grid spacings.
+    ConvectionScheme : str
+        ``"characteristics"`` (default, short characteristics), ``"exponential"`` or
+        ``"upwind"`` (the paper's eqs. 16–20); see :mod:`vtkillum.core.cd_convection`.
     ColorTransferFunction, ScalarOpacity, ScalarOpacityUnitDistance, Lights, Device,
     OutputDimensions, InputComponent, NaNPolicy, PassInputArrays, CacheSizeMB
         As in :class:`~vtkillum.filters.base.IlluminationFilterBase`.
@@ -72,6 +76,7 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         self._tolerance = 1e-4
         self._solver_name = "multigrid"
         self._source_radius = 0.0
+        self._scheme = "characteristics"
         self._solver: ConvectionDiffusionSolver | None = None
         self._stats: UpdateStats | None = None
 
@@ -134,6 +139,14 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
     def GetSourceRadius(self) -> float:
         return self._source_radius
 
+    def SetConvectionScheme(self, scheme: str) -> None:
+        if scheme not in SCHEMES:
+            raise ValueError(f"ConvectionScheme must be one of {sorted(SCHEMES)}, got {scheme!r}")
+        self.set_parameter("_scheme", str(scheme))
+
+    def GetConvectionScheme(self) -> str:
+        return self._scheme
+
     # --- progressive refinement and diagnostics --------------------------------------------------
     def GetConverged(self) -> bool:
         """Whether the last execution's diffusion reached ``Tolerance``."""
@@ -169,6 +182,7 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         solver.tolerance = self._tolerance
         solver.solver = self._solver_name
         solver.source_radius = self._source_radius
+        solver.convection_scheme = self._scheme
         params.progress(0.1)
         self._stats = solver.update(volume, params.transfer_function, params.unit_distance,
                                     params.lights, volume_key=self._volume_key(volume))
