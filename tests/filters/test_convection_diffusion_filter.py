@@ -129,3 +129,94 @@ def test_time_steps_warm_start_and_cache(time_source):
     assert out.GetInformation().Get(vtkDataObject.DATA_TIME_STEP()) == 1.0
     np.testing.assert_array_equal(point_array(out, "fluence"), results[1.0])
     assert len(time_source.calls) == calls
+
+
+# --- both mapper paths ------------------------------------------------------------------------------
+def _window(renderer, camera, size):
+    from vtkmodules.vtkRenderingCore import vtkRenderWindow
+
+    from vtkillum.mappers import apply_camera_to_vtk
+
+    renderer.SetBackground(0.0, 0.0, 0.0)
+    apply_camera_to_vtk(camera, renderer.GetActiveCamera())
+    renderer.ResetCameraClippingRange()
+    window = vtkRenderWindow()
+    window.SetOffScreenRendering(1)
+    window.SetMultiSamples(0)
+    window.AddRenderer(renderer)
+    window.SetSize(size, size)
+    return window
+
+
+def _grab(window):
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkRenderingCore import vtkWindowToImageFilter
+
+    window.Render()
+    g = vtkWindowToImageFilter()
+    g.SetInput(window)
+    g.SetInputBufferTypeToRGB()
+    g.ReadFrontBufferOff()
+    g.ShouldRerenderOff()
+    g.Update()
+    w, h, _ = g.GetOutput().GetDimensions()
+    rgb = vtk_to_numpy(g.GetOutput().GetPointData().GetScalars()).reshape(h, w, 3)
+    return rgb[::-1].astype(np.float64) / 255.0
+
+
+def test_light_volume_renders_in_both_mapper_paths(make_image):
+    pytest.importorskip("vtkmodules.vtkRenderingVolumeOpenGL2")
+    from vtkmodules.vtkRenderingCore import vtkRenderer
+
+    from vtkillum.core.camera import Camera
+    from vtkillum.core.illumination import IlluminationVolume
+    from vtkillum.core.lights import DirectionalLight
+    from vtkillum.core.raycast import render_illuminated
+    from vtkillum.core.render import render
+    from vtkillum.core.scene import Scene
+    from vtkillum.core.tonemap import tonemap
+    from vtkillum.io.convert import volume_from_image_data
+    from vtkillum.mappers import ComputeVolumeRenderer, IlluminatedVolume
+
+    size, stop = 40, 1.0 - 1.0 / 255.0
+    img = make_image(dims=(24, 20, 16), spacing=(0.5, 0.5, 0.5), origin=(0.0, 0.0, 0.0))
+    volume = volume_from_image_data(img)
+    tf = TransferFunction([0.0, 0.3, 1.0], [0.0, 0.0, 0.5], [[1, 1, 1], [1, 0.8, 0.5], [0.6, 0.8, 1]])
+    light = DirectionalLight((1.0, -0.6, -0.3), (25.0, 25.0, 25.0))
+    cd = {"scattering": [0.3, 0.4, 0.6]}
+    scene = Scene(transfer_function=tf, opacity_unit_distance=1.0, lights=[light],
+                  camera=Camera.looking_at_bounds(volume.bounds, direction=(-0.3, -0.2, -1.0)),
+                  options={"convection_diffusion": cd})
+    f = make_filter()
+    f.SetTransferFunction(tf)
+    f.AddDirectionalLight(light.direction, light.irradiance)
+    f.SetScattering(*cd["scattering"])
+    f.SetInputData(img)
+    f.Update()
+    fluence = point_array(f.GetOutputDataObject(0), "fluence")
+    reference = render_illuminated(volume, scene, size, size, "cpu", jitter=False,
+                                   early_termination=stop,
+                                   illumination=IlluminationVolume.for_volume(volume, fluence))
+    assert 0.4 < reference.radiance.max() < 1.0  # the 8-bit range, unclipped
+
+    # OpenGL path, fed by the filter's output port.
+    renderer = vtkRenderer()
+    renderer.AddVolume(IlluminatedVolume(img, scene, illumination=f.GetOutputPort()))
+    window = _window(renderer, scene.camera, size)
+    diff = np.abs(_grab(window) - reference.radiance) / reference.radiance.max()
+    window.Finalize()
+    assert diff.mean() < 3e-3 and np.percentile(diff, 99) < 1.2e-2, diff.mean()
+
+    # Compute path with the registered method: the same light volume, the same image.
+    renderer = vtkRenderer()
+    window = _window(renderer, scene.camera, size)
+    shown = ComputeVolumeRenderer(renderer, volume, scene, method="convection-diffusion",
+                                  device="cpu", jitter=False, early_termination=stop)
+    image = _grab(window)
+    direct = render(volume, scene, "convection-diffusion", size, size, device="cpu",
+                    jitter=False, early_termination=stop)
+    np.testing.assert_allclose(direct.radiance, reference.radiance, rtol=1e-4, atol=1e-5)
+    expected = tonemap(direct.radiance, direct.alpha, (0.0, 0.0, 0.0), gamma=1.0)
+    assert np.abs(image * 255.0 - expected).max() <= 1.0
+    shown.detach()
+    window.Finalize()

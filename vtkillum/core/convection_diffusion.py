@@ -441,7 +441,10 @@ class ConvectionDiffusionSolver:
                 stats.warm_start = True
             else:
                 self._x = wp.clone(self._b)
-            self._b_prev = wp.clone(self._b)
+            if self._b_prev is None:
+                self._b_prev = wp.clone(self._b)
+            else:
+                wp.copy(self._b_prev, self._b)
         budget = opts["iterations"] or MAX_ITERATIONS[self.solver]
         report = self._diffusion[1].solve(self._b, self._x, budget, opts["tolerance"])
         self._diffusion_key = key
