@@ -26,8 +26,9 @@ METHODS: dict[str, str] = {
     "single": "vtkillum.core.raycast:render_single",
     "illumination": "vtkillum.core.raycast:render_illuminated",
     "path": "vtkillum.core.pathtrace:render_path",
-    "ambient-scattering": "vtkillum.core.ambient.render:render_ambient_scattering",
     "transmittance": "vtkillum.core.transmittance_render:render_transmittance",
+    "ambient-scattering": "vtkillum.core.ambient.render:render_ambient_scattering",
+    "convection-diffusion": "vtkillum.core.convection_diffusion:render_convection_diffusion",
 }
 
 

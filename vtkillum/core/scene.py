@@ -37,8 +37,11 @@ METHOD_OPTIONS: dict[str, dict] = {
     "path": {"spp": 64, "max_bounces": 16, "seed": 0},
     "convection_diffusion": {
         "light_volume_scale": 0.5,     # light-volume resolution relative to the data
-        "scattering": [0.0, 0.0, 0.0],  # per-channel diffusion coefficient sigma_hat_s
-        "iterations": 0,               # 0: solve to convergence
+        "scattering": [0.0, 0.0, 0.0],  # per-channel diffusion coefficient sigma_hat_s, world units²
+        "iterations": 0,               # diffusion iteration budget; 0: solve to convergence
+        "solver": "multigrid",         # diffusion solver: multigrid, cg, gauss-seidel, dct
+        "tolerance": 1e-4,             # relative residual of the diffusion solve
+        "source_radius": 0.0,          # point-light source region, world units; 0: 2 spacings
     },
     "ambient_scattering": {
         "radius": 4.0,                 # sphere radius r
