@@ -7,10 +7,12 @@ a filter implements only ``compute(volume, params) -> {name: array}``.
 """
 
 from vtkillum.filters.base import IlluminationFilterBase, IlluminationParameters
+from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLightFilter
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
 
 __all__ = [
+    "ConvectionDiffusionLightFilter",
     "IlluminationFilterBase",
     "IlluminationParameters",
     "LightTransmittanceFilter",
