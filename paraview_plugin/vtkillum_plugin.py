@@ -47,7 +47,9 @@ from paraview.util.vtkAlgorithm import smdomain, smhint, smproperty, smproxy
 from vtkmodules.vtkCommonCore import vtkWeakReference
 from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
 
+from vtkillum.core.cd_convection import SCHEMES
 from vtkillum.core.cd_diffusion import SOLVERS
+from vtkillum.filters.ambient_extinction import RADIUS_UNITS, AmbientExtinctionFilter
 from vtkillum.filters.base import DEFAULT_CACHE_MB
 from vtkillum.filters.convection_diffusion_light import (
     DEFAULT_LIGHT_VOLUME_SCALE,
@@ -331,10 +333,28 @@ class LightTransmittance(ParaViewGlue, IlluminatedRGBAOutput, LightTransmittance
         _number("double", "SourceRadius", "SetSourceRadius", 0.0,
                 "Source region of point lights (world units); 0: two light-grid spacings.",
                 lo=0.0, advanced=True),
+        _string_list("ConvectionScheme", "SetConvectionScheme", sorted(SCHEMES),
+                     ConvectionDiffusionLightFilter().GetConvectionScheme(),
+                     "Discretisation of the light transport along the light direction.",
+                     advanced=True),
         output_xml("SetLightVolumeScale", DEFAULT_LIGHT_VOLUME_SCALE))
 class ConvectionDiffusionLight(ParaViewGlue, IlluminatedRGBAOutput,
                                ConvectionDiffusionLightFilter):
     """Zhang & Ma's convection-diffusion light volume: fluence and illuminated_rgba."""
+
+
+@_proxy("vtkIllumAmbientExtinction", "vtkIllum Ambient Extinction",
+        optical_model_xml(),
+        lighting_xml(),
+        _number("double", "Radius", "SetRadius", 4.0,
+                "Radius of the ambient sphere, in RadiusUnits.", lo=0.1, hi=64.0),
+        _string_list("RadiusUnits", "SetRadiusUnits", RADIUS_UNITS, RADIUS_UNITS[0],
+                     "voxels: Radius times the mean spacing; world: world units."),
+        _boolean("ComputeRadiance", "SetComputeRadiance", 1,
+                 "Also tube-march the radiance cache (needed for the RGBA output)."),
+        output_xml())
+class AmbientExtinction(ParaViewGlue, IlluminatedRGBAOutput, AmbientExtinctionFilter):
+    """Ament et al.'s ambient extinction and radiance cache; illuminated_rgba from the cache."""
 
 
 # === pvpython helpers =================================================================================
@@ -407,4 +427,4 @@ def SetLights(source, lights) -> None:
 
 
 __all__ = ["OpticalProperties", "LightTransmittance", "ConvectionDiffusionLight",
-           "ShowIlluminated", "SetLights", "rgba_opacity_points", "unit_distance"]
+           "AmbientExtinction", "ShowIlluminated", "SetLights", "rgba_opacity_points", "unit_distance"]

@@ -34,6 +34,9 @@ simple.LoadPlugin(str(PLUGIN), ns=globals())
 import vtkillum_plugin as plugin  # noqa: E402  (registered by LoadPlugin)
 from vtkmodules.vtkIOXML import vtkXMLImageDataWriter  # noqa: E402
 
+import importlib  # noqa: E402
+import pkgutil  # noqa: E402
+
 import vtkillum.filters as vtkillum_filters  # noqa: E402
 from vtkillum.data.procedural import plume_series, smoke_plume  # noqa: E402
 from vtkillum.filters.base import IlluminationFilterBase  # noqa: E402
@@ -102,11 +105,14 @@ reader = simple.XMLImageDataReader(FileName=[str(static)])
 entries = filter_proxies()
 summary["plugin_classes"] = sorted(name for name, _ in entries.values())
 covered = {base.__name__ for _, cls in entries.values() for base in cls.__mro__}
-summary["library_filters"] = sorted(
-    name for name in vtkillum_filters.__all__
-    if isinstance(getattr(vtkillum_filters, name), type)
-    and issubclass(getattr(vtkillum_filters, name), IlluminationFilterBase)
-    and getattr(vtkillum_filters, name) is not IlluminationFilterBase)
+library = set()
+for module_info in pkgutil.iter_modules(vtkillum_filters.__path__):
+    module = importlib.import_module(f"vtkillum.filters.{module_info.name}")
+    for obj in vars(module).values():
+        if (isinstance(obj, type) and issubclass(obj, IlluminationFilterBase)
+                and obj is not IlluminationFilterBase and obj.__module__ == module.__name__):
+            library.add(obj.__name__)
+summary["library_filters"] = sorted(library)
 summary["library_filters_covered"] = sorted(set(summary["library_filters"]) & covered)
 
 for label, (name, cls) in sorted(entries.items()):

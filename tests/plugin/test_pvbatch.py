@@ -27,7 +27,8 @@ pytestmark = [
 ]
 
 SCRIPT = Path(__file__).with_name("pvbatch_filters.py")
-ILLUMINATION = ("vtkIllum Light Transmittance", "vtkIllum Convection-Diffusion Light")
+ILLUMINATION = ("vtkIllum Light Transmittance", "vtkIllum Convection-Diffusion Light",
+                "vtkIllum Ambient Extinction")
 
 
 @pytest.fixture(scope="module")
@@ -61,7 +62,8 @@ def test_every_library_filter_has_a_plugin_entry(run):
     _, summary = run
     assert summary["library_filters"], "no illumination filters found in vtkillum.filters"
     assert summary["library_filters_covered"] == summary["library_filters"]
-    assert {"OpticalProperties", "LightTransmittance"} <= set(summary["plugin_classes"])
+    assert {"OpticalProperties", "LightTransmittance", "ConvectionDiffusionLight",
+            "AmbientExtinction"} <= set(summary["plugin_classes"])
 
 
 def test_filters_default_to_a_volume_that_is_not_blank(run):
@@ -76,9 +78,11 @@ def test_filters_default_to_a_volume_that_is_not_blank(run):
 
 def test_illumination_filters_output_rgba_and_fluence(run):
     _, summary = run
-    for label in ILLUMINATION:
+    for label in ILLUMINATION[:2]:
         arrays = summary["filters"][label]["arrays"]
         assert {"illuminated_rgba", "fluence", "transmittance_0", "density"} <= set(arrays)
+    arrays = summary["filters"]["vtkIllum Ambient Extinction"]["arrays"]
+    assert {"illuminated_rgba", "ambient_extinction", "ambient_radiance"} <= set(arrays)
     assert "sigma_t" in summary["filters"]["vtkIllum Optical Properties"]["arrays"]
 
 

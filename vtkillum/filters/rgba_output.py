@@ -37,6 +37,10 @@ Simplifications
   data's resolution to look sharp, so an illumination volume computed at a lower
   resolution (``OutputScale`` / ``LightVolumeScale`` < 1) is resampled trilinearly
   onto it, as the ray casters sample it, together with the filter's other arrays.
+* For the ambient extinction filter ``phi`` is its radiance cache
+  ``ambient_radiance`` (the light reaching each point through the ambient
+  extinction) taken at the sample itself: the gather over the ambient sphere of
+  Ament et al. (which the ``ambient-scattering`` render method does) is skipped.
 * The product ``color * phi`` is interpolated between grid points by the mapper
   (not ``color`` and ``phi`` separately), and Phong terms (``S``) are not applied.
 * ``uint8`` output quantises colour and opacity to 1/255 (``float32`` keeps them);
@@ -65,6 +69,10 @@ RGBA_ARRAY = "illuminated_rgba"
 
 #: Name of the fluence array the illumination filters produce.
 FLUENCE_ARRAY = "fluence"
+
+#: Arrays that serve as ``phi``, in order of preference: the fluence, else the ambient
+#: radiance cache of :class:`~vtkillum.filters.ambient_extinction.AmbientExtinctionFilter`.
+LIGHT_ARRAYS = (FLUENCE_ARRAY, "ambient_radiance")
 
 #: Default exposure: a fully lit voxel (phi = 1) shows albedo * color.
 DEFAULT_EXPOSURE = 4.0 * math.pi
@@ -149,7 +157,7 @@ class IlluminatedRGBAOutput:
 
     Put it before the filter class: ``class F(IlluminatedRGBAOutput,
     LightTransmittanceFilter)``, or use :func:`with_rgba_output`. The filter's
-    ``compute`` must return a ``fluence`` array.
+    ``compute`` must return one of :data:`LIGHT_ARRAYS` (RGB).
 
     Parameters
     ----------
@@ -229,15 +237,15 @@ class IlluminatedRGBAOutput:
         if light_shape != params.output_shape:
             arrays = {name: resample_point_array(values, params.output_shape)
                       for name, values in arrays.items()}
-        if FLUENCE_ARRAY not in arrays:
+        light = next((name for name in LIGHT_ARRAYS if name in arrays), None)
+        if light is None:
             raise ValueError(
-                f"{type(self).__name__}: the illumination filter returned no {FLUENCE_ARRAY!r} "
-                f"array (got {sorted(arrays)}), so there is nothing to build the RGBA output "
-                "from; switch OutputRGBA off"
+                f"{type(self).__name__}: the illumination filter returned none of "
+                f"{LIGHT_ARRAYS} (got {sorted(arrays)}), so there is nothing to build the RGBA "
+                "output from; switch OutputRGBA off (or ComputeRadiance on)"
             )
         rgba = illuminated_rgba(volume.scalars, params.transfer_function, params.albedo,
-                                arrays[FLUENCE_ARRAY], self._exposure, self._gamma,
-                                self._rgba_type)
+                                arrays[light], self._exposure, self._gamma, self._rgba_type)
         return {RGBA_ARRAY: rgba, **arrays}
 
 
