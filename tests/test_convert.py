@@ -20,7 +20,6 @@ from vtkillum.io.convert import (
     image_data_from_volume,
     image_like,
     point_array,
-    resample_point_array,
     transfer_function_from_vtk,
     transfer_function_to_vtk,
     volume_from_image_data,
@@ -106,21 +105,6 @@ def test_image_like_covers_the_same_box_at_lower_resolution():
     np.testing.assert_allclose(odd.GetBounds(), v.bounds)
     with pytest.raises(ValueError, match=">= 2"):
         image_like(v, (1, 4, 4))
-
-
-def test_resample_point_array_is_trilinear():
-    # A trilinear function is reproduced exactly by trilinear interpolation.
-    def f(x, y, z):
-        return 1 + 2 * x - y + 0.5 * z + 0.25 * x * y * z
-
-    fine = np.stack(np.meshgrid(*(np.linspace(0, 1, n) for n in (9, 5, 7)), indexing="ij"), -1)
-    coarse = np.stack(np.meshgrid(*(np.linspace(0, 1, n) for n in (4, 6, 3)), indexing="ij"), -1)
-    out = resample_point_array(f(*np.moveaxis(fine, -1, 0)), (4, 6, 3))
-    assert out.shape == (4, 6, 3)
-    # (9 -> 4 points) is not nested, so this is a real interpolation test.
-    np.testing.assert_allclose(out, f(*np.moveaxis(coarse, -1, 0)), rtol=1e-5)
-    rgb = np.stack([fine[..., 0], fine[..., 1], fine[..., 2]], -1)
-    np.testing.assert_allclose(resample_point_array(rgb, (4, 6, 3)), coarse, atol=1e-6)
 
 
 # --- bad input ------------------------------------------------------------------------------

@@ -13,7 +13,19 @@ from vtkillum.core.scene import Scene, load_scene, save_scene
 from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.core.volume import Volume
 
+
+
+def __getattr__(name: str):
+    # Lazy, so that importing vtkillum loads neither pyvista nor vtk.
+    if name == "add_illuminated_volume":
+        from vtkillum.pyvista_accessor import add_illuminated_volume
+
+        return add_illuminated_volume
+    raise AttributeError(f"module 'vtkillum' has no attribute {name!r}")
+
+
 __all__ = [
+    "add_illuminated_volume",
     "Camera",
     "DirectionalLight",
     "PointLight",

@@ -236,9 +236,9 @@ def test_mapper_follows_illumination_data_and_resolution(setup):
     # A half-resolution fluence image covering the same box, as an illumination filter outputs.
     coarse_shape = (17, 17, 17)
     fine = slab_fluence(volume, scene.transfer_function)
-    from vtkillum.io.convert import resample_point_array
+    from vtkillum.core.resample import resample_points
 
-    coarse = resample_point_array(fine, coarse_shape)
+    coarse = resample_points(fine, coarse_shape)
     fluence_image = image_like(image_data_from_volume(volume), shape=coarse_shape)
     array = add_point_array(fluence_image, "fluence", coarse, set_active=True)
 

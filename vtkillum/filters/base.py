@@ -542,7 +542,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         if self.requires_lights and not self._lights:
             raise ValueError(f"{type(self).__name__} has no lights; add one with "
                              "AddDirectionalLight(direction, irradiance) or AddPointLight(...)")
-        shape = self._output_shape(volume.dims)
+        shape = self.output_shape(volume.dims)
         params = IlluminationParameters(
             transfer_function=self._transfer_function(volume),
             unit_distance=self._unit_distance or volume.mean_spacing(),
@@ -607,7 +607,8 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             return active.GetName(), association
         return None, None  # active point scalars, else the documented fallbacks
 
-    def _output_shape(self, dims) -> tuple:
+    def output_shape(self, dims) -> tuple:
+        """Points of the output grid for input dimensions ``dims`` (subclasses may override)."""
         if self._output_dimensions != (0, 0, 0):
             return tuple(self._output_dimensions)
         if self._output_scale == 1.0:
@@ -620,7 +621,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         if np.any(dims < 1):
             raise ValueError(f"the input image is empty (whole extent {tuple(whole)}); update "
                              "the algorithm that produces it or check the reader's file name")
-        shape = self._output_shape(dims)
+        shape = self.output_shape(dims)
         if shape == tuple(int(n) for n in dims):
             return tuple(whole), tuple(origin), tuple(spacing)
         if np.any(dims < 2):

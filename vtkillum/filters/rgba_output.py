@@ -62,7 +62,7 @@ from vtkmodules.vtkCommonCore import vtkDataArray, vtkInformationVector
 from vtkmodules.vtkCommonDataModel import vtkImageData
 
 from vtkillum.core.transfer_function import TransferFunction
-from vtkillum.io.convert import resample_point_array
+from vtkillum.core.resample import resample_points
 
 #: Name of the RGBA array added to the output.
 RGBA_ARRAY = "illuminated_rgba"
@@ -222,20 +222,20 @@ class IlluminatedRGBAOutput:
                 declare_nominal_range(array)
         return ok
 
-    def _output_shape(self, dims) -> tuple:
+    def output_shape(self, dims) -> tuple:
         # With RGBA on the output is at the data's resolution (see the module docstring);
         # the illumination itself is computed at the resolution the filter would use.
         if self._output_rgba:
             return tuple(int(n) for n in dims)
-        return super()._output_shape(dims)
+        return super().output_shape(dims)
 
     def compute(self, volume, params):
         if not self._output_rgba:
             return super().compute(volume, params)
-        light_shape = super()._output_shape(volume.dims)
+        light_shape = super().output_shape(volume.dims)
         arrays = super().compute(volume, dataclasses.replace(params, output_shape=light_shape))
         if light_shape != params.output_shape:
-            arrays = {name: resample_point_array(values, params.output_shape)
+            arrays = {name: resample_points(values, params.output_shape)
                       for name, values in arrays.items()}
         light = next((name for name in LIGHT_ARRAYS if name in arrays), None)
         if light is None:

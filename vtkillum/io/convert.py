@@ -34,7 +34,6 @@ from vtkmodules.vtkCommonDataModel import (
 from vtkmodules.vtkFiltersCore import vtkCellDataToPointData
 from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
 
-from vtkillum.core.resample import resample_points as resample_point_array  # noqa: F401 (re-export)
 from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.core.volume import Volume
 
@@ -402,7 +401,10 @@ def transfer_function_from_vtk(color_tf, opacity_tf) -> TransferFunction:
     has_color = color_tf is not None and color_tf.GetSize() > 0
 
     def evaluate(x: float) -> np.ndarray:
-        color = color_tf.GetColor(x) if has_color else (1.0, 1.0, 1.0)
+        rgb = [0.0, 0.0, 0.0]
+        if has_color:
+            color_tf.GetColor(x, rgb)  # the (x, rgb) overload also works on ParaView's maps
+        color = rgb if has_color else (1.0, 1.0, 1.0)
         return np.array([opacity_tf.GetValue(x), *color])
 
     o_nodes = [_node(opacity_tf, i, 4) for i in range(opacity_tf.GetSize())]
