@@ -415,7 +415,7 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
 def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cmap=None,
                            opacity="linear", clim=None, n_colors=256, flip_scalars=False,
                            transfer_function=None, opacity_unit_distance=None, lights=None,
-                           albedo=0.9, exposure=1.0, shading=None, step_size=None, name=None,
+                           albedo=0.9, exposure=4 * np.pi, shading=None, step_size=None, name=None,
                            reset_camera=None, render=True):
     """Add ``grid`` shaded by an illumination volume to a pyvista plotter.
 
@@ -439,7 +439,10 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     lights : optional
         As in :func:`transmittance`; also used for shading directions.
     albedo, exposure : float
-        Scattering albedo; factor on the radiance written to the frame buffer.
+        Scattering albedo; factor on the radiance written to the frame buffer. The
+        default 4π shows a fully lit voxel under irradiance 1 as albedo × colour (the
+        isotropic phase function spreads scattered light over 4π sr), as the ParaView
+        plugin does.
     shading : dict, optional
         ``{"ambient", "diffuse", "specular", "shininess"}`` of the illumination
         shading (default ambient 1: pure scattering).
