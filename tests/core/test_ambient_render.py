@@ -176,3 +176,36 @@ def test_closer_to_the_path_tracer_than_single_scattering():
                            cache=AmbientScatteringCache("cpu")))
     print(f"relative error vs path tracer: single {single:.3f}, ambient-scattering {ambient:.3f}")
     assert ambient < 0.6 * single
+
+
+def test_empty_space_skipping_changes_no_pixel(device, rng):
+    # Two small blobs in a mostly empty volume, with opacity only in the middle of the data
+    # range: interpolation between 0 and 1 passes through it (post-classification), so a
+    # block is empty only if its whole data range maps to zero extinction.
+    from vtkillum.core.ambient.empty_space import block_ranges, occupancy
+    from vtkillum.core.ambient.gather import gather
+    from vtkillum.core.warp_common import make_camera
+
+    s = np.zeros((40, 36, 33), np.float32)
+    s[6:12, 8:13, 5:9] = 1.0
+    s[25:31, 20:27, 20:26] = rng.random((6, 7, 6)) * 0.4 + 0.3
+    vol = Volume(s, spacing=(0.5, 0.6, 0.7))
+    tf = TransferFunction([0.0, 0.35, 0.5, 0.65, 1.0], [0.0, 0.0, 0.6, 0.0, 0.0])
+    scene = Scene(transfer_function=tf, lights=[DirectionalLight((1, -1, -1))],
+                  camera=Camera.looking_at_bounds(vol.bounds, direction=(-0.3, -0.2, -1.0)))
+    cache = AmbientScatteringCache(device)
+    st = cache.update(vol, tf, 0.5, 0.9, 0.3, scene.lights, 2.0)
+    occ = st.occupied.numpy()
+    assert 0 < occ.sum() < occ.size  # some blocks can be skipped, the blobs' cannot
+    ranges = block_ranges(st.medium.scalars, device).numpy()
+    assert occ[0, 1, 0] == 1 and ranges[0, 1, 0, 1] == 1.0  # 0..1 block: 0.5 in between
+    cam = make_camera(scene.resolved_camera(vol), vol, 24, 20)
+    args = (st.medium, st.sigma_tilde, st.radiance.grid, st.lights, cam, st.table_slice,
+            st.table.sigma_max, st.radius, 0.3)
+    skip = gather(*args, device=device, occupied=st.occupied, spacing=vol.spacing)
+    full = gather(*args, device=device)
+    np.testing.assert_array_equal(skip[0], full[0])
+    np.testing.assert_array_equal(skip[1], full[1])
+    assert full[0].max() > 0 and skip[2] < full[2]  # fewer samples, same picture
+    assert np.all(occupancy(st.medium, block_ranges(st.medium.scalars, device), device).numpy()
+                  == occ)

@@ -6,7 +6,8 @@ exactly the stages each one needs:
 ==========================  ===============================================
 edit                        recomputed
 ==========================  ===============================================
-transfer function (or data) σt grid and its SAT, ``σ̃t``, radiance cache
+transfer function (or data) σt grid and its SAT (and the empty-space blocks),
+                            ``σ̃t``, radiance cache
 ambient radius ``r``        ``σ̃t`` (from the kept SAT), radiance cache
 anisotropy ``g``, albedo,   radiance cache only
 lights, cache resolution
@@ -33,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
+from vtkillum.core.ambient.empty_space import block_ranges, occupancy
 from vtkillum.core.ambient.sat import ambient_extinction, sigma_t_grid, summed_area_table
 from vtkillum.core.ambient.table import PreintegrationTable, load_table
 from vtkillum.core.ambient.tube_march import RadianceCache, radiance_cache
@@ -71,6 +73,9 @@ class AmbientState:
     timings : dict
         Milliseconds per stage of the last update (``sat_ms``, ``extinction_ms``,
         ``radiance_ms``; 0 for a stage that was kept).
+    occupied : wp.array3d(int32)
+        Blocks that may hold matter, for the gather's empty-space skipping (recomputed
+        with the SAT).
     """
 
     medium: Medium
@@ -83,6 +88,7 @@ class AmbientState:
     radius: float
     recomputed: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
+    occupied: object = None
 
 
 class AmbientScatteringCache:
@@ -104,6 +110,8 @@ class AmbientScatteringCache:
         self._data_identity = None
         self._data_key = None
         self._scalars = None
+        self._ranges = None
+        self._occupied = None
         self._tf_key = None
         self._medium = None
         self._sigma_t = None
@@ -196,6 +204,7 @@ class AmbientScatteringCache:
             if data_key != self._data_key:
                 self.invalidate()
                 self._scalars = to_device(volume.scalars, wp.float32, device)
+                self._ranges = block_ranges(self._scalars, device)
                 self._data_key = data_key
             self._data_identity = identity
         data_key = self._data_key
@@ -207,6 +216,7 @@ class AmbientScatteringCache:
                                    device)
             self._sigma_t = sigma_t_grid(self._medium, device)
             self._sat = summed_area_table(self._sigma_t, device)
+            self._occupied = occupancy(self._medium, self._ranges, device)
             wp.synchronize_device(device)
             timings["sat_ms"] = 1e3 * (time.perf_counter() - t)
             self._tf_key = tf_key
@@ -225,7 +235,7 @@ class AmbientScatteringCache:
             recomputed.append("extinction")
 
         return AmbientState(self._medium, self._sigma_t, self._sigma_tilde, None, None, None,
-                            None, radius_world, recomputed, timings)
+                            None, radius_world, recomputed, timings, self._occupied)
 
 
 def world_radius(radius: float, units: str, spacing) -> float:

@@ -96,7 +96,8 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
         state.medium, state.sigma_tilde, state.radiance.grid, state.lights, cam,
         state.table_slice, state.table.sigma_max, state.radius, opts["step_size"],
         opts["jitter"], opts["seed"], opts["early_termination"], opts["specular"],
-        float(scene.shading["shininess"]), grad_eps, opts["ambient_occlusion"], device, progress)
+        float(scene.shading["shininess"]), grad_eps, opts["ambient_occlusion"], device, progress,
+        state.occupied, volume.spacing)
     t_end = time.perf_counter()
     if progress is not None:
         progress(1.0)
