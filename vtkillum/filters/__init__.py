@@ -6,12 +6,14 @@ transfer functions, lights, output resolution, device and per-time-step cache;
 a filter implements only ``compute(volume, params) -> {name: array}``.
 """
 
+from vtkillum.filters.ambient_extinction import AmbientExtinctionFilter
 from vtkillum.filters.base import IlluminationFilterBase, IlluminationParameters
 from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLightFilter
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
 
 __all__ = [
+    "AmbientExtinctionFilter",
     "ConvectionDiffusionLightFilter",
     "IlluminationFilterBase",
     "IlluminationParameters",
