@@ -9,6 +9,7 @@ in which the volume spans ``[0, (n - 1) * spacing]`` along each axis.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -102,8 +103,13 @@ class Volume:
         world = corners @ self.direction.T + self.origin
         return np.stack([world.min(0), world.max(0)], 1).reshape(-1)
 
-    @property
+    @cached_property
     def value_range(self) -> tuple[float, float]:
+        """``(min, max)`` of the scalars, computed once (a full pass over large volumes).
+
+        A Volume is a value: to change the data, make a new Volume rather than writing
+        into ``scalars`` in place, or this and the caches keyed on it go stale.
+        """
         return float(self.scalars.min()), float(self.scalars.max())
 
     def mean_spacing(self) -> float:
