@@ -23,7 +23,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import resolve_device
-from vtkillum.core.warp_common import Medium, lookup_sigma_t, make_medium, sample_scalar, to_device
+from vtkillum.core.warp_common import Medium, lookup_sigma_t, make_medium, sample_scalar
 
 #: At most this many sub-samples per axis when averaging a footprint.
 MAX_SUBSAMPLES = 8
@@ -55,31 +55,6 @@ def light_grid_shape(volume, scale: float = 0.5, shape=None) -> tuple[int, int, 
 def light_grid_spacing(extent, shape) -> np.ndarray:
     """Distance between light-grid points along each axis (world units)."""
     return np.asarray(extent, dtype=np.float64) / (np.asarray(shape) - 1)
-
-
-def medium_for(volume, transfer_function, unit_distance: float, device: str,
-               scalars: wp.array3d | None = None) -> Medium:
-    """A :class:`Medium` for the opacity step, reusing already uploaded ``scalars``.
-
-    Only the transfer-function tables are rebuilt, so an opacity edit does not upload
-    the data again. Albedo, anisotropy and majorant are not used by the light volume
-    and are left at neutral values.
-    """
-    if scalars is None:
-        scalars = to_device(volume.scalars, wp.float32, device)
-    sig, col, lo, hi = transfer_function.lookup_tables(unit_distance, volume.value_range)
-    m = Medium()
-    m.scalars = scalars
-    m.extent = wp.vec3(*volume.extent.astype(np.float32))
-    m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
-    m.sigma_table = wp.array(sig, dtype=wp.float32, device=device)
-    m.color_table = wp.array(col, dtype=wp.vec3, device=device)
-    m.table_lo = float(lo)
-    m.table_scale = float((len(sig) - 1) / (hi - lo))
-    m.albedo = 1.0
-    m.g = 0.0
-    m.majorant = float(sig.max())
-    return m
 
 
 def light_grid_sigma(volume, transfer_function, unit_distance: float, shape,

@@ -47,15 +47,11 @@ import warp as wp
 
 from vtkillum.core.cd_convection import POINT_KIND, SCHEMES, convect_light
 from vtkillum.core.cd_diffusion import SOLVERS, DiffusionReport, DiffusionSolver
-from vtkillum.core.cd_opacity import (
-    light_grid_shape,
-    light_grid_sigma,
-    light_grid_spacing,
-    medium_for,
-)
+from vtkillum.core.cd_opacity import light_grid_shape, light_grid_sigma, light_grid_spacing
 from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.lights import pack_lights
+from vtkillum.core.warp_common import make_medium
 
 #: Options of the method (scene section ``convection_diffusion``) and their defaults.
 OPTIONS = {
@@ -292,8 +288,9 @@ class ConvectionDiffusionSolver:
             t = time.perf_counter()
             if self._scalars is None or self._scalars[0] != volume_key:
                 self._scalars = (volume_key, None)  # upload once per data set
-            medium = medium_for(volume, transfer_function, unit_distance, self.device,
-                                self._scalars[1])
+            # Only the tables are rebuilt: an opacity edit does not upload the data again.
+            medium = make_medium(volume, transfer_function, unit_distance, device=self.device,
+                                 scalars=self._scalars[1])
             self._scalars = (volume_key, medium.scalars)
             self._sigma = light_grid_sigma(volume, transfer_function, unit_distance, shape,
                                            self.device, medium=medium)

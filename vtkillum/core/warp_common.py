@@ -238,7 +238,8 @@ def camera_ray(cam: CameraParams, x: float, y: float):
 
 # --- host side -----------------------------------------------------------------------------------
 def make_medium(volume, transfer_function, unit_distance: float, albedo: float = 0.9,
-                anisotropy: float = 0.0, device: str | None = None) -> Medium:
+                anisotropy: float = 0.0, device: str | None = None,
+                scalars: wp.array3d | None = None) -> Medium:
     """Upload a volume and its optical model.
 
     Parameters
@@ -251,11 +252,20 @@ def make_medium(volume, transfer_function, unit_distance: float, albedo: float =
         Single-scattering albedo and HG ``g``.
     device : str, optional
         Warp device (see :func:`vtkillum.core.device.resolve_device`).
+    scalars : wp.array3d(float32), optional
+        ``volume.scalars`` already on ``device``: only the transfer-function tables are
+        uploaded, so a cache can follow a transfer-function edit without copying the volume
+        again.
     """
     device = resolve_device(device)
     sig, col, lo, hi = transfer_function.lookup_tables(unit_distance, volume.value_range)
     m = Medium()
-    m.scalars = to_device(volume.scalars, wp.float32, device)
+    if scalars is None:
+        scalars = to_device(volume.scalars, wp.float32, device)
+    elif tuple(scalars.shape) != tuple(volume.dims):
+        raise ValueError(f"uploaded scalars of shape {tuple(scalars.shape)} do not belong to a "
+                         f"volume of {tuple(volume.dims)} points; upload the volume's own scalars")
+    m.scalars = scalars
     m.extent = wp.vec3(*volume.extent.astype(np.float32))
     m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
     m.sigma_table = wp.array(sig, dtype=wp.float32, device=device)

@@ -40,7 +40,7 @@ from vtkillum.core.ambient.table import PreintegrationTable, load_table
 from vtkillum.core.ambient.tube_march import RadianceCache, radiance_cache
 from vtkillum.core.device import resolve_device
 from vtkillum.core.lights import pack_lights
-from vtkillum.core.warp_common import Lights, Medium, make_lights, to_device
+from vtkillum.core.warp_common import Lights, Medium, make_lights, make_medium, to_device
 
 #: Values hashed for the data fingerprint (strided over the array).
 FINGERPRINT_SAMPLES = 1 << 16
@@ -212,8 +212,9 @@ class AmbientScatteringCache:
         tf_key = (data_key, _tf_key(transfer_function, unit_distance, volume.value_range))
         if tf_key != self._tf_key:
             t = time.perf_counter()
-            self._medium = _medium(self._scalars, volume, transfer_function, unit_distance,
-                                   device)
+            # Around the kept scalars: a transfer-function edit uploads the tables only.
+            self._medium = make_medium(volume, transfer_function, unit_distance, device=device,
+                                       scalars=self._scalars)
             self._sigma_t = sigma_t_grid(self._medium, device)
             self._sat = summed_area_table(self._sigma_t, device)
             self._occupied = occupancy(self._medium, self._ranges, device)
@@ -273,23 +274,3 @@ def _tf_key(tf, unit_distance: float, value_range) -> str:
     text = json.dumps([tf.to_dict(), float(unit_distance), [float(v) for v in value_range]])
     return hashlib.blake2b(text.encode(), digest_size=16).hexdigest()
 
-
-def _medium(scalars, volume, tf, unit_distance: float, device: str) -> Medium:
-    """A :class:`Medium` around already-uploaded scalars (the tables as ``make_medium`` builds them).
-
-    Kept here so that a transfer-function edit re-uploads the 4096-entry tables only,
-    not the volume.
-    """
-    sig, col, lo, hi = tf.lookup_tables(unit_distance, volume.value_range)
-    m = Medium()
-    m.scalars = scalars
-    m.extent = wp.vec3(*volume.extent.astype(np.float32))
-    m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
-    m.sigma_table = wp.array(sig, dtype=wp.float32, device=device)
-    m.color_table = wp.array(col, dtype=wp.vec3, device=device)
-    m.table_lo = float(lo)
-    m.table_scale = float((len(sig) - 1) / (hi - lo))
-    m.albedo = 0.9
-    m.g = 0.0
-    m.majorant = float(sig.max()) * 1.0001 + 1e-12
-    return m
