@@ -9,6 +9,8 @@ sampled trilinearly, with the transfer function applied after interpolation
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import warp as wp
 
@@ -91,8 +93,12 @@ def trilinear_index(p: wp.vec3, inv_spacing: wp.vec3, shape: wp.vec3i):
 
 
 @wp.func
-def sample_scalar(a: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.vec3):
-    """Trilinear sample of a point-centred scalar grid at local position ``p``."""
+def trilinear(a: wp.array3d(dtype=Any), inv_spacing: wp.vec3, p: wp.vec3):
+    """Trilinear sample at local position ``p`` of a point-centred grid of any lerp-able dtype.
+
+    Generic over the array's dtype (warp compiles one overload per dtype it is called with),
+    so scalar and RGB grids share one body at no run-time cost.
+    """
     idx, f = trilinear_index(p, inv_spacing, wp.vec3i(a.shape[0], a.shape[1], a.shape[2]))
     i = idx[0]
     j = idx[1]
@@ -105,18 +111,15 @@ def sample_scalar(a: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.v
 
 
 @wp.func
+def sample_scalar(a: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.vec3):
+    """Trilinear sample of a point-centred scalar grid at local position ``p``."""
+    return trilinear(a, inv_spacing, p)
+
+
+@wp.func
 def sample_rgb(grid: RGBGrid, p: wp.vec3):
     """Trilinear sample of an RGB grid at local position ``p``."""
-    a = grid.data
-    idx, f = trilinear_index(p, grid.inv_spacing, wp.vec3i(a.shape[0], a.shape[1], a.shape[2]))
-    i = idx[0]
-    j = idx[1]
-    k = idx[2]
-    c00 = wp.lerp(a[i, j, k], a[i + 1, j, k], f[0])
-    c10 = wp.lerp(a[i, j + 1, k], a[i + 1, j + 1, k], f[0])
-    c01 = wp.lerp(a[i, j, k + 1], a[i + 1, j, k + 1], f[0])
-    c11 = wp.lerp(a[i, j + 1, k + 1], a[i + 1, j + 1, k + 1], f[0])
-    return wp.lerp(wp.lerp(c00, c10, f[1]), wp.lerp(c01, c11, f[1]), f[2])
+    return trilinear(grid.data, grid.inv_spacing, p)
 
 
 @wp.func

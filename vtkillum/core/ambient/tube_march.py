@@ -39,7 +39,13 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp, resolve_device
-from vtkillum.core.warp_common import Lights, light_incidence, ray_box, sample_scalar
+from vtkillum.core.warp_common import (
+    Lights,
+    light_incidence,
+    ray_box,
+    sample_scalar,
+    trilinear_index,
+)
 
 init_warp()
 
@@ -155,20 +161,21 @@ def lookup_transmittance(table: wp.array(dtype=wp.float32), optical_radius: floa
 
 @wp.func
 def sample_radiance(grid: RadianceGrid, light: int, p: wp.vec3):
-    """Trilinear sample of light ``light``'s cache at local position ``p`` (clamped to the box)."""
+    """Trilinear sample of light ``light``'s cache at local position ``p`` (clamped to the box).
+
+    The cache is 4D (a light index in front), so it takes the cell and fractions from
+    :func:`~vtkillum.core.warp_common.trilinear_index` and does its own eight reads.
+    """
     a = grid.data
-    u = wp.cw_mul(p, grid.inv_spacing)
-    i = wp.clamp(int(wp.floor(u[0])), 0, a.shape[1] - 2)
-    j = wp.clamp(int(wp.floor(u[1])), 0, a.shape[2] - 2)
-    k = wp.clamp(int(wp.floor(u[2])), 0, a.shape[3] - 2)
-    fx = wp.clamp(u[0] - float(i), 0.0, 1.0)
-    fy = wp.clamp(u[1] - float(j), 0.0, 1.0)
-    fz = wp.clamp(u[2] - float(k), 0.0, 1.0)
-    c00 = wp.lerp(a[light, i, j, k], a[light, i + 1, j, k], fx)
-    c10 = wp.lerp(a[light, i, j + 1, k], a[light, i + 1, j + 1, k], fx)
-    c01 = wp.lerp(a[light, i, j, k + 1], a[light, i + 1, j, k + 1], fx)
-    c11 = wp.lerp(a[light, i, j + 1, k + 1], a[light, i + 1, j + 1, k + 1], fx)
-    return wp.lerp(wp.lerp(c00, c10, fy), wp.lerp(c01, c11, fy), fz)
+    idx, f = trilinear_index(p, grid.inv_spacing, wp.vec3i(a.shape[1], a.shape[2], a.shape[3]))
+    i = idx[0]
+    j = idx[1]
+    k = idx[2]
+    c00 = wp.lerp(a[light, i, j, k], a[light, i + 1, j, k], f[0])
+    c10 = wp.lerp(a[light, i, j + 1, k], a[light, i + 1, j + 1, k], f[0])
+    c01 = wp.lerp(a[light, i, j, k + 1], a[light, i + 1, j, k + 1], f[0])
+    c11 = wp.lerp(a[light, i, j + 1, k + 1], a[light, i + 1, j + 1, k + 1], f[0])
+    return wp.lerp(wp.lerp(c00, c10, f[1]), wp.lerp(c01, c11, f[1]), f[2])
 
 
 # --- kernel ---------------------------------------------------------------------------------------
