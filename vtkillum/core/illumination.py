@@ -144,3 +144,13 @@ def shading_terms(shading: dict) -> tuple[float, float, float, float]:
     if not (np.isfinite(n) and n > 0):
         raise ValueError(f"shading.shininess must be positive, got {n}")
     return ka, kd, ks, n
+
+
+def gradient_threshold(volume) -> float:
+    """:data:`GRADIENT_EPS` as a gradient magnitude for ``volume`` (data units per world unit).
+
+    The data range times ``GRADIENT_EPS`` over one (smallest) voxel: below it a sample has
+    no usable normal.
+    """
+    lo, hi = volume.value_range
+    return GRADIENT_EPS * (hi - lo) / float(volume.spacing.min())

@@ -44,14 +44,20 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import resolve_device
-from vtkillum.core.illumination import GRADIENT_EPS, IlluminationVolume, shading_terms
+from vtkillum.core.illumination import IlluminationVolume, gradient_threshold, shading_terms
+from vtkillum.core.raymarch import (
+    RAY_OPTIONS,
+    launch_row_bands,
+    pixel_ray,
+    ray_options,
+    sample_count,
+)
 from vtkillum.core.render import RenderResult
 from vtkillum.core.warp_common import (
     CameraParams,
     Lights,
     Medium,
     RGBGrid,
-    camera_ray,
     hg_phase,
     light_incidence,
     lookup_color,
@@ -63,6 +69,7 @@ from vtkillum.core.warp_common import (
     ray_box,
     sample_rgb,
     sample_scalar,
+    view_normal,
 )
 
 EMISSION = wp.constant(0)
@@ -71,13 +78,10 @@ ILLUMINATION = wp.constant(2)
 MODE_NAMES = {EMISSION: "emission", SINGLE: "single", ILLUMINATION: "illumination"}
 
 #: Options every ray-cast method accepts, with their defaults.
-RAYCAST_OPTIONS = {"step_size": None, "jitter": True, "seed": 0, "early_termination": 0.999}
+RAYCAST_OPTIONS = RAY_OPTIONS
 
 #: Pixels per kernel launch when the image is tiled into row bands (progress reporting).
 TILE_PIXELS = {"cpu": 1 << 14, "cuda": 1 << 20}
-
-#: Refuse step sizes that would need more samples than this along the volume diagonal.
-MAX_STEPS_PER_RAY = 1 << 20
 
 
 def render_emission(volume, scene, width, height, device=None, progress=None, **options):
@@ -154,26 +158,7 @@ def _parse_options(options: dict, volume, scene) -> dict:
         raise ValueError(
             f"unknown ray-casting option(s) {sorted(unknown)}; known: {sorted(RAYCAST_OPTIONS)}"
         )
-    opts = dict(RAYCAST_OPTIONS)
-    opts.update(options)
-    step = opts["step_size"]
-    step = scene.resolved_step_size(volume) if step is None else step
-    if not (isinstance(step, (int, float, np.floating)) and np.isfinite(step) and step > 0):
-        raise ValueError(f"step_size must be a positive number of world units, got {step!r}")
-    diagonal = float(np.linalg.norm(volume.extent))
-    if diagonal / step > MAX_STEPS_PER_RAY:
-        raise ValueError(
-            f"step_size {step:g} needs {diagonal / step:.3g} samples across the volume; use at "
-            f"least {diagonal / MAX_STEPS_PER_RAY:.3g} world units"
-        )
-    stop = opts["early_termination"]
-    if not (isinstance(stop, (int, float, np.floating)) and 0.0 < stop <= 1.0):
-        raise ValueError(f"early_termination must lie in (0, 1], got {stop!r}")
-    seed = opts["seed"]
-    if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or not 0 <= seed < 2**31:
-        raise ValueError(f"seed must be an integer in [0, 2**31), got {seed!r}")
-    return {"step_size": float(step), "jitter": bool(opts["jitter"]), "seed": int(seed),
-            "early_termination": float(stop)}
+    return ray_options(options, volume, scene)
 
 
 def _render(mode, volume, scene, width, height, device, progress, illumination, options):
@@ -193,31 +178,16 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
         illum = make_rgb_grid(illumination.fluence, illumination.extent, device)
     else:  # the kernel always takes a grid; other modes never read it
         illum = make_rgb_grid(np.zeros((2, 2, 2, 3), np.float32), volume.extent, device)
-    lo, hi = volume.value_range
-    grad_eps = GRADIENT_EPS * (hi - lo) / float(volume.spacing.min())
+    grad_eps = gradient_threshold(volume)
 
-    radiance = wp.zeros((height, width), dtype=wp.vec3, device=device)
-    alpha = wp.zeros((height, width), dtype=wp.float32, device=device)
-    samples = wp.zeros((height, width), dtype=wp.int32, device=device)
     wp.synchronize_device(device)
     t_upload = time.perf_counter()
 
-    tile = TILE_PIXELS["cpu" if device == "cpu" else "cuda"]
-    rows = max(1, min(height, tile // max(width, 1)))
-    n_tiles = (height + rows - 1) // rows
-    for n, row0 in enumerate(range(0, height, rows)):
-        wp.launch(
-            raycast_kernel,
-            dim=(min(rows, height - row0), width),
-            inputs=[medium, cam, lights, illum, mode, opts["step_size"], int(opts["jitter"]),
-                    opts["seed"], opts["early_termination"], wp.vec4(ka, kd, ks, shininess),
-                    float(grad_eps), row0, radiance, alpha, samples],
-            device=device,
-        )
-        if progress is not None and n + 1 < n_tiles:
-            wp.synchronize_device(device)
-            progress((n + 1) / n_tiles)
-    wp.synchronize_device(device)
+    radiance, alpha, samples, n_tiles = launch_row_bands(
+        raycast_kernel,
+        [medium, cam, lights, illum, mode, opts["step_size"], int(opts["jitter"]), opts["seed"],
+         opts["early_termination"], wp.vec4(ka, kd, ks, shininess), float(grad_eps)],
+        width, height, TILE_PIXELS["cpu" if device == "cpu" else "cuda"], device, progress)
     t_render = time.perf_counter()
 
     rad = radiance.numpy().astype(np.float32).reshape(height, width, 3)
@@ -289,26 +259,10 @@ def phong_factor(m: Medium, lights: Lights, p: wp.vec3, d: wp.vec3, shading: wp.
     ks = shading[2]
     if kd == 0.0 and ks == 0.0:
         return ka
-    sx = 1.0 / m.inv_spacing[0]
-    sy = 1.0 / m.inv_spacing[1]
-    sz = 1.0 / m.inv_spacing[2]
-    a = m.scalars
-    inv = m.inv_spacing
-    grad = wp.vec3(
-        (sample_scalar(a, inv, p + wp.vec3(sx, 0.0, 0.0))
-         - sample_scalar(a, inv, p - wp.vec3(sx, 0.0, 0.0))) / (2.0 * sx),
-        (sample_scalar(a, inv, p + wp.vec3(0.0, sy, 0.0))
-         - sample_scalar(a, inv, p - wp.vec3(0.0, sy, 0.0))) / (2.0 * sy),
-        (sample_scalar(a, inv, p + wp.vec3(0.0, 0.0, sz))
-         - sample_scalar(a, inv, p - wp.vec3(0.0, 0.0, sz))) / (2.0 * sz),
-    )
-    glen = wp.length(grad)
-    if glen <= grad_eps:
+    n = view_normal(m, p, d, grad_eps)
+    if wp.length_sq(n) == 0.0:
         return ka + kd  # no surface: diffuse as if facing the lights, no highlight
     v = -d
-    n = grad / glen
-    if wp.dot(n, v) < 0.0:
-        n = -n  # two-sided lighting
     diff = float(0.0)
     spec = float(0.0)
     for li in range(lights.count):
@@ -348,10 +302,7 @@ def raycast_kernel(
     """
     r, c = wp.tid()
     row = row0 + r
-    o, d = camera_ray(cam, float(c) + 0.5, float(row) + 0.5)
-    tt = ray_box(o, d, m.extent)
-    t0 = wp.max(tt[0], 0.0)
-    t1 = tt[1]
+    o, d, t0, t1 = pixel_ray(cam, m.extent, row, c)
     colour = wp.vec3(0.0)
     trans = float(1.0)
     count = int(0)
@@ -363,8 +314,7 @@ def raycast_kernel(
             xi = 0.5
         if jitter != 0:
             xi = wp.randf(state)
-        # Samples at t0 + (k + xi) step strictly before the exit (ties within 1e-4 step dropped).
-        n = int(wp.ceil((t1 - t0) / step - xi - 1.0e-4))
+        n = sample_count(t0, t1, step, xi)
         stop_t = 1.0 - stop_alpha
         for k in range(n):
             p = o + (t0 + (float(k) + xi) * step) * d

@@ -176,6 +176,40 @@ def ray_box(o: wp.vec3, d: wp.vec3, extent: wp.vec3):
     return wp.vec2(t0, t1)
 
 
+@wp.func
+def scalar_gradient(a: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.vec3):
+    """Central-difference gradient at ``p``, one voxel either side (data units per world unit)."""
+    sx = 1.0 / inv_spacing[0]
+    sy = 1.0 / inv_spacing[1]
+    sz = 1.0 / inv_spacing[2]
+    return wp.vec3(
+        (sample_scalar(a, inv_spacing, p + wp.vec3(sx, 0.0, 0.0))
+         - sample_scalar(a, inv_spacing, p - wp.vec3(sx, 0.0, 0.0))) / (2.0 * sx),
+        (sample_scalar(a, inv_spacing, p + wp.vec3(0.0, sy, 0.0))
+         - sample_scalar(a, inv_spacing, p - wp.vec3(0.0, sy, 0.0))) / (2.0 * sy),
+        (sample_scalar(a, inv_spacing, p + wp.vec3(0.0, 0.0, sz))
+         - sample_scalar(a, inv_spacing, p - wp.vec3(0.0, 0.0, sz))) / (2.0 * sz),
+    )
+
+
+@wp.func
+def view_normal(m: Medium, p: wp.vec3, d: wp.vec3, grad_eps: float):
+    """Unit data gradient at ``p`` facing the viewer, or the zero vector where it vanishes.
+
+    ``d`` is the ray direction (pointing away from the camera); the normal is flipped to
+    face the camera (two-sided lighting). "Vanishes" means ``|gradient| <= grad_eps``
+    (data units per world unit, see :func:`vtkillum.core.illumination.gradient_threshold`).
+    """
+    grad = scalar_gradient(m.scalars, m.inv_spacing, p)
+    glen = wp.length(grad)
+    if glen <= grad_eps:
+        return wp.vec3(0.0)
+    n = grad / glen
+    if wp.dot(n, d) > 0.0:
+        n = -n
+    return n
+
+
 # --- phase function ------------------------------------------------------------------------------
 @wp.func
 def hg_phase(cos_theta: float, g: float):

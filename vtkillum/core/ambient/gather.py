@@ -46,17 +46,17 @@ import warp as wp
 from vtkillum.core.ambient.empty_space import BLOCK
 from vtkillum.core.ambient.tube_march import RadianceGrid, sample_radiance
 from vtkillum.core.device import resolve_device
+from vtkillum.core.raymarch import launch_row_bands, pixel_ray, sample_count
 from vtkillum.core.warp_common import (
     CameraParams,
     Lights,
     Medium,
-    camera_ray,
     light_incidence,
     lookup_color,
     lookup_sigma_t,
-    ray_box,
     sample_scalar,
     sigma_t_at,
+    view_normal,
 )
 
 #: Pixels per kernel launch (the image is launched in row bands for progress reports).
@@ -148,24 +148,13 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
         block = wp.vec3(*(BLOCK * np.asarray(spacing, dtype=np.float64)).astype(np.float32))
     if not isinstance(table, wp.array):
         table = wp.array(np.asarray(table, dtype=np.float32), dtype=wp.float32, device=device)
-    width, height = int(camera.width), int(camera.height)
-    radiance = wp.zeros((height, width), dtype=wp.vec3, device=device)
-    alpha = wp.zeros((height, width), dtype=wp.float32, device=device)
-    samples = wp.zeros((height, width), dtype=wp.int32, device=device)
-    tile = TILE_PIXELS["cpu" if device == "cpu" else "cuda"]
-    rows = max(1, min(height, tile // max(width, 1)))
-    n_tiles = (height + rows - 1) // rows
-    for n, row0 in enumerate(range(0, height, rows)):
-        wp.launch(ambient_gather_kernel, dim=(min(rows, height - row0), width),
-                  inputs=[medium, sigma_tilde, cache, lights, camera, table, float(sigma_max),
-                          float(radius), float(step), int(bool(jitter)), int(seed),
-                          float(early_termination), float(specular), float(shininess),
-                          float(grad_eps), float(ambient_occlusion), occupied, block, row0,
-                          radiance, alpha, samples], device=device)
-        if progress is not None and n + 1 < n_tiles:
-            wp.synchronize_device(device)
-            progress((n + 1) / n_tiles)
-    wp.synchronize_device(device)
+    radiance, alpha, samples, _ = launch_row_bands(
+        ambient_gather_kernel,
+        [medium, sigma_tilde, cache, lights, camera, table, float(sigma_max), float(radius),
+         float(step), int(bool(jitter)), int(seed), float(early_termination), float(specular),
+         float(shininess), float(grad_eps), float(ambient_occlusion), occupied, block],
+        int(camera.width), int(camera.height), TILE_PIXELS["cpu" if device == "cpu" else "cuda"],
+        device, progress)
     return radiance, alpha, samples
 
 
@@ -185,31 +174,6 @@ def lookup_table(table: wp.array2d(dtype=wp.float32), cos_theta: float, optical_
     a = wp.lerp(table[i, j], table[i + 1, j], fu)
     b = wp.lerp(table[i, j + 1], table[i + 1, j + 1], fu)
     return wp.lerp(a, b, fv)
-
-
-@wp.func
-def view_normal(m: Medium, p: wp.vec3, d: wp.vec3, grad_eps: float):
-    """Unit central-difference gradient facing the viewer, or the zero vector where it vanishes."""
-    sx = 1.0 / m.inv_spacing[0]
-    sy = 1.0 / m.inv_spacing[1]
-    sz = 1.0 / m.inv_spacing[2]
-    a = m.scalars
-    inv = m.inv_spacing
-    grad = wp.vec3(
-        (sample_scalar(a, inv, p + wp.vec3(sx, 0.0, 0.0))
-         - sample_scalar(a, inv, p - wp.vec3(sx, 0.0, 0.0))) / (2.0 * sx),
-        (sample_scalar(a, inv, p + wp.vec3(0.0, sy, 0.0))
-         - sample_scalar(a, inv, p - wp.vec3(0.0, sy, 0.0))) / (2.0 * sy),
-        (sample_scalar(a, inv, p + wp.vec3(0.0, 0.0, sz))
-         - sample_scalar(a, inv, p - wp.vec3(0.0, 0.0, sz))) / (2.0 * sz),
-    )
-    glen = wp.length(grad)
-    if glen <= grad_eps:
-        return wp.vec3(0.0)
-    n = grad / glen
-    if wp.dot(n, d) > 0.0:
-        n = -n  # two-sided: face the viewer (d points away from the camera)
-    return n
 
 
 @wp.func
@@ -260,10 +224,7 @@ def ambient_gather_kernel(
     """
     r, c = wp.tid()
     row = row0 + r
-    o, d = camera_ray(cam, float(c) + 0.5, float(row) + 0.5)
-    tt = ray_box(o, d, m.extent)
-    t0 = wp.max(tt[0], 0.0)
-    t1 = tt[1]
+    o, d, t0, t1 = pixel_ray(cam, m.extent, row, c)
     colour = wp.vec3(0.0)
     trans = float(1.0)  # T along the ray up to the sample (alpha)
     trans_out = float(1.0)  # T from the sphere's exit point x_o to the camera (Algorithm 1)
@@ -273,7 +234,7 @@ def ambient_gather_kernel(
         xi = float(0.0)
         if jitter != 0:
             xi = wp.randf(state)
-        n = int(wp.ceil((t1 - t0) / step - xi - 1.0e-4))
+        n = sample_count(t0, t1, step, xi)
         stop_t = 1.0 - stop_alpha
         t_matter = float(-1.0e30)  # position of the last sample with sigma_t > 0
         k = int(0)

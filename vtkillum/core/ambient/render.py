@@ -40,16 +40,15 @@ import numpy as np
 from vtkillum.core.ambient.cache import AmbientScatteringCache
 from vtkillum.core.ambient.gather import gather
 from vtkillum.core.device import resolve_device
+from vtkillum.core.illumination import gradient_threshold
+from vtkillum.core.raymarch import RAY_OPTIONS as MARCH_OPTIONS
+from vtkillum.core.raymarch import ray_options
 from vtkillum.core.render import RenderResult
 from vtkillum.core.warp_common import make_camera
 
-#: Relative data change across one voxel below which a sample has no normal (specular).
-GRADIENT_EPS = 1.0e-5
-
 AMBIENT_KEYS = ("radius", "radius_units", "radiance_cache_scale", "specular",
                 "ambient_occlusion", "ambient_occlusion_strength")
-RAY_OPTIONS = {"step_size": None, "jitter": True, "seed": 0, "early_termination": 0.999,
-               "cache": None, "table": None}
+RAY_OPTIONS = {**MARCH_OPTIONS, "cache": None, "table": None}
 
 _DEFAULT_CACHES: dict[str, AmbientScatteringCache] = {}
 
@@ -89,8 +88,7 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
                          scene.lights, opts["radius"], opts["radius_units"],
                          opts["radiance_cache_scale"], opts["table"])
     cam = make_camera(scene.resolved_camera(volume), volume, int(width), int(height))
-    lo, hi = volume.value_range
-    grad_eps = GRADIENT_EPS * (hi - lo) / float(volume.spacing.min())
+    grad_eps = gradient_threshold(volume)
     t_gather = time.perf_counter()
     radiance, alpha, mean_samples = gather(
         state.medium, state.sigma_tilde, state.radiance.grid, state.lights, cam,
@@ -150,20 +148,7 @@ def parse_options(options: dict, volume, scene) -> dict:
                          ("radiance_cache_scale", 0.5), ("specular", 0.0),
                          ("ambient_occlusion", False), ("ambient_occlusion_strength", 0.25)):
         opts.setdefault(key, default)
-    step = opts["step_size"]
-    step = scene.resolved_step_size(volume) if step is None else step
-    if not (isinstance(step, (int, float, np.floating)) and np.isfinite(step) and step > 0):
-        raise ValueError(f"step_size must be a positive number of world units, got {step!r}")
-    if float(np.linalg.norm(volume.extent)) / step > (1 << 20):
-        raise ValueError(f"step_size {step:g} is too small for a volume of extent "
-                         f"{volume.extent.tolist()}; use a larger step")
-    opts["step_size"] = float(step)
-    stop = opts["early_termination"]
-    if not (isinstance(stop, (int, float, np.floating)) and 0.0 < stop <= 1.0):
-        raise ValueError(f"early_termination must lie in (0, 1], got {stop!r}")
-    seed = opts["seed"]
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**31:
-        raise ValueError(f"seed must be an integer in [0, 2**31), got {seed!r}")
+    opts.update(ray_options(opts, volume, scene))
     spec = opts["specular"]
     if isinstance(spec, bool) or not (isinstance(spec, (int, float, np.floating)) and spec >= 0):
         raise ValueError(f"ambient_scattering.specular must be a number >= 0, got {spec!r}")
