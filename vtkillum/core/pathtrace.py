@@ -83,12 +83,15 @@ from vtkillum.core.warp_common import (
     sample_hg,
     sample_scalar,
     sigma_t_at,
+    stream_seed,
 )
 
 #: Russian roulette on the path starts after this many scattering vertices.
 RR_START = wp.constant(3)
 #: Shadow-ray transmittance below which weight-window roulette kicks in.
 SHADOW_RR_THRESHOLD = wp.constant(0.1)
+#: Salt of the per-pass seeds (keeps them apart from other estimators' streams).
+PASS_SALT = 0x165667B1
 # PCG-RXS-M-XS constants (the generator behind wp.rand_init / wp.randf).
 PCG_MULTIPLIER = wp.constant(wp.uint32(747796405))
 PCG_INCREMENT = wp.constant(wp.uint32(2891336453))
@@ -230,9 +233,9 @@ class PathTracer:
             wp.launch(
                 path_trace_kernel,
                 dim=(self.height, self.width),
-                inputs=[self.medium, self._cam, self.lights, pass_seed(self.seed, self.passes),
-                        self.samples_per_pass, self.max_bounces, self._sum, self._sum2,
-                        self._sum_alpha],
+                inputs=[self.medium, self._cam, self.lights,
+                        stream_seed(self.seed, self.passes, PASS_SALT), self.samples_per_pass,
+                        self.max_bounces, self._sum, self._sum2, self._sum_alpha],
                 device=self.device,
             )
             self.passes += 1
@@ -285,18 +288,6 @@ class PathTracer:
         if self.passes >= 2:
             info["radiance_variance"] = self.radiance_variance.astype(np.float32)
         return RenderResult(self.radiance, self.alpha, info)
-
-
-def pass_seed(seed: int, pass_index: int) -> int:
-    """32-bit hash of ``(seed, pass_index)`` as a signed int for ``wp.rand_init``."""
-    mask = 0xFFFFFFFF
-    x = (int(seed) * 0x9E3779B1 + int(pass_index) * 0x85EBCA77 + 0x165667B1) & mask
-    x ^= x >> 16
-    x = (x * 0x7FEB352D) & mask
-    x ^= x >> 15
-    x = (x * 0x846CA68B) & mask
-    x ^= x >> 16
-    return x - (1 << 32) if x >= (1 << 31) else x
 
 
 def _is_integral(value) -> bool:

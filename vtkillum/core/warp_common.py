@@ -364,6 +364,23 @@ def make_lights(lights, volume, device: str | None = None) -> Lights:
     return out
 
 
+def stream_seed(seed: int, index: int, salt: int) -> int:
+    """32-bit hash of ``(seed, index)`` as a signed int for ``wp.rand_init``.
+
+    Gives every launch ``index`` of a Monte-Carlo run its own independent streams from one
+    user seed; ``salt`` keeps the streams of different estimators apart. The finaliser is
+    a murmur-style avalanche (lowbias32), so neighbouring indices give unrelated seeds.
+    """
+    mask = 0xFFFFFFFF
+    x = (int(seed) * 0x9E3779B1 + int(index) * 0x85EBCA77 + int(salt)) & mask
+    x ^= x >> 16
+    x = (x * 0x7FEB352D) & mask
+    x ^= x >> 15
+    x = (x * 0x846CA68B) & mask
+    x ^= x >> 16
+    return x - (1 << 32) if x >= (1 << 31) else x
+
+
 def to_device(array: np.ndarray, dtype, device: str):
     """Copy a numpy array to ``device`` with a clear error when the device runs out of memory."""
     try:

@@ -85,7 +85,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp, resolve_device
-from vtkillum.core.warp_common import hg_phase, sample_hg
+from vtkillum.core.warp_common import hg_phase, sample_hg, stream_seed
 
 init_warp()
 
@@ -105,6 +105,8 @@ MAX_EVENTS = 4096
 PATHS_PER_LAUNCH = {"cpu": 1 << 21, "cuda": 1 << 27}
 #: The front transmittance of each (σ̃t, g) gets ``samples * ceil(n_theta / this)`` paths.
 FRONT_THREAD_DIVISOR = 8
+#: Salt of the per-launch seeds (see :func:`~vtkillum.core.warp_common.stream_seed`).
+LAUNCH_SALT = 0x2545F491
 #: Entries with L̃o below this are left out of the relative-error summary.
 ERROR_FLOOR = 1.0e-4
 
@@ -414,7 +416,7 @@ def generate_table(albedo: float = 0.9, n_theta: int = 256, n_sigma: int = 256, 
     done = 0
     for launch in range(n_launches):
         paths = min(per_launch, samples - done)
-        launch_seed = _launch_seed(seed, launch)
+        launch_seed = stream_seed(seed, launch, LAUNCH_SALT)
         wp.launch(preintegration_kernel, dim=n_entries,
                   inputs=[d_theta, d_sigma, d_g, float(albedo), launch_seed, paths, MAX_EVENTS,
                           d_sum, d_sq], device=device)
@@ -450,18 +452,6 @@ def generate_table(albedo: float = 0.9, n_theta: int = 256, n_sigma: int = 256, 
     }
     return PreintegrationTable(mean, rel, th, sg, gg, float(albedo), int(done), passed,
                                passed_se, int(seed), info)
-
-
-def _launch_seed(seed: int, launch: int) -> int:
-    """32-bit hash of ``(seed, launch)`` as a signed int for ``wp.rand_init``."""
-    mask = 0xFFFFFFFF
-    x = (int(seed) * 0x9E3779B1 + int(launch) * 0x85EBCA77 + 0x2545F491) & mask
-    x ^= x >> 16
-    x = (x * 0x7FEB352D) & mask
-    x ^= x >> 15
-    x = (x * 0x846CA68B) & mask
-    x ^= x >> 16
-    return x - (1 << 32) if x >= (1 << 31) else x
 
 
 def _progress_reporter(progress, total: int, label: str):
