@@ -553,7 +553,16 @@ def load_table(albedo: float = 0.9, path=None, generate: bool = True, device: st
     return table
 
 
-# --- kernel ---------------------------------------------------------------------------------------
+# --- kernels --------------------------------------------------------------------------------------
+@wp.func
+def unit_sphere_exit(p: wp.vec3, d: wp.vec3):
+    """Distance along unit ``d`` from ``p`` (inside or on the unit sphere) to the sphere."""
+    # |p + t d| = 1 with |p| <= 1, |d| = 1: the larger root.
+    b = wp.dot(p, d)
+    c = wp.dot(p, p) - 1.0
+    return -b + wp.sqrt(wp.max(b * b - c, 0.0))
+
+
 @wp.kernel
 def preintegration_kernel(theta: wp.array(dtype=wp.float32), sigma: wp.array(dtype=wp.float32),
                           g: wp.array(dtype=wp.float32), albedo: float, seed: int, paths: int,
@@ -582,10 +591,7 @@ def preintegration_kernel(theta: wp.array(dtype=wp.float32), sigma: wp.array(dty
         d = -start
         value = float(0.0)
         for e in range(max_events):
-            # Distance to the sphere along d: |p + t d| = 1 with |p| <= 1, |d| = 1.
-            b = wp.dot(p, d)
-            c = wp.dot(p, p) - 1.0
-            t_exit = -b + wp.sqrt(wp.max(b * b - c, 0.0))
+            t_exit = unit_sphere_exit(p, d)
             t_free = float(1.0e30)
             if st > 0.0:
                 t_free = -wp.log(1.0 - wp.randf(state)) / st
@@ -636,9 +642,7 @@ def front_transmittance_kernel(sigma: wp.array(dtype=wp.float32), g: wp.array(dt
         p = wp.vec3(0.0, 0.0, -1.0)
         d = wp.vec3(0.0, 0.0, 1.0)
         for e in range(max_events):
-            b = wp.dot(p, d)
-            c = wp.dot(p, p) - 1.0
-            t_exit = -b + wp.sqrt(wp.max(b * b - c, 0.0))
+            t_exit = unit_sphere_exit(p, d)
             t_free = float(1.0e30)
             if st > 0.0:
                 t_free = -wp.log(1.0 - wp.randf(state)) / st
