@@ -10,7 +10,6 @@ from vtkillum.core.ambient.sat import (
     ambient_extinction,
     cube_half_width,
     cube_mean_reference,
-    resample_points,
     sigma_t_grid,
     summed_area_table,
 )
@@ -100,13 +99,3 @@ def test_reuses_a_given_table(device, rng):
     a = ambient_extinction(wp.array(sig, dtype=wp.float32, device=device), (1, 1, 1), 2.0,
                            device, sat=sat).numpy()
     np.testing.assert_allclose(a, cube_mean_reference(sig, (1, 1, 1), 2.0), rtol=1e-5)
-
-
-def test_resample_points_is_trilinear():
-    i, j, k = np.meshgrid(np.arange(5), np.arange(4), np.arange(6), indexing="ij")
-    f = (1.0 + 2 * i + 3 * j - k).astype(np.float32)
-    out = resample_points(f, (9, 3, 11))
-    x, y, z = np.meshgrid(np.linspace(0, 4, 9), np.linspace(0, 3, 3), np.linspace(0, 5, 11),
-                          indexing="ij")
-    np.testing.assert_allclose(out, 1 + 2 * x + 3 * y - z, atol=1e-5)
-    np.testing.assert_array_equal(resample_points(f, f.shape), f)

@@ -24,3 +24,13 @@ def test_resample_is_trilinear():
 def test_resample_refuses_degenerate_grids():
     with pytest.raises(ValueError, match=">= 2 points"):
         resample_points(np.zeros((4, 4, 4)), (1, 4, 4))
+
+
+def test_resample_reproduces_a_linear_field_and_keeps_equal_shapes():
+    i, j, k = np.meshgrid(np.arange(5), np.arange(4), np.arange(6), indexing="ij")
+    f = (1.0 + 2 * i + 3 * j - k).astype(np.float32)
+    out = resample_points(f, (9, 3, 11))
+    x, y, z = np.meshgrid(np.linspace(0, 4, 9), np.linspace(0, 3, 3), np.linspace(0, 5, 11),
+                          indexing="ij")
+    np.testing.assert_allclose(out, 1 + 2 * x + 3 * y - z, atol=1e-5)
+    np.testing.assert_array_equal(resample_points(f, f.shape), f)

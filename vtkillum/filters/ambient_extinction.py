@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from vtkillum.core.ambient.cache import AmbientScatteringCache
-from vtkillum.core.ambient.sat import resample_points
+from vtkillum.core.resample import resample_points
 from vtkillum.filters.base import IlluminationFilterBase
 
 RADIUS_UNITS = ("voxels", "world")

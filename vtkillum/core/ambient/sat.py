@@ -133,28 +133,6 @@ def cube_mean_reference(sigma_t: np.ndarray, spacing, radius: float) -> np.ndarr
     return total / np.prod(2 * h)
 
 
-def resample_points(values: np.ndarray, shape) -> np.ndarray:
-    """Trilinear resampling of a point grid onto ``shape`` points covering the same box.
-
-    ``values`` is ``(nx, ny, nz[, c])``; the first and last points of each axis stay in
-    place (as :func:`vtkillum.io.convert.image_like` lays out a resampled grid).
-    Trilinear interpolation between regular grids is separable: one ``np.interp`` per axis.
-    """
-    out = np.asarray(values, dtype=np.float64)
-    for axis, m in enumerate(tuple(int(n) for n in shape)):
-        n = out.shape[axis]
-        if m == n:
-            continue
-        x = np.linspace(0.0, n - 1.0, m)
-        i = np.minimum(np.floor(x).astype(int), n - 2) if n > 1 else np.zeros(m, int)
-        f = (x - i) if n > 1 else np.zeros(m)
-        a = np.take(out, i, axis=axis)
-        b = np.take(out, np.minimum(i + 1, n - 1), axis=axis)
-        f = f.reshape([-1 if k == axis else 1 for k in range(out.ndim)])
-        out = (1.0 - f) * a + f * b
-    return out.astype(np.float32)
-
-
 def _as_device_grid(sigma_t, device: str):
     if isinstance(sigma_t, wp.array):
         if sigma_t.ndim != 3:
