@@ -104,6 +104,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.lights import DIRECTIONAL, POINT
+from vtkillum.core.warp_common import grid_point
 
 #: Direction components smaller than this are treated as exactly zero.
 PARALLEL_EPS = 1.0e-6
@@ -525,7 +526,7 @@ def upwind_step_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=
     """
     i, j, k = wp.tid()
     idx = wp.vec3i(i, j, k)
-    x = wp.vec3(float(i) * h[0], float(j) * h[1], float(k) * h[2])
+    x = grid_point(i, j, k, h)
     u, dist = light_direction_at(kind, vec, x)
     old = T[i, j, k]
     s = sigma[i, j, k]

@@ -23,7 +23,13 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import resolve_device
-from vtkillum.core.warp_common import Medium, lookup_sigma_t, make_medium, sample_scalar
+from vtkillum.core.warp_common import (
+    Medium,
+    grid_point,
+    lookup_sigma_t,
+    make_medium,
+    sample_scalar,
+)
 
 #: At most this many sub-samples per axis when averaging a footprint.
 MAX_SUBSAMPLES = 8
@@ -100,7 +106,7 @@ def light_grid_sigma_kernel(m: Medium, h: wp.vec3, sub: wp.vec3i,
     the footprint box, clamped into the volume. Output in 1/world units.
     """
     i, j, k = wp.tid()
-    p = wp.vec3(float(i) * h[0], float(j) * h[1], float(k) * h[2])
+    p = grid_point(i, j, k, h)
     acc = float(0.0)
     for a in range(sub[0]):
         for b in range(sub[1]):

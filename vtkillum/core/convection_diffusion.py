@@ -51,7 +51,7 @@ from vtkillum.core.cd_opacity import light_grid_shape, light_grid_sigma, light_g
 from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.lights import pack_lights
-from vtkillum.core.warp_common import make_medium
+from vtkillum.core.warp_common import grid_point, make_medium
 
 #: Options of the method (scene section ``convection_diffusion``) and their defaults.
 OPTIONS = {
@@ -475,7 +475,7 @@ def compose_kernel(T: wp.array3d(dtype=wp.float32), out: wp.array3d(dtype=wp.vec
     i, j, k = wp.tid()
     e = rgb
     if kind == POINT_KIND:
-        x = wp.vec3(float(i) * h[0], float(j) * h[1], float(k) * h[2])
+        x = grid_point(i, j, k, h)
         d = wp.max(wp.length(x - vec), source_radius)
         e = rgb / (d * d)
     out[i, j, k] = out[i, j, k] + T[i, j, k] * e

@@ -33,6 +33,7 @@ from vtkillum.core.device import resolve_device
 from vtkillum.core.warp_common import (
     Lights,
     Medium,
+    grid_point,
     light_incidence,
     make_lights,
     make_medium,
@@ -122,12 +123,6 @@ def _grid_shape(volume, shape) -> tuple[int, int, int]:
     if np.any(s < 2):
         raise ValueError(f"light grid shape {tuple(s)}: at least 2 points per axis are needed")
     return tuple(int(n) for n in s)
-
-
-@wp.func
-def grid_point(i: int, j: int, k: int, grid_spacing: wp.vec3):
-    return wp.vec3(float(i) * grid_spacing[0], float(j) * grid_spacing[1],
-                   float(k) * grid_spacing[2])
 
 
 @wp.kernel

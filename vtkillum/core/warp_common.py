@@ -150,6 +150,12 @@ def inside_box(p: wp.vec3, extent: wp.vec3):
 
 
 @wp.func
+def grid_point(i: int, j: int, k: int, spacing: wp.vec3):
+    """Local position of point ``[i, j, k]`` of a regular grid with ``spacing`` starting at 0."""
+    return wp.vec3(float(i) * spacing[0], float(j) * spacing[1], float(k) * spacing[2])
+
+
+@wp.func
 def sigma_t_at(m: Medium, p: wp.vec3):
     """Extinction at local position ``p`` (0 outside the volume)."""
     if not inside_box(p, m.extent):

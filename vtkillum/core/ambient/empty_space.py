@@ -22,7 +22,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp, resolve_device
-from vtkillum.core.warp_common import Medium
+from vtkillum.core.warp_common import Medium, table_coord
 
 init_warp()
 
@@ -97,10 +97,7 @@ def occupancy_kernel(m: Medium, ranges: wp.array4d(dtype=wp.float32),
     (``floor`` of the low end to ``ceil`` of the high end).
     """
     bi, bj, bk = wp.tid()
-    n = m.sigma_table.shape[0]
-    a = wp.clamp((ranges[bi, bj, bk, 0] - m.table_lo) * m.table_scale, 0.0, float(n - 1))
-    b = wp.clamp((ranges[bi, bj, bk, 1] - m.table_lo) * m.table_scale, 0.0, float(n - 1))
-    lo = int(wp.floor(a))
-    hi = wp.min(int(wp.ceil(b)), n - 1)
+    lo = int(wp.floor(table_coord(m, ranges[bi, bj, bk, 0])))
+    hi = wp.min(int(wp.ceil(table_coord(m, ranges[bi, bj, bk, 1]))), m.sigma_table.shape[0] - 1)
     # nonzero[i] = number of non-zero entries among the first i
     out[bi, bj, bk] = wp.where(nonzero[hi + 1] - nonzero[lo] > 0, 1, 0)
