@@ -8,8 +8,9 @@ shadow ray is marched from ``x`` towards every light ``l``:
 with ``w_l`` the unit direction towards the light and ``D`` the distance to the
 box exit (directional lights) or to the light itself, whichever is nearer
 (point lights; outside the box ``sigma_t = 0``). ``sigma_t`` is the project's
-grey extinction, sampled trilinearly with post-classification
-(:func:`vtkillum.core.warp_common.sigma_t_at`). The fluence of the light that
+grey extinction, sampled trilinearly with post-classification; the march is
+:func:`vtkillum.core.warp_common.shadow_transmittance`, the one the ``single``
+ray caster uses for its shadow rays. The fluence of the light that
 reaches ``x`` without scattering is
 
     phi(x) = sum_l T_l(x) E_l(x)
@@ -37,8 +38,7 @@ from vtkillum.core.warp_common import (
     light_incidence,
     make_lights,
     make_medium,
-    ray_box,
-    sigma_t_at,
+    shadow_transmittance,
 )
 
 
@@ -138,16 +138,7 @@ def transmittance_kernel(medium: Medium, lights: Lights, first_light: int, grid_
     li = first_light + offset
     p = grid_point(i, j, k, grid_spacing)
     w, dist, _irradiance = light_incidence(lights, li, p)
-    t = ray_box(p, w, medium.extent)
-    length = wp.min(wp.max(t[1], 0.0), dist)
-    n = int(wp.ceil(length / step_size))
-    tau = float(0.0)
-    if n > 0:
-        h = length / float(n)
-        for s in range(n):
-            tau += sigma_t_at(medium, p + ((float(s) + 0.5) * h) * w)
-        tau = tau * h
-    out[li, i, j, k] = wp.exp(-tau)
+    out[li, i, j, k] = shadow_transmittance(medium, p, w, dist, step_size, 0.5, 0.0)
 
 
 @wp.kernel

@@ -66,9 +66,9 @@ from vtkillum.core.warp_common import (
     make_lights,
     make_medium,
     make_rgb_grid,
-    ray_box,
     sample_rgb,
     sample_scalar,
+    shadow_transmittance,
     view_normal,
 )
 
@@ -212,31 +212,6 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
 
 
 # --- device functions ---------------------------------------------------------------------------
-@wp.func
-def shadow_transmittance(m: Medium, p: wp.vec3, w: wp.vec3, dist: float, step: float,
-                         xi: float, stop_t: float):
-    """Transmittance from ``p`` along unit ``w`` to the box exit or ``dist``, whichever is nearer.
-
-    The length is split into equal segments no longer than ``step``, each sampled at
-    fraction ``xi`` of its length (midpoint rule for ``xi = 0.5``).
-    """
-    tt = ray_box(p, w, m.extent)
-    length = wp.min(tt[1], dist)
-    if length <= 0.0:
-        return 1.0
-    n = int(wp.ceil(length / step))
-    h = length / float(n)
-    tau = float(0.0)
-    trans = float(1.0)
-    for k in range(n):
-        q = p + ((float(k) + xi) * h) * w
-        tau += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, q))
-        trans = wp.exp(-tau * h)
-        if trans < stop_t:
-            break
-    return trans
-
-
 @wp.func
 def single_scatter_light(m: Medium, lights: Lights, p: wp.vec3, d: wp.vec3, step: float,
                          xi: float, stop_t: float):

@@ -216,6 +216,32 @@ def view_normal(m: Medium, p: wp.vec3, d: wp.vec3, grad_eps: float):
     return n
 
 
+@wp.func
+def shadow_transmittance(m: Medium, p: wp.vec3, w: wp.vec3, dist: float, step: float,
+                         xi: float, stop_t: float):
+    """Transmittance from ``p`` along unit ``w`` to the box exit or ``dist``, whichever is nearer.
+
+    The length is split into equal segments no longer than ``step`` (world units), each
+    sampled at fraction ``xi`` of its length (the midpoint rule for ``xi = 0.5``, exact in
+    homogeneous media). The march stops early once the transmittance drops below
+    ``stop_t`` (0: never).
+    """
+    tt = ray_box(p, w, m.extent)
+    length = wp.min(tt[1], dist)
+    if length <= 0.0:
+        return 1.0
+    n = int(wp.ceil(length / step))
+    h = length / float(n)
+    tau = float(0.0)
+    for k in range(n):
+        q = p + ((float(k) + xi) * h) * w
+        tau += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, q))
+        if stop_t > 0.0:
+            if wp.exp(-tau * h) < stop_t:
+                break
+    return wp.exp(-tau * h)
+
+
 # --- phase function ------------------------------------------------------------------------------
 @wp.func
 def hg_phase(cos_theta: float, g: float):
