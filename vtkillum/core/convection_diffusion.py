@@ -38,7 +38,6 @@ convection needs no warm start, it is exact in one sweep.
 
 from __future__ import annotations
 
-import hashlib
 import time
 from dataclasses import dataclass, field
 
@@ -51,6 +50,7 @@ from vtkillum.core.cd_opacity import light_grid_shape, light_grid_sigma, light_g
 from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.lights import pack_lights
+from vtkillum.core.volume import array_digest
 from vtkillum.core.warp_common import grid_point, make_medium
 
 #: Options of the method (scene section ``convection_diffusion``) and their defaults.
@@ -281,7 +281,7 @@ class ConvectionDiffusionSolver:
 
         # 1. opacity volume
         if volume_key is None:
-            volume_key = _array_digest(volume.scalars)
+            volume_key = array_digest(volume.scalars)
         tf_key = (transfer_function.scalars.tobytes(), transfer_function.opacity.tobytes())
         opacity_key = (volume_key, tf_key, float(unit_distance))
         if opacity_key != self._opacity_key:
@@ -449,13 +449,6 @@ class ConvectionDiffusionSolver:
         stats.diffused = True
         stats.diffusion = report
         stats.ms["diffusion"] = _elapsed_ms(t, self.device)
-
-
-def _array_digest(a: np.ndarray) -> str:
-    a = np.ascontiguousarray(a)
-    h = hashlib.blake2b(memoryview(a).cast("B"), digest_size=16)
-    h.update(repr((a.shape, a.dtype.str)).encode())
-    return h.hexdigest()
 
 
 def _elapsed_ms(t0: float, device: str) -> float:

@@ -8,6 +8,7 @@ in which the volume spans ``[0, (n - 1) * spacing]`` along each axis.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -123,3 +124,15 @@ class Volume:
     def to_local_direction(self, vectors) -> np.ndarray:
         """World directions ``(..., 3)`` to the local frame."""
         return np.asarray(vectors, dtype=np.float64) @ self.direction
+
+
+def array_digest(array) -> str:
+    """Content key of an array: a hash of every value, the shape and the dtype.
+
+    Caches use it to recognise unchanged data in a new array object (e.g. a filter's
+    fresh conversion of the same input).
+    """
+    a = np.ascontiguousarray(array)
+    h = hashlib.blake2b(memoryview(a).cast("B"), digest_size=16)
+    h.update(repr((a.shape, a.dtype.str)).encode())
+    return h.hexdigest()

@@ -40,6 +40,7 @@ from vtkillum.core.ambient.table import PreintegrationTable, load_table
 from vtkillum.core.ambient.tube_march import RadianceCache, radiance_cache
 from vtkillum.core.device import resolve_device
 from vtkillum.core.lights import pack_lights
+from vtkillum.core.volume import array_digest
 from vtkillum.core.warp_common import Lights, Medium, make_lights, make_medium, to_device
 
 #: Values hashed for the data fingerprint (strided over the array).
@@ -265,9 +266,7 @@ def _data_identity(volume) -> tuple:
 
 def _data_digest(volume) -> tuple:
     """Content key of the data: every value, the shape and the spacing."""
-    s = np.ascontiguousarray(volume.scalars)
-    digest = hashlib.blake2b(s.tobytes(), digest_size=16).hexdigest()
-    return (s.shape, tuple(np.asarray(volume.spacing).tolist()), digest)
+    return (array_digest(volume.scalars), tuple(np.asarray(volume.spacing).tolist()))
 
 
 def _tf_key(tf, unit_distance: float, value_range) -> str:
