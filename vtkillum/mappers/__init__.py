@@ -5,9 +5,12 @@
 * :class:`ComputeVolumeRenderer` -- compute path: any registered warp method
   (``emission``, ``single``, ``illumination``, progressive ``path``, ...) shown in a
   VTK renderer.
+* :class:`AmbientScatteringVolume` -- OpenGL path of ambient volume scattering
+  (Ament et al. 2013): warp preprocessing, VTK's GPU ray caster gathers.
 * :mod:`~vtkillum.mappers.camera_bridge` -- cameras and scenes between VTK and the core.
 """
 
+from vtkillum.mappers.ambient_volume_mapper import AmbientScatteringVolume
 from vtkillum.mappers.camera_bridge import (
     apply_camera_to_vtk,
     apply_scene_to_volume_property,
@@ -18,6 +21,7 @@ from vtkillum.mappers.compute_mapper import ComputeVolumeRenderer
 from vtkillum.mappers.illuminated_volume_mapper import IlluminatedVolume, ScalarFluenceImage
 
 __all__ = [
+    "AmbientScatteringVolume",
     "ComputeVolumeRenderer",
     "IlluminatedVolume",
     "ScalarFluenceImage",
