@@ -72,6 +72,7 @@ from vtkillum.core.warp_common import (
     Lights,
     Medium,
     camera_ray,
+    free_path,
     hg_phase,
     light_incidence,
     lookup_color,
@@ -84,6 +85,7 @@ from vtkillum.core.warp_common import (
     sample_scalar,
     sigma_t_at,
     stream_seed,
+    uniform,
 )
 
 #: Russian roulette on the path starts after this many scattering vertices.
@@ -92,10 +94,6 @@ RR_START = wp.constant(3)
 SHADOW_RR_THRESHOLD = wp.constant(0.1)
 #: Salt of the per-pass seeds (keeps them apart from other estimators' streams).
 PASS_SALT = 0x165667B1
-# PCG-RXS-M-XS constants (the generator behind wp.rand_init / wp.randf).
-PCG_MULTIPLIER = wp.constant(wp.uint32(747796405))
-PCG_INCREMENT = wp.constant(wp.uint32(2891336453))
-PCG_OUTPUT_MULTIPLIER = wp.constant(wp.uint32(277803737))
 
 
 def render_path(volume, scene, width: int, height: int, device: str | None = None, progress=None,
@@ -311,26 +309,6 @@ def _int(value, name: str) -> int:
 
 # --- kernels and device functions ---------------------------------------------------------------
 @wp.func
-def uniform(state: wp.uint32):
-    """Advance a PCG state (as ``wp.rand_init`` does); returns ``(u in [0, 1), new state)``.
-
-    Written out rather than calling ``wp.randf`` because a ``wp.func`` receives the state by
-    value: returning the new state makes the stream explicit through helper functions.
-    """
-    b = state * PCG_MULTIPLIER + PCG_INCREMENT
-    c = ((b >> ((b >> wp.uint32(28)) + wp.uint32(4))) ^ b) * PCG_OUTPUT_MULTIPLIER
-    s = (c >> wp.uint32(22)) ^ c
-    return float(s >> wp.uint32(8)) * (1.0 / 16777216.0), s
-
-
-@wp.func
-def free_flight_distance(majorant: float, state: wp.uint32):
-    """Exponential distance with rate ``majorant``; returns ``(t, state)``."""
-    u, state = uniform(state)
-    return -wp.log(1.0 - u) / majorant, state
-
-
-@wp.func
 def delta_tracking(m: Medium, o: wp.vec3, d: wp.vec3, t_start: float, t_end: float,
                    state: wp.uint32):
     """Sample a real collision on ``o + t d``, ``t`` in ``(t_start, t_end)``.
@@ -339,7 +317,7 @@ def delta_tracking(m: Medium, o: wp.vec3, d: wp.vec3, t_start: float, t_end: flo
     """
     t = t_start
     while True:
-        step, state = free_flight_distance(m.majorant, state)
+        step, state = free_path(m.majorant, state)
         t = t + step
         if t >= t_end:
             return False, t_end, 0.0, state
@@ -361,7 +339,7 @@ def ratio_tracking(m: Medium, o: wp.vec3, d: wp.vec3, t_start: float, t_end: flo
     T = float(1.0)
     t = t_start
     while True:
-        step, state = free_flight_distance(m.majorant, state)
+        step, state = free_path(m.majorant, state)
         t = t + step
         if t >= t_end:
             return T, state

@@ -280,6 +280,38 @@ def sample_hg(wi: wp.vec3, g: float, u1: float, u2: float):
     return wp.normalize(sin_t * wp.cos(phi) * t + sin_t * wp.sin(phi) * s + cos_t * wi)
 
 
+# --- random numbers ----------------------------------------------------------------------------
+# PCG-RXS-M-XS constants (the generator behind wp.rand_init / wp.randf).
+PCG_MULTIPLIER = wp.constant(wp.uint32(747796405))
+PCG_INCREMENT = wp.constant(wp.uint32(2891336453))
+PCG_OUTPUT_MULTIPLIER = wp.constant(wp.uint32(277803737))
+
+
+@wp.func
+def uniform(state: wp.uint32):
+    """Advance a PCG state (as ``wp.randf`` does); returns ``(u in [0, 1), new state)``.
+
+    The same stream as ``wp.randf``, written out because a ``wp.func`` receives the state
+    by value: returning the new state makes the stream explicit through helper functions.
+    """
+    b = state * PCG_MULTIPLIER + PCG_INCREMENT
+    c = ((b >> ((b >> wp.uint32(28)) + wp.uint32(4))) ^ b) * PCG_OUTPUT_MULTIPLIER
+    s = (c >> wp.uint32(22)) ^ c
+    return float(s >> wp.uint32(8)) * (1.0 / 16777216.0), s
+
+
+@wp.func
+def free_path(sigma: float, state: wp.uint32):
+    """Exponential distance with rate ``sigma``; returns ``(t, state)``.
+
+    For ``sigma <= 0`` the distance is 1e30 and no random number is used.
+    """
+    if sigma <= 0.0:
+        return 1.0e30, state
+    u, state = uniform(state)
+    return -wp.log(1.0 - u) / sigma, state
+
+
 # --- lights and camera ---------------------------------------------------------------------------
 @wp.func
 def light_incidence(lights: Lights, li: int, p: wp.vec3):

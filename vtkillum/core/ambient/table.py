@@ -85,7 +85,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp, resolve_device
-from vtkillum.core.warp_common import hg_phase, sample_hg, stream_seed
+from vtkillum.core.warp_common import free_path, hg_phase, sample_hg, stream_seed, uniform
 
 init_warp()
 
@@ -563,6 +563,21 @@ def unit_sphere_exit(p: wp.vec3, d: wp.vec3):
     return -b + wp.sqrt(wp.max(b * b - c, 0.0))
 
 
+@wp.func
+def absorb_or_scatter(d: wp.vec3, g: float, albedo: float, state: wp.uint32):
+    """One interaction: absorption or an HG-scattered direction around ``d``.
+
+    Absorbed with probability ``1 - albedo`` (Russian roulette with survival probability
+    ``Λ``). Returns ``(survived, direction, state)``.
+    """
+    u, state = uniform(state)
+    if u >= albedo:
+        return False, d, state
+    u1, state = uniform(state)
+    u2, state = uniform(state)
+    return True, sample_hg(d, g, u1, u2), state
+
+
 @wp.kernel
 def preintegration_kernel(theta: wp.array(dtype=wp.float32), sigma: wp.array(dtype=wp.float32),
                           g: wp.array(dtype=wp.float32), albedo: float, seed: int, paths: int,
@@ -592,9 +607,7 @@ def preintegration_kernel(theta: wp.array(dtype=wp.float32), sigma: wp.array(dty
         value = float(0.0)
         for e in range(max_events):
             t_exit = unit_sphere_exit(p, d)
-            t_free = float(1.0e30)
-            if st > 0.0:
-                t_free = -wp.log(1.0 - wp.randf(state)) / st
+            t_free, state = free_path(st, state)
             if t_free >= t_exit:
                 xs = p + t_exit * d
                 # Light arriving at xs travels along -d; the front reached xs after max(0, 2 zs).
@@ -603,13 +616,11 @@ def preintegration_kernel(theta: wp.array(dtype=wp.float32), sigma: wp.array(dty
                 value = wp.exp(-dist * st) * hg_phase(wi[2], gg)
                 break
             p = p + t_free * d
-            if wp.randf(state) >= albedo:
-                break  # absorbed (Russian roulette with survival probability Λ)
             # Backward tracing with a symmetric phase function: the new path direction has
             # density p(d . d') around the old one.
-            u1 = wp.randf(state)
-            u2 = wp.randf(state)
-            d = sample_hg(d, gg, u1, u2)
+            alive, d, state = absorb_or_scatter(d, gg, albedo, state)
+            if not alive:
+                break
         v = wp.float64(value)
         acc += v
         acc_sq += v * v
@@ -643,19 +654,15 @@ def front_transmittance_kernel(sigma: wp.array(dtype=wp.float32), g: wp.array(dt
         d = wp.vec3(0.0, 0.0, 1.0)
         for e in range(max_events):
             t_exit = unit_sphere_exit(p, d)
-            t_free = float(1.0e30)
-            if st > 0.0:
-                t_free = -wp.log(1.0 - wp.randf(state)) / st
+            t_free, state = free_path(st, state)
             if t_free >= t_exit:
                 if p[2] + t_exit * d[2] > 0.0:
                     count += wp.float64(1.0)
                 break
             p = p + t_free * d
-            if wp.randf(state) >= albedo:
+            alive, d, state = absorb_or_scatter(d, gg, albedo, state)
+            if not alive:
                 break
-            u1 = wp.randf(state)
-            u2 = wp.randf(state)
-            d = sample_hg(d, gg, u1, u2)
     passed[tid] = passed[tid] + count
 
 
