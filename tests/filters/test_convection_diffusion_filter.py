@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from helpers import constant_opacity_filter, read_window_rgb
 from vtkmodules.vtkCommonDataModel import vtkDataObject
 
 from vtkillum.core.transfer_function import TransferFunction
@@ -10,12 +11,7 @@ from vtkillum.io.convert import point_array
 
 
 def make_filter(alpha=0.5):
-    f = ConvectionDiffusionLightFilter()
-    f.SetDevice("cpu")
-    f.SetTransferFunction(TransferFunction([0.0, 2.0], [alpha, alpha]))
-    f.SetScalarOpacityUnitDistance(1.0)
-    f.RemoveAllLights()
-    return f
+    return constant_opacity_filter(ConvectionDiffusionLightFilter, alpha)
 
 
 def test_half_resolution_light_volume_in_world_space(make_image):
@@ -148,22 +144,6 @@ def _window(renderer, camera, size):
     return window
 
 
-def _grab(window):
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-    from vtkmodules.vtkRenderingCore import vtkWindowToImageFilter
-
-    window.Render()
-    g = vtkWindowToImageFilter()
-    g.SetInput(window)
-    g.SetInputBufferTypeToRGB()
-    g.ReadFrontBufferOff()
-    g.ShouldRerenderOff()
-    g.Update()
-    w, h, _ = g.GetOutput().GetDimensions()
-    rgb = vtk_to_numpy(g.GetOutput().GetPointData().GetScalars()).reshape(h, w, 3)
-    return rgb[::-1].astype(np.float64) / 255.0
-
-
 def test_light_volume_renders_in_both_mapper_paths(make_image):
     pytest.importorskip("vtkmodules.vtkRenderingVolumeOpenGL2")
     from vtkmodules.vtkRenderingCore import vtkRenderer
@@ -203,7 +183,7 @@ def test_light_volume_renders_in_both_mapper_paths(make_image):
     renderer = vtkRenderer()
     renderer.AddVolume(IlluminatedVolume(img, scene, illumination=f.GetOutputPort()))
     window = _window(renderer, scene.camera, size)
-    diff = np.abs(_grab(window) - reference.radiance) / reference.radiance.max()
+    diff = np.abs(read_window_rgb(window) - reference.radiance) / reference.radiance.max()
     window.Finalize()
     assert diff.mean() < 3e-3 and np.percentile(diff, 99) < 1.2e-2, diff.mean()
 
@@ -212,7 +192,7 @@ def test_light_volume_renders_in_both_mapper_paths(make_image):
     window = _window(renderer, scene.camera, size)
     shown = ComputeVolumeRenderer(renderer, volume, scene, method="convection-diffusion",
                                   device="cpu", jitter=False, early_termination=stop)
-    image = _grab(window)
+    image = read_window_rgb(window)
     direct = render(volume, scene, "convection-diffusion", size, size, device="cpu",
                     jitter=False, early_termination=stop)
     np.testing.assert_allclose(direct.radiance, reference.radiance, rtol=1e-4, atol=1e-5)

@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from helpers import constant_opacity_filter
 from vtkmodules.vtkCommonDataModel import vtkDataObject
 
 from vtkillum.core.transfer_function import TransferFunction
@@ -18,12 +19,7 @@ def homogeneous(make_image, dims=(10, 8, 6), direction=None):
 
 
 def make_filter(alpha=0.5):
-    f = LightTransmittanceFilter()
-    f.SetDevice("cpu")
-    f.SetTransferFunction(TransferFunction([0.0, 2.0], [alpha, alpha]))
-    f.SetScalarOpacityUnitDistance(1.0)
-    f.RemoveAllLights()
-    return f
+    return constant_opacity_filter(LightTransmittanceFilter, alpha)
 
 
 def test_arrays_and_beer_lambert_in_world_space(make_image):

@@ -20,6 +20,7 @@ it proves it can catch them.
 
 import numpy as np
 import pytest
+from helpers import blob_tf, blob_volume, read_window_rgb, zoomed_camera
 
 from vtkillum.core.camera import Camera
 from vtkillum.core.raycast import render_emission
@@ -38,32 +39,6 @@ import vtkmodules.vtkRenderingVolumeOpenGL2  # noqa: E402,F401  (GPU ray caster)
 MEAN_TOL = 1.5e-3
 P99_TOL = 6e-3
 WIDTH, HEIGHT = 64, 48
-
-
-def blob_volume() -> Volume:
-    """32³ smooth, asymmetric field: a large blob and a small off-centre one."""
-    n = 32
-    x = np.linspace(-1.0, 1.0, n)
-    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
-    big = np.exp(-((X + 0.15) ** 2 + Y ** 2 + (Z - 0.1) ** 2) / 0.3)
-    small = 0.8 * np.exp(-((X - 0.55) ** 2 + (Y - 0.5) ** 2 + (Z + 0.3) ** 2) / 0.06)
-    return Volume(big + small, spacing=(1.0, 1.15, 0.85), origin=(-3.0, 2.0, 1.0))
-
-
-def blob_tf() -> TransferFunction:
-    return TransferFunction(
-        [0.0, 0.15, 0.45, 0.75, 1.0],
-        [0.0, 0.0, 0.06, 0.12, 0.2],
-        [[0.1, 0.2, 1.0], [0.1, 0.2, 1.0], [0.2, 1.0, 0.4], [1.0, 0.8, 0.1], [1.0, 0.1, 0.1]],
-    )
-
-
-def zoomed_camera(volume: Volume) -> Camera:
-    """Oblique perspective view, closer than ResetCamera so that the blobs fill the frame."""
-    cam = Camera.looking_at_bounds(volume.bounds, direction=(-0.4, -0.3, -1.0),
-                                   view_up=(0.2, 1.0, 0.0))
-    position = cam.focal_point + 0.55 * (cam.position - cam.focal_point)
-    return Camera(position, cam.focal_point, cam.view_up, cam.view_angle)
 
 
 def vtk_render(volume: Volume, tf: TransferFunction, u: float, step: float, cam: Camera):
@@ -118,16 +93,9 @@ def vtk_render(volume: Volume, tf: TransferFunction, u: float, step: float, cam:
     if not mapper.IsRenderSupported(win, prop):
         pytest.skip("vtkGPUVolumeRayCastMapper is not supported by this OpenGL")
 
-    grab = vtk_core.vtkWindowToImageFilter()
-    grab.SetInput(win)
-    grab.SetInputBufferTypeToRGB()
-    grab.ReadFrontBufferOff()
-    grab.Update()
-    out = grab.GetOutput()
-    w, h, _ = out.GetDimensions()
-    rgb = numpy_support.vtk_to_numpy(out.GetPointData().GetScalars()).reshape(h, w, 3)
+    rgb = read_window_rgb(win)
     win.Finalize()
-    return rgb[::-1].astype(np.float64) / 255.0  # VTK's row 0 is the bottom
+    return rgb
 
 
 def errors(ours, theirs):

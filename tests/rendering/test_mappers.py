@@ -30,6 +30,7 @@ import copy
 
 import numpy as np
 import pytest
+from helpers import blob_tf, blob_volume, read_window_rgb, zoomed_camera
 
 from vtkillum.core.camera import Camera
 from vtkillum.core.illumination import IlluminationVolume
@@ -52,7 +53,6 @@ from vtkmodules.vtkRenderingCore import (  # noqa: E402
     vtkRenderer,
     vtkRenderWindow,
     vtkVolumeProperty,
-    vtkWindowToImageFilter,
 )
 
 from vtkillum.io.convert import add_point_array, image_data_from_volume, image_like  # noqa: E402
@@ -73,23 +73,6 @@ EARLY_STOP = 1.0 - 1.0 / 255.0  # VTK's g_opacityThreshold
 IRRADIANCE = np.array([30.0, 24.0, 18.0])  # bright enough to use the 8-bit range
 
 
-def blob_volume() -> Volume:
-    n = 32
-    x = np.linspace(-1.0, 1.0, n)
-    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
-    big = np.exp(-((X + 0.15) ** 2 + Y ** 2 + (Z - 0.1) ** 2) / 0.3)
-    small = 0.8 * np.exp(-((X - 0.55) ** 2 + (Y - 0.5) ** 2 + (Z + 0.3) ** 2) / 0.06)
-    return Volume(big + small, spacing=(1.0, 1.15, 0.85), origin=(-3.0, 2.0, 1.0))
-
-
-def blob_tf() -> TransferFunction:
-    return TransferFunction(
-        [0.0, 0.15, 0.45, 0.75, 1.0],
-        [0.0, 0.0, 0.06, 0.12, 0.2],
-        [[0.1, 0.2, 1.0], [0.1, 0.2, 1.0], [0.2, 1.0, 0.4], [1.0, 0.8, 0.1], [1.0, 0.1, 0.1]],
-    )
-
-
 def slab_fluence(volume: Volume, tf: TransferFunction, scale: float = 1.0) -> np.ndarray:
     """``E exp(-τ)`` with τ the optical depth from the +y face (trapezoid rule on the grid)."""
     sigma = tf.sigma_t(volume.scalars, UNIT)
@@ -101,10 +84,7 @@ def slab_fluence(volume: Volume, tf: TransferFunction, scale: float = 1.0) -> np
 
 
 def make_scene(volume: Volume, mirrored: bool = False) -> Scene:
-    cam = Camera.looking_at_bounds(volume.bounds, direction=(-0.4, -0.3, -1.0),
-                                   view_up=(0.2, 1.0, 0.0))
-    cam = Camera(cam.focal_point + 0.55 * (cam.position - cam.focal_point), cam.focal_point,
-                 cam.view_up, cam.view_angle)
+    cam = zoomed_camera(volume)
     m = np.array([-1.0, -1.0, 1.0]) if mirrored else np.ones(3)
     centre = volume.bounds.reshape(3, 2).mean(1)
     lights = [DirectionalLight(m * np.array([0.6, -1.0, 0.2])),
@@ -129,20 +109,6 @@ def vtk_window(renderer: vtkRenderer, camera: Camera) -> vtkRenderWindow:
     window.AddRenderer(renderer)
     window.SetSize(WIDTH, HEIGHT)
     return window
-
-
-def grab(window) -> np.ndarray:
-    """Render and read back linear RGB in [0, 1], (H, W, 3), row 0 at the top."""
-    window.Render()
-    g = vtkWindowToImageFilter()
-    g.SetInput(window)
-    g.SetInputBufferTypeToRGB()
-    g.ReadFrontBufferOff()
-    g.ShouldRerenderOff()
-    g.Update()
-    w, h, _ = g.GetOutput().GetDimensions()
-    rgb = vtk_to_numpy(g.GetOutput().GetPointData().GetScalars()).reshape(h, w, 3)
-    return rgb[::-1].astype(np.float64) / 255.0
 
 
 def rel_errors(image, reference):
@@ -171,7 +137,7 @@ def test_opengl_mapper_matches_warp_illuminated(setup):
     actor = IlluminatedVolume(image_data_from_volume(volume), scene, illumination=illumination)
     renderer.AddVolume(actor)
     window = vtk_window(renderer, scene.camera)
-    image = grab(window)
+    image = read_window_rgb(window)
     errors = rel_errors(image, reference.radiance)
     print(f"OpenGL vs warp: mean {errors[0]:.2e}, p99 {errors[1]:.2e} (relative to max)")
     assert within(errors), errors
@@ -181,17 +147,17 @@ def test_opengl_mapper_matches_warp_illuminated(setup):
     sigma = scene.transfer_function.sigma_t(volume.scalars, UNIT)[..., None]
     mean_phi = (illumination.fluence * sigma).sum((0, 1, 2)) / sigma.sum()
     actor.set_illumination(np.broadcast_to(mean_phi, illumination.fluence.shape).copy())
-    flat = rel_errors(grab(window), reference.radiance)
+    flat = rel_errors(read_window_rgb(window), reference.radiance)
     print(f"constant fluence: {flat}")
     assert not within(flat), f"a constant fluence was not detected: {flat}"
     # ... and so does the unshadowed default (no illumination set)
     actor.set_illumination(None)
-    ignored = rel_errors(grab(window), reference.radiance)
+    ignored = rel_errors(read_window_rgb(window), reference.radiance)
     assert not within(ignored), f"ignoring the illumination was not detected: {ignored}"
     # ... and so do lights mirrored in the Phong factor.
     actor.set_illumination(illumination)
     actor.set_scene(make_scene(volume, mirrored=True))
-    mirrored = rel_errors(grab(window), reference.radiance)
+    mirrored = rel_errors(read_window_rgb(window), reference.radiance)
     print(f"mirrored lights: {mirrored}")
     assert not within(mirrored), f"mirrored lights were not detected: {mirrored}"
     window.Finalize()
@@ -204,7 +170,7 @@ def test_compute_path_shows_warp_image_and_matches_opengl(setup):
     shown = ComputeVolumeRenderer(renderer, volume, scene, method="illumination",
                                   illumination=illumination, device="cpu", jitter=False,
                                   early_termination=EARLY_STOP)
-    image = grab(window)
+    image = read_window_rgb(window)
     expected = tonemap(reference.radiance, reference.alpha, (0.0, 0.0, 0.0), gamma=1.0)
     assert np.abs(image * 255.0 - expected).max() <= 1.0
 
@@ -212,13 +178,13 @@ def test_compute_path_shows_warp_image_and_matches_opengl(setup):
     gl_renderer.AddVolume(IlluminatedVolume(image_data_from_volume(volume), scene,
                                             illumination=illumination))
     gl_window = vtk_window(gl_renderer, scene.camera)
-    errors = rel_errors(grab(gl_window), image)
+    errors = rel_errors(read_window_rgb(gl_window), image)
     print(f"OpenGL vs compute path: mean {errors[0]:.2e}, p99 {errors[1]:.2e}")
     assert within(errors), errors
 
     # A camera move re-renders: the image follows the VTK camera.
     renderer.GetActiveCamera().Azimuth(40.0)
-    moved = grab(window)
+    moved = read_window_rgb(window)
     rotated = copy.copy(scene)
     rotated.camera = camera_from_vtk(renderer.GetActiveCamera())
     again = warp_reference(volume, rotated, illumination)
@@ -246,7 +212,7 @@ def test_mapper_follows_illumination_data_and_resolution(setup):
     actor = IlluminatedVolume(image_data_from_volume(volume), scene, illumination=fluence_image)
     renderer.AddVolume(actor)
     window = vtk_window(renderer, scene.camera)
-    first = grab(window)
+    first = read_window_rgb(window)
     coarse_reference = warp_reference(volume, scene, IlluminationVolume.for_volume(volume, coarse))
     errors = rel_errors(first, coarse_reference.radiance)
     assert within(errors), errors
@@ -254,14 +220,14 @@ def test_mapper_follows_illumination_data_and_resolution(setup):
     # Editing the array in place (and marking it modified) re-uploads on the next render.
     vtk_to_numpy(array)[:] *= 0.5
     array.Modified()
-    second = grab(window)
+    second = read_window_rgb(window)
     covered = coarse_reference.radiance > 0.1
     ratio = second[covered] / first[covered]
     assert abs(float(np.median(ratio)) - 0.5) < 0.02, np.median(ratio)
 
     # A new illumination object replaces the old one.
     actor.set_illumination(IlluminationVolume.for_volume(volume, 0.75 * coarse))
-    third = grab(window)
+    third = read_window_rgb(window)
     assert abs(float(np.median(third[covered] / first[covered])) - 0.75) < 0.02
     window.Finalize()
 
@@ -304,14 +270,14 @@ def test_mapper_follows_time_steps(setup):
     renderer = vtkRenderer()
     renderer.AddVolume(actor)
     window = vtk_window(renderer, scene.camera)
-    first = grab(window)
+    first = read_window_rgb(window)
     actor.set_time(2.0)
-    later = grab(window)
+    later = read_window_rgb(window)
     assert data.times[-1] == light.times[-1] == 2.0
     covered = first > 0.05
     assert abs(float(np.median(later[covered] / first[covered])) - 3.0) < 0.1
     executions = len(light.times)
-    grab(window)  # same time, nothing modified: no re-execution
+    read_window_rgb(window)  # same time, nothing modified: no re-execution
     assert len(light.times) == executions
     window.Finalize()
 
@@ -366,7 +332,7 @@ def test_cli_single_matches_compute_path(tmp_path):
     # No reference kept: the renderer's observer keeps the compute path alive.
     ComputeVolumeRenderer(renderer, volume, scene, method="single", device="cpu",
                           exposure=exposure, jitter=False)
-    image = grab(window)
+    image = read_window_rgb(window)
     # Same numbers up to the 8-bit display: |shown - exposure L| <= half a level.
     assert np.abs(image - np.clip(exposure * radiance, 0.0, 1.0)).max() <= 0.5 / 255 + 1e-6
     assert (image.max(-1) > 0.05).mean() > 0.3
@@ -482,7 +448,7 @@ def test_cli_transmittance_matches_opengl_mapper(tmp_path):
                               illumination=IlluminationVolume.for_volume(volume, fluence))
     renderer.AddVolume(actor)
     window = vtk_window(renderer, scene.camera)
-    errors = rel_errors(grab(window), cli_radiance)
+    errors = rel_errors(read_window_rgb(window), cli_radiance)
     print(f"CLI transmittance vs OpenGL: mean {errors[0]:.2e}, p99 {errors[1]:.2e}")
     assert within(errors), errors
     window.Finalize()

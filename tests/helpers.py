@@ -1,0 +1,71 @@
+"""Helpers several test modules share: the two-blob scene, VTK read-back, configured filters.
+
+Imported as ``from helpers import ...`` (pytest puts ``tests/`` on ``sys.path`` for the
+root ``conftest.py``). VTK is imported inside the functions that need it, so core tests
+can use the scene helpers without VTK.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from vtkillum.core.camera import Camera
+from vtkillum.core.transfer_function import TransferFunction
+from vtkillum.core.volume import Volume
+
+
+def blob_volume() -> Volume:
+    """32³ smooth, asymmetric field: a large blob and a small off-centre one.
+
+    Anisotropic spacing and an offset origin, so that axis or geometry mix-ups show.
+    """
+    n = 32
+    x = np.linspace(-1.0, 1.0, n)
+    X, Y, Z = np.meshgrid(x, x, x, indexing="ij")
+    big = np.exp(-((X + 0.15) ** 2 + Y ** 2 + (Z - 0.1) ** 2) / 0.3)
+    small = 0.8 * np.exp(-((X - 0.55) ** 2 + (Y - 0.5) ** 2 + (Z + 0.3) ** 2) / 0.06)
+    return Volume(big + small, spacing=(1.0, 1.15, 0.85), origin=(-3.0, 2.0, 1.0))
+
+
+def blob_tf() -> TransferFunction:
+    """Coloured transfer function for :func:`blob_volume` (blue halo, green to red core)."""
+    return TransferFunction(
+        [0.0, 0.15, 0.45, 0.75, 1.0],
+        [0.0, 0.0, 0.06, 0.12, 0.2],
+        [[0.1, 0.2, 1.0], [0.1, 0.2, 1.0], [0.2, 1.0, 0.4], [1.0, 0.8, 0.1], [1.0, 0.1, 0.1]],
+    )
+
+
+def zoomed_camera(volume: Volume) -> Camera:
+    """Oblique perspective view, closer than ResetCamera so that the blobs fill the frame."""
+    cam = Camera.looking_at_bounds(volume.bounds, direction=(-0.4, -0.3, -1.0),
+                                   view_up=(0.2, 1.0, 0.0))
+    position = cam.focal_point + 0.55 * (cam.position - cam.focal_point)
+    return Camera(position, cam.focal_point, cam.view_up, cam.view_angle)
+
+
+def read_window_rgb(window) -> np.ndarray:
+    """Render a VTK window and read back linear RGB in [0, 1], (H, W, 3), row 0 at the top."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkRenderingCore import vtkWindowToImageFilter
+
+    window.Render()
+    g = vtkWindowToImageFilter()
+    g.SetInput(window)
+    g.SetInputBufferTypeToRGB()
+    g.ReadFrontBufferOff()
+    g.ShouldRerenderOff()
+    g.Update()
+    w, h, _ = g.GetOutput().GetDimensions()
+    rgb = vtk_to_numpy(g.GetOutput().GetPointData().GetScalars()).reshape(h, w, 3)
+    return rgb[::-1].astype(np.float64) / 255.0  # VTK's row 0 is the bottom
+
+
+def constant_opacity_filter(filter_class, alpha: float = 0.5):
+    """A light filter on the CPU with opacity ``alpha`` over data values [0, 2], u = 1, no lights."""
+    f = filter_class()
+    f.SetDevice("cpu")
+    f.SetTransferFunction(TransferFunction([0.0, 2.0], [alpha, alpha]))
+    f.SetScalarOpacityUnitDistance(1.0)
+    f.RemoveAllLights()
+    return f
