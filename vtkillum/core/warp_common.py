@@ -130,17 +130,22 @@ def table_coord(m: Medium, s: float):
 
 
 @wp.func
+def table_lerp(table: wp.array(dtype=Any), x: float):
+    """Linear interpolation of a 1D table at continuous index ``x`` in ``[0, n - 1]``."""
+    i = wp.min(int(x), table.shape[0] - 2)
+    return wp.lerp(table[i], table[i + 1], x - float(i))
+
+
+@wp.func
 def lookup_sigma_t(m: Medium, s: float):
-    x = table_coord(m, s)
-    i = wp.min(int(x), m.sigma_table.shape[0] - 2)
-    return wp.lerp(m.sigma_table[i], m.sigma_table[i + 1], x - float(i))
+    """σt (1/world units) of data value ``s``."""
+    return table_lerp(m.sigma_table, table_coord(m, s))
 
 
 @wp.func
 def lookup_color(m: Medium, s: float):
-    x = table_coord(m, s)
-    i = wp.min(int(x), m.color_table.shape[0] - 2)
-    return wp.lerp(m.color_table[i], m.color_table[i + 1], x - float(i))
+    """Scattering colour of data value ``s``."""
+    return table_lerp(m.color_table, table_coord(m, s))
 
 
 @wp.func

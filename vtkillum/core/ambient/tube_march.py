@@ -44,6 +44,7 @@ from vtkillum.core.warp_common import (
     light_incidence,
     ray_box,
     sample_scalar,
+    table_lerp,
     trilinear_index,
 )
 
@@ -154,9 +155,7 @@ def lookup_transmittance(table: wp.array(dtype=wp.float32), optical_radius: floa
                          sigma_max: float):
     """Linear interpolation of ``T̃`` at ``r σ̃t`` (clamped to the table's range)."""
     n = table.shape[0]
-    u = wp.clamp(optical_radius / sigma_max * float(n - 1), 0.0, float(n - 1))
-    i = wp.min(int(u), n - 2)
-    return wp.lerp(table[i], table[i + 1], u - float(i))
+    return table_lerp(table, wp.clamp(optical_radius / sigma_max * float(n - 1), 0.0, float(n - 1)))
 
 
 @wp.func
