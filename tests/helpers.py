@@ -1,4 +1,4 @@
-"""Helpers several test modules share: the two-blob scene, VTK read-back, configured filters.
+"""Helpers several test modules share: the two-blob scene, VTK windows, configured filters.
 
 Imported as ``from helpers import ...`` (pytest puts ``tests/`` on ``sys.path`` for the
 root ``conftest.py``). VTK is imported inside the functions that need it, so core tests
@@ -44,6 +44,26 @@ def zoomed_camera(volume: Volume) -> Camera:
     return Camera(position, cam.focal_point, cam.view_up, cam.view_angle)
 
 
+def offscreen_window(renderer, camera: Camera, width: int, height: int):
+    """An offscreen vtkRenderWindow of ``renderer`` seen through ``camera``, black background.
+
+    No multisampling, so pixels compare one to one with the warp renderers.
+    """
+    from vtkmodules.vtkRenderingCore import vtkRenderWindow
+
+    from vtkillum.mappers import apply_camera_to_vtk
+
+    renderer.SetBackground(0.0, 0.0, 0.0)
+    apply_camera_to_vtk(camera, renderer.GetActiveCamera())
+    renderer.ResetCameraClippingRange()
+    window = vtkRenderWindow()
+    window.SetOffScreenRendering(1)
+    window.SetMultiSamples(0)
+    window.AddRenderer(renderer)
+    window.SetSize(width, height)
+    return window
+
+
 def read_window_rgb(window) -> np.ndarray:
     """Render a VTK window and read back linear RGB in [0, 1], (H, W, 3), row 0 at the top."""
     from vtkmodules.util.numpy_support import vtk_to_numpy
@@ -62,7 +82,10 @@ def read_window_rgb(window) -> np.ndarray:
 
 
 def constant_opacity_filter(filter_class, alpha: float = 0.5):
-    """A light filter on the CPU with opacity ``alpha`` over data values [0, 2], u = 1, no lights."""
+    """A light filter of ``filter_class`` on the CPU: constant opacity ``alpha``, no lights.
+
+    The opacity holds over data values [0, 2]; the unit distance is 1.
+    """
     f = filter_class()
     f.SetDevice("cpu")
     f.SetTransferFunction(TransferFunction([0.0, 2.0], [alpha, alpha]))

@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from helpers import constant_opacity_filter, read_window_rgb
+from helpers import constant_opacity_filter, offscreen_window, read_window_rgb
 from vtkmodules.vtkCommonDataModel import vtkDataObject
 
 from vtkillum.core.transfer_function import TransferFunction
@@ -128,22 +128,6 @@ def test_time_steps_warm_start_and_cache(time_source):
 
 
 # --- both mapper paths ------------------------------------------------------------------------------
-def _window(renderer, camera, size):
-    from vtkmodules.vtkRenderingCore import vtkRenderWindow
-
-    from vtkillum.mappers import apply_camera_to_vtk
-
-    renderer.SetBackground(0.0, 0.0, 0.0)
-    apply_camera_to_vtk(camera, renderer.GetActiveCamera())
-    renderer.ResetCameraClippingRange()
-    window = vtkRenderWindow()
-    window.SetOffScreenRendering(1)
-    window.SetMultiSamples(0)
-    window.AddRenderer(renderer)
-    window.SetSize(size, size)
-    return window
-
-
 def test_light_volume_renders_in_both_mapper_paths(make_image):
     pytest.importorskip("vtkmodules.vtkRenderingVolumeOpenGL2")
     from vtkmodules.vtkRenderingCore import vtkRenderer
@@ -182,14 +166,14 @@ def test_light_volume_renders_in_both_mapper_paths(make_image):
     # OpenGL path, fed by the filter's output port.
     renderer = vtkRenderer()
     renderer.AddVolume(IlluminatedVolume(img, scene, illumination=f.GetOutputPort()))
-    window = _window(renderer, scene.camera, size)
+    window = offscreen_window(renderer, scene.camera, size, size)
     diff = np.abs(read_window_rgb(window) - reference.radiance) / reference.radiance.max()
     window.Finalize()
     assert diff.mean() < 3e-3 and np.percentile(diff, 99) < 1.2e-2, diff.mean()
 
     # Compute path with the registered method: the same light volume, the same image.
     renderer = vtkRenderer()
-    window = _window(renderer, scene.camera, size)
+    window = offscreen_window(renderer, scene.camera, size, size)
     shown = ComputeVolumeRenderer(renderer, volume, scene, method="convection-diffusion",
                                   device="cpu", jitter=False, early_termination=stop)
     image = read_window_rgb(window)

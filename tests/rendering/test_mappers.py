@@ -30,7 +30,7 @@ import copy
 
 import numpy as np
 import pytest
-from helpers import blob_tf, blob_volume, read_window_rgb, zoomed_camera
+from helpers import blob_tf, blob_volume, offscreen_window, read_window_rgb, zoomed_camera
 
 from vtkillum.core.camera import Camera
 from vtkillum.core.illumination import IlluminationVolume
@@ -51,7 +51,6 @@ from vtkmodules.vtkCommonExecutionModel import (  # noqa: E402
 from vtkmodules.vtkRenderingCore import (  # noqa: E402
     vtkCamera,
     vtkRenderer,
-    vtkRenderWindow,
     vtkVolumeProperty,
 )
 
@@ -99,18 +98,6 @@ def warp_reference(volume, scene, illumination):
                               jitter=False, early_termination=EARLY_STOP)
 
 
-def vtk_window(renderer: vtkRenderer, camera: Camera) -> vtkRenderWindow:
-    renderer.SetBackground(0.0, 0.0, 0.0)
-    apply_camera_to_vtk(camera, renderer.GetActiveCamera())
-    renderer.ResetCameraClippingRange()
-    window = vtkRenderWindow()
-    window.SetOffScreenRendering(1)
-    window.SetMultiSamples(0)
-    window.AddRenderer(renderer)
-    window.SetSize(WIDTH, HEIGHT)
-    return window
-
-
 def rel_errors(image, reference):
     diff = np.abs(image - reference) / reference.max()
     return float(diff.mean()), float(np.percentile(diff, 99))
@@ -136,7 +123,7 @@ def test_opengl_mapper_matches_warp_illuminated(setup):
     renderer = vtkRenderer()
     actor = IlluminatedVolume(image_data_from_volume(volume), scene, illumination=illumination)
     renderer.AddVolume(actor)
-    window = vtk_window(renderer, scene.camera)
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
     image = read_window_rgb(window)
     errors = rel_errors(image, reference.radiance)
     print(f"OpenGL vs warp: mean {errors[0]:.2e}, p99 {errors[1]:.2e} (relative to max)")
@@ -166,7 +153,7 @@ def test_opengl_mapper_matches_warp_illuminated(setup):
 def test_compute_path_shows_warp_image_and_matches_opengl(setup):
     volume, scene, illumination, reference = setup
     renderer = vtkRenderer()
-    window = vtk_window(renderer, scene.camera)
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
     shown = ComputeVolumeRenderer(renderer, volume, scene, method="illumination",
                                   illumination=illumination, device="cpu", jitter=False,
                                   early_termination=EARLY_STOP)
@@ -177,7 +164,7 @@ def test_compute_path_shows_warp_image_and_matches_opengl(setup):
     gl_renderer = vtkRenderer()
     gl_renderer.AddVolume(IlluminatedVolume(image_data_from_volume(volume), scene,
                                             illumination=illumination))
-    gl_window = vtk_window(gl_renderer, scene.camera)
+    gl_window = offscreen_window(gl_renderer, scene.camera, WIDTH, HEIGHT)
     errors = rel_errors(read_window_rgb(gl_window), image)
     print(f"OpenGL vs compute path: mean {errors[0]:.2e}, p99 {errors[1]:.2e}")
     assert within(errors), errors
@@ -211,7 +198,7 @@ def test_mapper_follows_illumination_data_and_resolution(setup):
     renderer = vtkRenderer()
     actor = IlluminatedVolume(image_data_from_volume(volume), scene, illumination=fluence_image)
     renderer.AddVolume(actor)
-    window = vtk_window(renderer, scene.camera)
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
     first = read_window_rgb(window)
     coarse_reference = warp_reference(volume, scene, IlluminationVolume.for_volume(volume, coarse))
     errors = rel_errors(first, coarse_reference.radiance)
@@ -269,7 +256,7 @@ def test_mapper_follows_time_steps(setup):
     actor = IlluminatedVolume(data.GetOutputPort(), scene, illumination=light)
     renderer = vtkRenderer()
     renderer.AddVolume(actor)
-    window = vtk_window(renderer, scene.camera)
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
     first = read_window_rgb(window)
     actor.set_time(2.0)
     later = read_window_rgb(window)
@@ -328,7 +315,7 @@ def test_cli_single_matches_compute_path(tmp_path):
     exposure = 0.9 / float(radiance.max())
 
     renderer = vtkRenderer()
-    window = vtk_window(renderer, scene.camera)
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
     # No reference kept: the renderer's observer keeps the compute path alive.
     ComputeVolumeRenderer(renderer, volume, scene, method="single", device="cpu",
                           exposure=exposure, jitter=False)
@@ -344,7 +331,7 @@ def test_progressive_path_refines_and_restarts():
     scene = Scene(transfer_function=TransferFunction([0.0, 1.0], [0.0, 0.5]),
                   options={"path": {"spp": 5, "max_bounces": 2, "seed": 3}})
     renderer = vtkRenderer()
-    window = vtk_window(renderer, scene.resolved_camera(volume))
+    window = offscreen_window(renderer, scene.resolved_camera(volume), WIDTH, HEIGHT)
     window.SetSize(16, 16)
     shown = ComputeVolumeRenderer(renderer, volume, scene, method="path", device="cpu")
     window.Render()
@@ -447,7 +434,7 @@ def test_cli_transmittance_matches_opengl_mapper(tmp_path):
     actor = IlluminatedVolume(image_data_from_volume(volume), scene,
                               illumination=IlluminationVolume.for_volume(volume, fluence))
     renderer.AddVolume(actor)
-    window = vtk_window(renderer, scene.camera)
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
     errors = rel_errors(read_window_rgb(window), cli_radiance)
     print(f"CLI transmittance vs OpenGL: mean {errors[0]:.2e}, p99 {errors[1]:.2e}")
     assert within(errors), errors
