@@ -100,9 +100,7 @@ class Volume:
     @property
     def bounds(self) -> np.ndarray:
         """World-space axis-aligned bounds ``(xmin, xmax, ymin, ymax, zmin, zmax)``."""
-        corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)]) * self.extent
-        world = corners @ self.direction.T + self.origin
-        return np.stack([world.min(0), world.max(0)], 1).reshape(-1)
+        return grid_bounds(self.extent, self.direction, self.origin)
 
     @cached_property
     def value_range(self) -> tuple[float, float]:
@@ -124,6 +122,17 @@ class Volume:
     def to_local_direction(self, vectors) -> np.ndarray:
         """World directions ``(..., 3)`` to the local frame."""
         return np.asarray(vectors, dtype=np.float64) @ self.direction
+
+
+def grid_bounds(extent, direction, origin) -> np.ndarray:
+    """World axis-aligned bounds ``(xmin, xmax, ..., zmax)`` of a grid's (rotated) box.
+
+    The box spans ``[0, extent]`` in the grid's local frame; its eight corners are mapped
+    to the world by ``direction`` and ``origin``.
+    """
+    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)]) * extent
+    world = corners @ np.asarray(direction).T + origin
+    return np.stack([world.min(0), world.max(0)], 1).reshape(-1)
 
 
 def array_digest(array) -> str:

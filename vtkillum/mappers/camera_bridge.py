@@ -24,6 +24,7 @@ from vtkmodules.vtkRenderingCore import vtkCamera, vtkVolumeProperty
 
 from vtkillum.core.camera import Camera
 from vtkillum.core.scene import Scene
+from vtkillum.core.volume import grid_bounds
 from vtkillum.io.convert import transfer_function_from_vtk, transfer_function_to_vtk
 
 
@@ -189,10 +190,7 @@ class GridSummary:
 
     @property
     def bounds(self) -> np.ndarray:
-        corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
-        corners = corners * self.extent
-        world = corners @ self.direction.T + self.origin
-        return np.stack([world.min(0), world.max(0)], 1).reshape(-1)
+        return grid_bounds(self.extent, self.direction, self.origin)
 
     def mean_spacing(self) -> float:
         return float(self.spacing.mean())
