@@ -23,6 +23,7 @@ import copy
 
 import numpy as np
 import pytest
+from helpers import offscreen_window, read_window_rgb
 
 from vtkillum.core.camera import Camera
 from vtkillum.core.lights import DirectionalLight, PointLight
@@ -34,11 +35,7 @@ from vtkillum.core.volume import Volume
 
 pytest.importorskip("vtkmodules.vtkRenderingVolumeOpenGL2")
 from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: E402
-from vtkmodules.vtkRenderingCore import (  # noqa: E402
-    vtkRenderer,
-    vtkRenderWindow,
-    vtkWindowToImageFilter,
-)
+from vtkmodules.vtkRenderingCore import vtkRenderer  # noqa: E402
 
 from vtkillum.io.convert import image_data_from_volume  # noqa: E402
 from vtkillum.mappers import AmbientScatteringVolume, apply_camera_to_vtk  # noqa: E402
@@ -93,32 +90,6 @@ def reference(volume, scene, exposure=None):
     return np.clip(exposure * result.radiance, 0.0, 1.0), exposure
 
 
-def vtk_window(renderer: vtkRenderer, camera: Camera) -> vtkRenderWindow:
-    renderer.SetBackground(0.0, 0.0, 0.0)
-    apply_camera_to_vtk(camera, renderer.GetActiveCamera())
-    renderer.ResetCameraClippingRange()
-    window = vtkRenderWindow()
-    window.SetOffScreenRendering(1)
-    window.SetMultiSamples(0)
-    window.AddRenderer(renderer)
-    window.SetSize(WIDTH, HEIGHT)
-    return window
-
-
-def grab(window) -> np.ndarray:
-    """Render and read back linear RGB in [0, 1], (H, W, 3), row 0 at the top."""
-    window.Render()
-    g = vtkWindowToImageFilter()
-    g.SetInput(window)
-    g.SetInputBufferTypeToRGB()
-    g.ReadFrontBufferOff()
-    g.ShouldRerenderOff()
-    g.Update()
-    w, h, _ = g.GetOutput().GetDimensions()
-    rgb = vtk_to_numpy(g.GetOutput().GetPointData().GetScalars()).reshape(h, w, 3)
-    return rgb[::-1].astype(np.float64) / 255.0
-
-
 def rel_errors(image, ref):
     diff = np.abs(image - ref) / ref.max()
     return float(diff.mean()), float(np.percentile(diff, 99))
@@ -142,8 +113,8 @@ def test_opengl_matches_warp_gather_and_uses_table_and_cache(setup, tmp_path):
                                     device="cpu")
     renderer = vtkRenderer()
     renderer.AddVolume(actor)
-    window = vtk_window(renderer, scene.camera)
-    image = grab(window)
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
+    image = read_window_rgb(window)
     errors = rel_errors(image, ref)
     print(f"OpenGL vs warp gather: mean {errors[0]:.2e}, p99 {errors[1]:.2e} (relative to max)")
     assert within(errors), errors
@@ -157,7 +128,7 @@ def test_opengl_matches_warp_gather_and_uses_table_and_cache(setup, tmp_path):
     assert not within(table_flat), table_flat
     # ... re-running the pipeline restores it ...
     actor.inputs.Modified()
-    assert within(rel_errors(grab(window), ref))
+    assert within(rel_errors(read_window_rgb(window), ref))
     # ... and so does the radiance cache: each light's extinction-weighted mean fails it.
     cache = vtk_to_numpy(actor.inputs.radiance_image.GetPointData().GetScalars())
     shape = actor.inputs.radiance_image.GetDimensions()
@@ -172,7 +143,7 @@ def test_opengl_matches_warp_gather_and_uses_table_and_cache(setup, tmp_path):
 def grab_modified(window, image):
     image.GetPointData().GetScalars().Modified()
     image.Modified()
-    return grab(window)
+    return read_window_rgb(window)
 
 
 def test_edits_recompute_what_table1_says(setup):
@@ -181,14 +152,14 @@ def test_edits_recompute_what_table1_says(setup):
     actor = AmbientScatteringVolume(image_data, scene, exposure=exposure, device="cpu")
     renderer = vtkRenderer()
     renderer.AddVolume(actor)
-    window = vtk_window(renderer, scene.camera)
-    first = grab(window)
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
+    first = read_window_rgb(window)
     stats = dict(actor.cache.stats)
     assert stats == {"sat": 1, "extinction": 1, "radiance": 1}
 
     # Camera move: nothing recomputed.
     renderer.GetActiveCamera().Azimuth(15.0)
-    moved = grab(window)
+    moved = read_window_rgb(window)
     assert actor.cache.stats == stats and np.abs(moved - first).mean() > 1e-3
     apply_camera_to_vtk(scene.camera, renderer.GetActiveCamera())
 
@@ -199,7 +170,7 @@ def test_edits_recompute_what_table1_says(setup):
             actor.inputs.optics_image.GetMTime())
     cache_time = actor.inputs.radiance_image.GetMTime()
     actor.set_scene(backward)
-    image = grab(window)
+    image = read_window_rgb(window)
     assert actor.cache.stats == {"sat": 1, "extinction": 1, "radiance": 2}
     # ... and only the radiance cache's texture (and the small table) is re-uploaded.
     assert (actor.inputs.data_image.GetMTime(), actor.inputs.extinction_image.GetMTime(),
@@ -213,7 +184,7 @@ def test_edits_recompute_what_table1_says(setup):
 
     # Radius: extinction and radiance, not the SAT.
     actor.set_options(radius=5.0)
-    image = grab(window)
+    image = read_window_rgb(window)
     assert actor.cache.stats == {"sat": 1, "extinction": 2, "radiance": 3}
     ref_r, _ = reference(volume, make_scene(volume, -0.5, radius=5.0), exposure)
     assert within(rel_errors(image, ref_r)), rel_errors(image, ref_r)
@@ -223,7 +194,7 @@ def test_edits_recompute_what_table1_says(setup):
     edited.transfer_function = blob_tf(0.6)
     actor.set_scene(edited)
     actor.set_options(radius=None)  # the scene's radius is the same: nothing to redo
-    image = grab(window)
+    image = read_window_rgb(window)
     assert actor.cache.stats == {"sat": 2, "extinction": 3, "radiance": 4}
     ref_tf, _ = reference(volume, edited, exposure)
     errors = rel_errors(image, ref_tf)
@@ -234,7 +205,7 @@ def test_edits_recompute_what_table1_says(setup):
     scalars = vtk_to_numpy(image_data.GetPointData().GetScalars())
     scalars *= 0.8
     image_data.GetPointData().GetScalars().Modified()
-    image = grab(window)
+    image = read_window_rgb(window)
     assert actor.cache.stats["sat"] == 3
     ref_data, _ = reference(blob_volume(0.8), edited, exposure)
     assert within(rel_errors(image, ref_data)), rel_errors(image, ref_data)
