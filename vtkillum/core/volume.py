@@ -15,8 +15,40 @@ from functools import cached_property
 import numpy as np
 
 
+class GridGeometry:
+    """Geometry of a uniform grid from its ``dims``, ``spacing``, ``origin`` and ``direction``.
+
+    Shared by :class:`Volume` and by light-weight stand-ins that describe a grid without
+    holding its data (the mappers' ``GridSummary``).
+    """
+
+    @property
+    def extent(self) -> np.ndarray:
+        """Size of the grid in its local frame, ``(n - 1) * spacing``."""
+        return (np.asarray(self.dims) - 1) * self.spacing
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """World-space axis-aligned bounds ``(xmin, xmax, ymin, ymax, zmin, zmax)``."""
+        corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+        world = (corners * self.extent) @ self.direction.T + self.origin
+        return np.stack([world.min(0), world.max(0)], 1).reshape(-1)
+
+    def mean_spacing(self) -> float:
+        """Default opacity unit distance (VTK uses the mean spacing too)."""
+        return float(self.spacing.mean())
+
+    def to_local(self, points) -> np.ndarray:
+        """World points ``(..., 3)`` to the local frame."""
+        return (np.asarray(points, dtype=np.float64) - self.origin) @ self.direction
+
+    def to_local_direction(self, vectors) -> np.ndarray:
+        """World directions ``(..., 3)`` to the local frame."""
+        return np.asarray(vectors, dtype=np.float64) @ self.direction
+
+
 @dataclass
-class Volume:
+class Volume(GridGeometry):
     """Point-centred scalar field on a uniform grid.
 
     Parameters
@@ -92,16 +124,6 @@ class Volume:
     def dims(self) -> tuple[int, int, int]:
         return tuple(int(n) for n in self.scalars.shape)
 
-    @property
-    def extent(self) -> np.ndarray:
-        """Size of the volume in its local frame, ``(n - 1) * spacing``."""
-        return (np.asarray(self.dims) - 1) * self.spacing
-
-    @property
-    def bounds(self) -> np.ndarray:
-        """World-space axis-aligned bounds ``(xmin, xmax, ymin, ymax, zmin, zmax)``."""
-        return grid_bounds(self.extent, self.direction, self.origin)
-
     @cached_property
     def value_range(self) -> tuple[float, float]:
         """``(min, max)`` of the scalars, computed once (a full pass over large volumes).
@@ -110,29 +132,6 @@ class Volume:
         into ``scalars`` in place, or this and the caches keyed on it go stale.
         """
         return float(self.scalars.min()), float(self.scalars.max())
-
-    def mean_spacing(self) -> float:
-        """Default opacity unit distance (VTK uses the mean spacing too)."""
-        return float(self.spacing.mean())
-
-    def to_local(self, points) -> np.ndarray:
-        """World points ``(..., 3)`` to the local frame."""
-        return (np.asarray(points, dtype=np.float64) - self.origin) @ self.direction
-
-    def to_local_direction(self, vectors) -> np.ndarray:
-        """World directions ``(..., 3)`` to the local frame."""
-        return np.asarray(vectors, dtype=np.float64) @ self.direction
-
-
-def grid_bounds(extent, direction, origin) -> np.ndarray:
-    """World axis-aligned bounds ``(xmin, xmax, ..., zmax)`` of a grid's (rotated) box.
-
-    The box spans ``[0, extent]`` in the grid's local frame; its eight corners are mapped
-    to the world by ``direction`` and ``origin``.
-    """
-    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)]) * extent
-    world = corners @ np.asarray(direction).T + origin
-    return np.stack([world.min(0), world.max(0)], 1).reshape(-1)
 
 
 def array_digest(array) -> str:

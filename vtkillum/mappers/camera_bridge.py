@@ -24,7 +24,7 @@ from vtkmodules.vtkRenderingCore import vtkCamera, vtkVolumeProperty
 
 from vtkillum.core.camera import Camera
 from vtkillum.core.scene import Scene
-from vtkillum.core.volume import grid_bounds
+from vtkillum.core.volume import GridGeometry
 from vtkillum.io.convert import transfer_function_from_vtk, transfer_function_to_vtk
 
 
@@ -159,7 +159,7 @@ def apply_scene_to_volume_property(scene: Scene, volume, volume_property: vtkVol
     return volume_property
 
 
-class GridSummary:
+class GridSummary(GridGeometry):
     """The geometry and value range of a VTK image, as ``Scene.resolved_*`` read them.
 
     The scene's data-dependent defaults (transfer-function ramp, unit distance, step
@@ -184,13 +184,3 @@ class GridSummary:
         lo, hi = scalars.GetRange(0)
         self.value_range = (float(lo), float(hi))
 
-    @property
-    def extent(self) -> np.ndarray:
-        return (np.asarray(self.dims) - 1) * self.spacing
-
-    @property
-    def bounds(self) -> np.ndarray:
-        return grid_bounds(self.extent, self.direction, self.origin)
-
-    def mean_spacing(self) -> float:
-        return float(self.spacing.mean())
