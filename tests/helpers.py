@@ -81,6 +81,12 @@ def read_window_rgb(window) -> np.ndarray:
     return rgb[::-1].astype(np.float64) / 255.0  # VTK's row 0 is the bottom
 
 
+def rel_errors(image, reference) -> tuple[float, float]:
+    """Mean and 99th percentile of ``|image - reference|`` relative to the reference's maximum."""
+    diff = np.abs(image - reference) / reference.max()
+    return float(diff.mean()), float(np.percentile(diff, 99))
+
+
 def constant_opacity_filter(filter_class, alpha: float = 0.5):
     """A light filter of ``filter_class`` on the CPU: constant opacity ``alpha``, no lights.
 

@@ -23,7 +23,7 @@ import copy
 
 import numpy as np
 import pytest
-from helpers import offscreen_window, read_window_rgb
+from helpers import offscreen_window, read_window_rgb, rel_errors
 
 from vtkillum.core.camera import Camera
 from vtkillum.core.lights import DirectionalLight, PointLight
@@ -88,11 +88,6 @@ def reference(volume, scene, exposure=None):
     if exposure is None:
         exposure = PEAK / float(result.radiance.max())
     return np.clip(exposure * result.radiance, 0.0, 1.0), exposure
-
-
-def rel_errors(image, ref):
-    diff = np.abs(image - ref) / ref.max()
-    return float(diff.mean()), float(np.percentile(diff, 99))
 
 
 def within(errors) -> bool:

@@ -30,7 +30,14 @@ import copy
 
 import numpy as np
 import pytest
-from helpers import blob_tf, blob_volume, offscreen_window, read_window_rgb, zoomed_camera
+from helpers import (
+    blob_tf,
+    blob_volume,
+    offscreen_window,
+    read_window_rgb,
+    rel_errors,
+    zoomed_camera,
+)
 
 from vtkillum.core.camera import Camera
 from vtkillum.core.illumination import IlluminationVolume
@@ -96,11 +103,6 @@ def make_scene(volume: Volume, mirrored: bool = False) -> Scene:
 def warp_reference(volume, scene, illumination):
     return render_illuminated(volume, scene, WIDTH, HEIGHT, "cpu", illumination=illumination,
                               jitter=False, early_termination=EARLY_STOP)
-
-
-def rel_errors(image, reference):
-    diff = np.abs(image - reference) / reference.max()
-    return float(diff.mean()), float(np.percentile(diff, 99))
 
 
 def within(errors) -> bool:
