@@ -81,6 +81,28 @@ def read_window_rgb(window) -> np.ndarray:
     return rgb[::-1].astype(np.float64) / 255.0  # VTK's row 0 is the bottom
 
 
+def pyvista_screenshot(actor, camera: Camera, width: int, height: int) -> np.ndarray:
+    """``actor`` alone in an offscreen pyvista Plotter (black) seen through ``camera``.
+
+    Returns the screenshot as floats in [0, 1], (H, W, channels), row 0 at the top.
+    """
+    import pyvista as pv
+
+    from vtkillum.mappers import apply_camera_to_vtk
+
+    plotter = pv.Plotter(off_screen=True, window_size=(width, height))
+    plotter.set_background("black")
+    plotter.add_actor(actor)
+    # camera_position marks the camera as set, so pyvista does not reset it on first render.
+    plotter.camera_position = [tuple(camera.position), tuple(camera.focal_point),
+                               tuple(camera.view_up)]
+    apply_camera_to_vtk(camera, plotter.renderer.GetActiveCamera())
+    plotter.renderer.ResetCameraClippingRange()
+    shot = plotter.screenshot(return_img=True).astype(np.float64) / 255.0
+    plotter.close()
+    return shot
+
+
 def rel_errors(image, reference) -> tuple[float, float]:
     """Mean and 99th percentile of ``|image - reference|`` relative to the reference's maximum."""
     diff = np.abs(image - reference) / reference.max()

@@ -23,7 +23,7 @@ import copy
 
 import numpy as np
 import pytest
-from helpers import offscreen_window, read_window_rgb, rel_errors
+from helpers import offscreen_window, pyvista_screenshot, read_window_rgb, rel_errors
 
 from vtkillum.core.camera import Camera
 from vtkillum.core.lights import DirectionalLight, PointLight
@@ -212,16 +212,7 @@ def test_pyvista_plotter_add_actor(setup):
     volume, scene, ref, exposure = setup
     actor = AmbientScatteringVolume(pv.wrap(image_data_from_volume(volume)), scene,
                                     exposure=exposure, device="cpu")
-    plotter = pv.Plotter(off_screen=True, window_size=(WIDTH, HEIGHT))
-    plotter.set_background("black")
-    plotter.add_actor(actor)
-    # camera_position marks the camera as set, so pyvista does not reset it on first render.
-    plotter.camera_position = [tuple(scene.camera.position), tuple(scene.camera.focal_point),
-                               tuple(scene.camera.view_up)]
-    apply_camera_to_vtk(scene.camera, plotter.renderer.GetActiveCamera())
-    plotter.renderer.ResetCameraClippingRange()
-    shot = plotter.screenshot(return_img=True).astype(np.float64) / 255.0
-    plotter.close()
+    shot = pyvista_screenshot(actor, scene.camera, WIDTH, HEIGHT)
     assert shot.shape[:2] == (HEIGHT, WIDTH)
     assert shot.max() > 0.5 and (shot.max(-1) > 0.05).mean() > 0.2  # not blank
     assert within(rel_errors(shot[..., :3], ref)), rel_errors(shot[..., :3], ref)

@@ -34,6 +34,7 @@ from helpers import (
     blob_tf,
     blob_volume,
     offscreen_window,
+    pyvista_screenshot,
     read_window_rgb,
     rel_errors,
     zoomed_camera,
@@ -276,16 +277,7 @@ def test_pyvista_plotter_add_actor(setup):
     volume, scene, illumination, reference = setup
     grid = pv.wrap(image_data_from_volume(volume))
     actor = IlluminatedVolume(grid, scene, illumination=illumination)
-    plotter = pv.Plotter(off_screen=True, window_size=(WIDTH, HEIGHT))
-    plotter.set_background("black")
-    plotter.add_actor(actor)
-    # camera_position marks the camera as set, so pyvista does not reset it on first render.
-    plotter.camera_position = [tuple(scene.camera.position), tuple(scene.camera.focal_point),
-                               tuple(scene.camera.view_up)]
-    apply_camera_to_vtk(scene.camera, plotter.renderer.GetActiveCamera())
-    plotter.renderer.ResetCameraClippingRange()
-    shot = plotter.screenshot(return_img=True).astype(np.float64) / 255.0
-    plotter.close()
+    shot = pyvista_screenshot(actor, scene.camera, WIDTH, HEIGHT)
     assert shot.shape[:2] == (HEIGHT, WIDTH)
     assert shot.max() > 0.5 and (shot.max(-1) > 0.05).mean() > 0.3  # not blank
     errors = rel_errors(shot[..., :3], reference.radiance)
