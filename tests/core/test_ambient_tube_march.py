@@ -119,3 +119,20 @@ def test_shadow_behind_an_occluder_and_cache_resolution(device):
     with pytest.raises(ValueError, match="radiance_cache_scale"):
         radiance_cache(wp.array(sig, dtype=wp.float32, device=device), vol.spacing, vol.extent,
                        lw, np.exp(-TAU), SIGMA_MAX, radius=1.0, scale=0.0, device=device)
+
+
+def test_point_light_irradiance_is_held_within_one_radius(device):
+    # Within r of a point light the ambient sphere contains it: I / r², not a 1/d² spike.
+    shape = (9, 9, 9)
+    vol = Volume(np.zeros(shape, np.float32))
+    pos = np.array([4.0, 4.0, 4.0])  # on a cache point
+    lw = make_lights([PointLight(pos, (8.0, 4.0, 2.0))], vol, device)
+    radius = 2.0
+    cache = radiance_cache(grid(shape, 0.0, device), vol.spacing, vol.extent, lw,
+                           np.exp(-2 * TAU), SIGMA_MAX, radius=radius, scale=1.0,
+                           device=device).numpy()[0]
+    d = np.linalg.norm(cache_points(shape, vol.extent) - pos, axis=-1)
+    ref = np.array([8.0, 4.0, 2.0]) / np.maximum(d, radius)[..., None] ** 2
+    assert np.all(np.isfinite(cache))
+    np.testing.assert_allclose(cache, ref, rtol=1e-5)
+    np.testing.assert_allclose(cache[4, 4, 4], [2.0, 1.0, 0.5], rtol=1e-6)

@@ -10,8 +10,10 @@ carried from where it enters the volume (or from a point light inside it) to
     L̃d(x)   = (1 - η) L̃f(x_k) + η L̃f(x_{k+1}),  η = |x - x_k| / 2r      (eq. 17)
 
 ``E_l(x)`` is the light's unattenuated irradiance at ``x`` (``E`` of a directional
-light, ``I / d²`` of a point light, so the inverse-square fall-off is exact at
-``x`` rather than stepped), and ``x_0`` is the entry point of the segment from
+light, ``I / max(d, r)²`` of a point light, so the inverse-square fall-off is exact at
+``x`` rather than stepped; within one radius of the light it is held at ``I / r²``,
+the mean irradiance over an ambient sphere that contains the light, instead of
+diverging at the light), and ``x_0`` is the entry point of the segment from
 ``x`` towards the light into the volume's box (or the point light itself).
 
 Differences from the paper, and why
@@ -40,6 +42,7 @@ import warp as wp
 
 from vtkillum.core.device import init_warp, resolve_device
 from vtkillum.core.warp_common import (
+    POINT,
     Lights,
     light_incidence,
     ray_box,
@@ -191,6 +194,9 @@ def tube_march_kernel(sigma_tilde: wp.array3d(dtype=wp.float32), inv_data_spacin
     p = wp.vec3(float(i) / grid.inv_spacing[0], float(j) / grid.inv_spacing[1],
                 float(k) / grid.inv_spacing[2])
     to_light, dist, e = light_incidence(lights, li, p)
+    if lights.kind[li] == POINT:
+        # Inside one radius of a point light the sphere contains it: no 1/d² divergence.
+        e = e * (dist * dist) / wp.max(dist * dist, radius * radius)
     tt = ray_box(p, to_light, grid.extent)
     length = wp.max(wp.min(tt[1], dist), 0.0)
     step = 2.0 * radius
