@@ -9,7 +9,6 @@ import pytest
 
 pv = pytest.importorskip("pyvista")
 
-import vtkillum  # noqa: E402
 import vtkillum.pyvista_accessor as pva  # noqa: E402
 from vtkillum import DirectionalLight, PointLight, TransferFunction  # noqa: E402
 

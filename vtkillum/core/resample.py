@@ -30,3 +30,15 @@ def resample_points(array, shape) -> np.ndarray:
         lo, hi = np.take(out, i0, axis=axis), np.take(out, i0 + 1, axis=axis)
         out = lo + (hi - lo) * f.astype(out.dtype)
     return out
+
+
+def scaled_shape(dims, scale: float) -> tuple[int, int, int]:
+    """Points per axis of a grid at ``scale`` times the resolution of one with ``dims`` points.
+
+    ``round((n - 1) * scale) + 1``, at least 2: the *cells* scale, so the coarse grid keeps
+    the first and last points (the box) and ``scale = 0.5`` halves the spacing exactly when
+    ``n - 1`` is even.
+    """
+    if not (0.0 < float(scale) <= 1.0):
+        raise ValueError(f"a grid scale must lie in (0, 1], got {scale}")
+    return tuple(int(max(2, round((int(n) - 1) * float(scale)) + 1)) for n in dims)

@@ -18,6 +18,7 @@ import numpy as np
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.light_transmittance import light_transmittance
 from vtkillum.core.raycast import render_illuminated
+from vtkillum.core.resample import scaled_shape
 
 
 def render_transmittance(volume, scene, width, height, device=None, progress=None,
@@ -34,7 +35,7 @@ def render_transmittance(volume, scene, width, height, device=None, progress=Non
     """
     if not (0.0 < float(light_volume_scale) <= 1.0):
         raise ValueError(f"light_volume_scale must lie in (0, 1], got {light_volume_scale}")
-    shape = tuple(max(2, int(round((n - 1) * light_volume_scale)) + 1) for n in volume.dims)
+    shape = scaled_shape(volume.dims, light_volume_scale)
     t0 = time.perf_counter()
     _, fluence = light_transmittance(
         volume, scene.resolved_transfer_function(volume), scene.resolved_unit_distance(volume),

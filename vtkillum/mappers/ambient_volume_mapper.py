@@ -83,6 +83,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (OpenGL factory overrides)
 from vtkmodules.util.numpy_support import numpy_to_vtk
 from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
 from vtkmodules.vtkCommonCore import vtkOutputWindow
@@ -91,8 +92,6 @@ from vtkmodules.vtkCommonExecutionModel import vtkAlgorithm
 from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
 from vtkmodules.vtkRenderingCore import vtkVolume, vtkVolumeProperty
 from vtkmodules.vtkRenderingVolume import vtkMultiVolume
-
-import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (OpenGL factory overrides)
 from vtkmodules.vtkRenderingVolumeOpenGL2 import vtkOpenGLGPUVolumeRayCastMapper
 
 from vtkillum.core.ambient.cache import AmbientScatteringCache
@@ -100,10 +99,11 @@ from vtkillum.core.ambient.render import parse_options
 from vtkillum.core.ambient.table import PreintegrationTable, load_table
 from vtkillum.core.illumination import gradient_threshold
 from vtkillum.core.lights import DIRECTIONAL, pack_lights
+from vtkillum.core.resample import scaled_shape
 from vtkillum.core.scene import Scene
 from vtkillum.io.convert import add_point_array, image_like, volume_from_image_data
 from vtkillum.mappers.camera_bridge import GridSummary, apply_scene_to_volume_property
-from vtkillum.mappers.illuminated_volume_mapper import _connect, _scalars
+from vtkillum.mappers.inputs import connect_input, rendered_point_array
 
 #: Lights the OpenGL path takes (one channel of the radiance-cache texture each).
 MAX_LIGHTS = 4
@@ -389,7 +389,7 @@ class AmbientScatteringVolume(vtkMultiVolume):
         super().__init__()
         self.inputs = AmbientScatteringInputs(device=device, cache=cache)
         self.inputs.SetArrayName(array_name)
-        _connect(self.inputs, 0, data, "data")
+        connect_input(self.inputs, 0, data, "data")
         # The scene's defaults need the data's range and spacing: bring the input up to date.
         self.inputs.GetInputAlgorithm(0, 0).Update(self.inputs.GetInputConnection(0, 0)
                                                   .GetIndex())
@@ -525,7 +525,7 @@ class AmbientScatteringVolume(vtkMultiVolume):
 
     def _grid_summary(self) -> GridSummary:
         image = self.inputs.GetInputDataObject(0, 0)
-        return GridSummary(image, _scalars(image, self.inputs.GetArrayName()))
+        return GridSummary(image, rendered_point_array(image, self.inputs.GetArrayName()))
 
 
 class AmbientScatteringInputs(VTKPythonAlgorithmBase):
@@ -631,7 +631,7 @@ class AmbientScatteringInputs(VTKPythonAlgorithmBase):
     def _update(self, image, out) -> None:
         if self._scene is None:
             raise ValueError("no scene set")
-        array = _scalars(image, self._array_name)
+        array = rendered_point_array(image, self._array_name)
         key = (image.GetAddressAsString("vtkImageData"), image.GetMTime(), array.GetMTime(),
                array.GetName())
         refresh_data = key != self._input_key
@@ -649,8 +649,7 @@ class AmbientScatteringInputs(VTKPythonAlgorithmBase):
         lights = list(scene.lights)
         if len(lights) > MAX_LIGHTS:
             raise ValueError(f"at most {MAX_LIGHTS} lights, got {len(lights)}")
-        cache_shape = tuple(int(max(2, round((n - 1) * opts["radiance_cache_scale"]) + 1))
-                            for n in volume.dims)
+        cache_shape = scaled_shape(volume.dims, opts["radiance_cache_scale"])
         tf = scene.resolved_transfer_function(volume)
         state = self.cache.update(volume, tf, scene.resolved_unit_distance(volume),
                                   scene.albedo, scene.anisotropy, lights, opts["radius"],

@@ -53,30 +53,29 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (OpenGL factory overrides)
 from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
 from vtkmodules.vtkCommonCore import vtkOutputWindow
 from vtkmodules.vtkCommonDataModel import vtkImageData
-from vtkmodules.vtkCommonExecutionModel import vtkAlgorithm, vtkAlgorithmOutput
+from vtkmodules.vtkCommonExecutionModel import vtkAlgorithm
 from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
 from vtkmodules.vtkRenderingCore import vtkVolume, vtkVolumeProperty
-
-import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (OpenGL factory overrides)
 from vtkmodules.vtkRenderingVolumeOpenGL2 import vtkOpenGLGPUVolumeRayCastMapper
 
 from vtkillum.core.illumination import GRADIENT_EPS, IlluminationVolume, shading_terms
 from vtkillum.core.lights import DIRECTIONAL, pack_lights
+from vtkillum.core.resample import resample_points
 from vtkillum.core.scene import Scene
 from vtkillum.core.volume import Volume
-from vtkillum.core.resample import resample_points
 from vtkillum.io.convert import (
     add_point_array,
     direction_matrix,
     first_point,
-    image_data_from_volume,
     point_array,
     volume_from_image_data,
 )
 from vtkillum.mappers.camera_bridge import GridSummary, apply_scene_to_volume_property
+from vtkillum.mappers.inputs import connect_input, rendered_point_array
 
 #: Name of the 4-component (scalar, fluence R, G, B) array handed to the mapper.
 COMBINED_ARRAY = "vtkillum_scalar_fluence"
@@ -237,7 +236,7 @@ class IlluminatedVolume(vtkVolume):
         super().__init__()
         self.combiner = ScalarFluenceImage()
         self.combiner.SetArrayName(array_name)
-        _connect(self.combiner, 0, data, "data")
+        connect_input(self.combiner, 0, data, "data")
         # The scene's defaults need the data's range and spacing: bring the input up to date.
         self.combiner.GetInputAlgorithm(0, 0).Update(self.combiner.GetInputConnection(0, 0)
                                                     .GetIndex())
@@ -362,7 +361,7 @@ class IlluminatedVolume(vtkVolume):
     # --- helpers -------------------------------------------------------------------------------
     def _grid_summary(self) -> GridSummary:
         image = self.combiner.GetInputDataObject(0, 0)
-        scalars = _scalars(image, self.combiner.GetArrayName())
+        scalars = rendered_point_array(image, self.combiner.GetArrayName())
         return GridSummary(image, scalars)
 
 
@@ -417,7 +416,7 @@ class ScalarFluenceImage(VTKPythonAlgorithmBase):
             self.SetInputConnection(1, None)
             self._illumination = source
         else:
-            _connect(self, 1, source, "illumination")
+            connect_input(self, 1, source, "illumination")
             self._illumination = None
         self.Modified()
 
@@ -443,7 +442,7 @@ class ScalarFluenceImage(VTKPythonAlgorithmBase):
 
     def _combine(self, inInfo, outInfo) -> None:
         image = vtkImageData.GetData(inInfo[0])
-        _scalars(image, self._array_name)  # clear errors for missing/multi-component arrays
+        rendered_point_array(image, self._array_name)  # clear errors for missing/multi-component arrays
         volume = volume_from_image_data(image, self._array_name, association="points")
         if self.GetNumberOfInputConnections(1):
             fluence = _fluence_from_image(vtkImageData.GetData(inInfo[1]), volume, image)
@@ -486,45 +485,6 @@ def unshadowed_fluence(volume: Volume, lights) -> np.ndarray:
 
 
 # --- module helpers -----------------------------------------------------------------------------
-def _connect(algorithm, port: int, source, what: str) -> None:
-    """Connect ``source`` (data object, output port, algorithm or core Volume) to ``port``."""
-    if isinstance(source, Volume):
-        source = image_data_from_volume(source)
-    if isinstance(source, vtkAlgorithmOutput):
-        algorithm.SetInputConnection(port, source)
-    elif isinstance(source, vtkAlgorithm):
-        algorithm.SetInputConnection(port, source.GetOutputPort())
-    elif isinstance(source, vtkImageData):
-        algorithm.SetInputDataObject(port, source)
-    else:
-        raise TypeError(
-            f"{what}: expected vtkImageData (or pyvista.ImageData), a pipeline output port, a "
-            f"VTK algorithm{' or a vtkillum Volume' if port == 0 else ''}, got "
-            f"{type(source).__name__}"
-        )
-
-
-def _scalars(image, array_name):
-    """The rendered point array of ``image``, with errors that say what to do."""
-    if image is None:
-        raise ValueError("the data input produced no image; check the upstream pipeline")
-    pd = image.GetPointData()
-    array = pd.GetScalars() if array_name is None else pd.GetArray(array_name)
-    if array is None:
-        names = [pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())]
-        what = "no active point scalars" if array_name is None else f"no point array {array_name!r}"
-        raise ValueError(
-            f"the data have {what} (point arrays: {names}); pass array_name=... or set the "
-            "active scalars. Cell data: convert with vtkCellDataToPointData first"
-        )
-    if array.GetNumberOfComponents() != 1:
-        raise ValueError(
-            f"the array {array.GetName()!r} has {array.GetNumberOfComponents()} components; the "
-            "illuminated mapper renders one (extract it, e.g. vtkImageExtractComponents)"
-        )
-    return array
-
-
 def _as_fluence_array(array: np.ndarray) -> np.ndarray:
     a = np.asarray(array, dtype=np.float32)
     if a.ndim != 4 or a.shape[-1] != 3:

@@ -41,6 +41,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp, resolve_device
+from vtkillum.core.resample import scaled_shape
 from vtkillum.core.warp_common import (
     POINT,
     Lights,
@@ -130,7 +131,7 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
         raise ValueError(f"the ambient radius must be positive, got {radius}")
     dims = np.asarray(sigma_tilde.shape)
     if shape is None:
-        shape = tuple(int(max(2, round((n - 1) * scale) + 1)) for n in dims)
+        shape = scaled_shape(dims, scale)
     else:
         shape = tuple(int(n) for n in shape)
         if len(shape) != 3 or min(shape) < 2:

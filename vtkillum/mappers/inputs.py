@@ -1,0 +1,48 @@
+"""How the mappers take their inputs: any image source, and the one point array they render."""
+
+from __future__ import annotations
+
+from vtkmodules.vtkCommonDataModel import vtkImageData
+from vtkmodules.vtkCommonExecutionModel import vtkAlgorithm, vtkAlgorithmOutput
+
+from vtkillum.core.volume import Volume
+from vtkillum.io.convert import image_data_from_volume
+
+
+def connect_input(algorithm, port: int, source, what: str) -> None:
+    """Connect ``source`` (data object, output port, algorithm or core Volume) to ``port``."""
+    if isinstance(source, Volume):
+        source = image_data_from_volume(source)
+    if isinstance(source, vtkAlgorithmOutput):
+        algorithm.SetInputConnection(port, source)
+    elif isinstance(source, vtkAlgorithm):
+        algorithm.SetInputConnection(port, source.GetOutputPort())
+    elif isinstance(source, vtkImageData):
+        algorithm.SetInputDataObject(port, source)
+    else:
+        raise TypeError(
+            f"{what}: expected vtkImageData (or pyvista.ImageData), a pipeline output port, a "
+            f"VTK algorithm{' or a vtkillum Volume' if port == 0 else ''}, got "
+            f"{type(source).__name__}"
+        )
+
+
+def rendered_point_array(image, array_name):
+    """The rendered point array of ``image``, with errors that say what to do."""
+    if image is None:
+        raise ValueError("the data input produced no image; check the upstream pipeline")
+    pd = image.GetPointData()
+    array = pd.GetScalars() if array_name is None else pd.GetArray(array_name)
+    if array is None:
+        names = [pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())]
+        what = "no active point scalars" if array_name is None else f"no point array {array_name!r}"
+        raise ValueError(
+            f"the data have {what} (point arrays: {names}); pass array_name=... or set the "
+            "active scalars. Cell data: convert with vtkCellDataToPointData first"
+        )
+    if array.GetNumberOfComponents() != 1:
+        raise ValueError(
+            f"the array {array.GetName()!r} has {array.GetNumberOfComponents()} components; the "
+            "illuminated mapper renders one (extract it, e.g. vtkImageExtractComponents)"
+        )
+    return array
