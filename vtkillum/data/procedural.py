@@ -167,9 +167,12 @@ def cornell_box(n: int = 64) -> Volume:
     - floor, ceiling, back wall and both blocks: 0.5 (white);
     - left wall (x = -1): 0.75 (red); right wall (x = +1): 1.0 (green).
 
-    Colours come from the transfer function of :func:`default_scene`; the red and
-    green values are above the white one, so only the green wall's border passes
-    through other materials' values (narrow opacity peaks keep that invisible).
+    Colours come from the transfer function of :func:`default_scene` (narrow opacity
+    peaks per material). One scalar cannot keep coloured materials apart under
+    post-classification, as VTK renders them: where the red wall (0.75) meets the
+    fog, the interpolated values pass the white peak, and the green wall's (1.0)
+    border passes the white and red ones, so thin white/red streaks line those
+    borders. They are a fraction of a voxel wide: use ``n >= 64`` for pictures.
 
     Parameters
     ----------
