@@ -151,6 +151,26 @@ def test_g_slice_interpolates_geometrically(shipped):
     np.testing.assert_allclose(shipped.g_slice(5.0), shipped.radiance[:, :, -1])
 
 
+def test_device_table_slices_equal_the_host_slices(shipped, device):
+    # the slices of a g edit are built on the device; they must be the host's, to rounding
+    from vtkillum.core.ambient.device_table import DeviceTable
+
+    dt = DeviceTable(shipped, device)
+    for g in (shipped.g[3], 0.37, -0.55, 5.0, -5.0, 0.0):
+        dt.set_g(g)
+        np.testing.assert_allclose(dt.g_slice.numpy(), shipped.g_slice(g), rtol=2e-6, atol=0)
+        np.testing.assert_allclose(dt.transmittance_slice.numpy(),
+                                   shipped.transmittance_slice(g), rtol=2e-6, atol=1e-7)
+    one = PreintegrationTable(shipped.radiance[:, :, :1], shipped.rel_stderr[:, :, :1],
+                              shipped.theta, shipped.sigma, shipped.g[:1], shipped.albedo,
+                              shipped.samples, shipped.transmittance[:, :1],
+                              shipped.transmittance_stderr[:, :1])
+    dt = DeviceTable(one, device)
+    dt.set_g(0.4)
+    np.testing.assert_array_equal(dt.g_slice.numpy(), one.radiance[:, :, 0])
+    np.testing.assert_array_equal(dt.transmittance_slice.numpy(), one.transmittance[:, 0])
+
+
 def test_lookup_matches_grid_values(shipped):
     i, j, k = 10, 20, 12
     val = shipped.lookup(shipped.theta[i], shipped.sigma[j], shipped.g[k])

@@ -18,10 +18,17 @@ Each stage is keyed by everything it depends on; :attr:`AmbientScatteringCache.s
 counts how often each ran, and :attr:`AmbientState.recomputed` /
 :attr:`AmbientState.timings` say what the last update did and how long it took
 (milliseconds, device synchronised). The data is recognised by the array's
-identity, shape, spacing and a strided fingerprint of its values; a different
+identity, shape, spacing and a strided sample of its values; a different
 array object is compared by a hash of all its values (so a filter's fresh
 conversion of unchanged data keeps the caches). After editing a volume's array
 in place call :meth:`AmbientScatteringCache.invalidate`.
+
+A ``g`` or light edit runs on the device alone: the whole preintegration table
+stays there (:class:`~vtkillum.core.ambient.device_table.DeviceTable` slices it at
+the new ``g``), and the radiance cache, light list and table slices are
+overwritten in place rather than reallocated. So an :class:`AmbientState` stays
+valid until the next :meth:`AmbientScatteringCache.update`, which may overwrite
+its arrays.
 """
 
 from __future__ import annotations
@@ -34,6 +41,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
+from vtkillum.core.ambient.device_table import DeviceTable
 from vtkillum.core.ambient.empty_space import block_ranges, occupancy
 from vtkillum.core.ambient.sat import ambient_extinction, sigma_t_grid, summed_area_table
 from vtkillum.core.ambient.table import PreintegrationTable, load_table
@@ -43,7 +51,7 @@ from vtkillum.core.lights import pack_lights
 from vtkillum.core.volume import array_digest
 from vtkillum.core.warp_common import Lights, Medium, make_lights, make_medium, to_device
 
-#: Values hashed for the data fingerprint (strided over the array).
+#: Values compared for the data fingerprint (strided over the array).
 FINGERPRINT_SAMPLES = 1 << 16
 
 
@@ -109,6 +117,7 @@ class AmbientScatteringCache:
     def invalidate(self) -> None:
         """Forget everything (the next update recomputes all stages)."""
         self._data_identity = None
+        self._data_sample = None
         self._data_key = None
         self._scalars = None
         self._ranges = None
@@ -122,8 +131,7 @@ class AmbientScatteringCache:
         self._rad_key = None
         self._radiance = None
         self._lights = None
-        self._slice_key = None
-        self._slice = None
+        self._device_table = None
 
     def update(self, volume, transfer_function, unit_distance: float, albedo: float,
                anisotropy: float, lights, radius: float, radius_units: str = "voxels",
@@ -159,22 +167,25 @@ class AmbientScatteringCache:
         self._medium.albedo = float(albedo)
         self._medium.g = float(anisotropy)
 
-        slice_key = (id(table), round(float(anisotropy), 9))
-        if slice_key != self._slice_key:
-            self._slice = (wp.array(table.g_slice(anisotropy), dtype=wp.float32, device=device),
-                           wp.array(table.transmittance_slice(anisotropy), dtype=wp.float32,
-                                    device=device))
-            self._slice_key = slice_key
+        if self._device_table is None or self._device_table.table is not table:
+            self._device_table = DeviceTable(table, device)  # uploaded once per table
+        dtable = self._device_table
+        g_key = round(float(anisotropy), 9)
+        if dtable.g != g_key:
+            dtable.set_g(g_key)
+        slice_key = (id(table), g_key)
 
         kinds, vecs, rgb = pack_lights(lights, volume.direction, volume.origin)
         rad_key = (self._ext_key, slice_key, kinds.tobytes(), vecs.tobytes(), rgb.tobytes(),
                    float(cache_scale), None if cache_shape is None else tuple(cache_shape))
         if rad_key != self._rad_key:
             t = time.perf_counter()
-            self._lights = make_lights(lights, volume, device)
+            self._lights = _upload_lights(self._lights, lights, volume, kinds, vecs, rgb,
+                                          device)
             self._radiance = radiance_cache(self._sigma_tilde, volume.spacing, volume.extent,
-                                            self._lights, self._slice[1], table.sigma_max,
-                                            state.radius, cache_scale, device, cache_shape)
+                                            self._lights, dtable.transmittance_slice,
+                                            table.sigma_max, state.radius, cache_scale, device,
+                                            cache_shape, out=self._radiance)
             wp.synchronize_device(device)
             state.timings["radiance_ms"] = 1e3 * (time.perf_counter() - t)
             self._rad_key = rad_key
@@ -183,7 +194,7 @@ class AmbientScatteringCache:
         state.radiance = self._radiance
         state.lights = self._lights
         state.table = table
-        state.table_slice = self._slice[0]
+        state.table_slice = dtable.g_slice
         return state
 
     def update_extinction(self, volume, transfer_function, unit_distance: float, radius: float,
@@ -198,8 +209,8 @@ class AmbientScatteringCache:
         timings = {"sat_ms": 0.0, "extinction_ms": 0.0, "radiance_ms": 0.0}
         radius_world = world_radius(radius, radius_units, volume.spacing)
 
-        identity = _data_identity(volume)
-        if identity != self._data_identity:
+        identity, sample = _data_identity(volume)
+        if identity != self._data_identity or not np.array_equal(sample, self._data_sample):
             # Another array object (e.g. a filter's fresh conversion): compare contents.
             data_key = _data_digest(volume)
             if data_key != self._data_key:
@@ -208,6 +219,7 @@ class AmbientScatteringCache:
                 self._ranges = block_ranges(self._scalars, device)
                 self._data_key = data_key
             self._data_identity = identity
+            self._data_sample = sample
         data_key = self._data_key
 
         tf_key = (data_key, _tf_key(transfer_function, unit_distance, volume.value_range))
@@ -255,13 +267,23 @@ def world_radius(radius: float, units: str, spacing) -> float:
 
 
 def _data_identity(volume) -> tuple:
-    """Cheap identity of the data: the array object, its shape and spacing, a strided sample."""
+    """Cheap identity of the data: (the array object, its address, shape and spacing), and a
+    strided sample of its values (compared as is: cheaper than hashing it)."""
     s = volume.scalars
     stride = max(1, s.size // FINGERPRINT_SAMPLES)
-    sample = hashlib.blake2b(np.ascontiguousarray(s.reshape(-1)[::stride]).tobytes(),
-                             digest_size=16).hexdigest()
+    sample = np.array(s.reshape(-1)[::stride])
     return (id(s), s.__array_interface__["data"][0], s.shape,
-            tuple(np.asarray(volume.spacing).tolist()), sample)
+            tuple(np.asarray(volume.spacing).tolist())), sample
+
+
+def _upload_lights(current: Lights | None, lights, volume, kinds, vecs, rgb, device) -> Lights:
+    """The light list on the device, written into ``current``'s arrays when the count matches."""
+    if current is None or current.count != len(kinds) or len(kinds) == 0:
+        return make_lights(lights, volume, device)
+    current.kind.assign(kinds)
+    current.vec.assign(vecs)
+    current.rgb.assign(rgb)
+    return current
 
 
 def _data_digest(volume) -> tuple:

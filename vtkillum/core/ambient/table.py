@@ -194,6 +194,16 @@ class PreintegrationTable:
         """Absolute Monte-Carlo standard error of each entry."""
         return self.rel_stderr * self.radiance
 
+    def g_bracket(self, g: float) -> tuple[int, float]:
+        """Tabulated slices around ``g``: ``(k, w)`` with ``g`` at fraction ``w`` from ``g[k]``
+        towards ``g[k + 1]`` (``g`` clamped to the table's range; ``(0, 0.0)`` for one slice)."""
+        g = float(np.clip(g, self.g[0], self.g[-1]))
+        if self.g.size == 1:
+            return 0, 0.0
+        x = (g - self.g[0]) / (self.g[1] - self.g[0])
+        k = int(min(max(math.floor(x), 0), self.g.size - 2))
+        return k, float(x - k)
+
     def g_slice(self, g: float) -> np.ndarray:
         """The table at anisotropy ``g``: ``(n_theta, n_sigma)`` float32.
 
@@ -202,13 +212,11 @@ class PreintegrationTable:
         ``p(1; g) ∝ (1 + g) / (1 - g)²`` far better than a linear blend (at g = 0.85
         the error of the peak is 12 % instead of 43 %); where an entry is 0 the blend
         is linear. ``g`` outside the table's range is clamped to it.
+        :class:`~vtkillum.core.ambient.device_table.DeviceTable` computes the same on a device.
         """
-        g = float(np.clip(g, self.g[0], self.g[-1]))
+        k, w = self.g_bracket(g)
         if self.g.size == 1:
             return self.radiance[:, :, 0].copy()
-        x = (g - self.g[0]) / (self.g[1] - self.g[0])
-        k = int(min(max(math.floor(x), 0), self.g.size - 2))
-        w = float(x - k)
         a = self.radiance[:, :, k].astype(np.float64)
         b = self.radiance[:, :, k + 1].astype(np.float64)
         if w <= 0.0:
@@ -229,12 +237,9 @@ class PreintegrationTable:
         Linear in ``g`` between tabulated values (``T̃`` is smooth in ``g``); ``g`` is
         clamped to the table's range.
         """
-        g = float(np.clip(g, self.g[0], self.g[-1]))
+        k, w = self.g_bracket(g)
         if self.g.size == 1:
             return self.transmittance[:, 0].copy()
-        x = (g - self.g[0]) / (self.g[1] - self.g[0])
-        k = int(min(max(math.floor(x), 0), self.g.size - 2))
-        w = float(x - k)
         t = (1 - w) * self.transmittance[:, k] + w * self.transmittance[:, k + 1]
         return t.astype(np.float32)
 

@@ -89,7 +89,8 @@ class RadianceCache:
 
 def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmittance,
                    sigma_max: float, radius: float, scale: float = 0.5,
-                   device: str | None = None, shape=None) -> RadianceCache:
+                   device: str | None = None, shape=None,
+                   out: RadianceCache | None = None) -> RadianceCache:
     """Distribute every light by tube marching and cache the result.
 
     Parameters
@@ -117,6 +118,9 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
         Warp device.
     shape : (int, int, int), optional
         Explicit cache grid points per axis (each >= 2); overrides ``scale``.
+    out : RadianceCache, optional
+        A previous cache to overwrite when it has the same grid and light count (and is
+        on ``device``): a light or ``g`` edit then allocates nothing. Otherwise ignored.
 
     Returns
     -------
@@ -140,8 +144,13 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
     if not isinstance(transmittance, wp.array):
         transmittance = wp.array(np.asarray(transmittance, dtype=np.float32), dtype=wp.float32,
                                  device=device)
-    grid = RadianceGrid()
-    grid.data = wp.zeros((lights.count,) + shape, dtype=wp.vec3, device=device)
+    data_shape = (lights.count,) + shape
+    if (out is not None and tuple(out.grid.data.shape) == data_shape
+            and out.grid.data.device == wp.get_device(device)):
+        grid = out.grid
+    else:  # the kernel writes every point: no need to clear
+        grid = RadianceGrid()
+        grid.data = wp.empty(data_shape, dtype=wp.vec3, device=device)
     grid.extent = wp.vec3(*extent.astype(np.float32))
     grid.inv_spacing = wp.vec3(*((np.asarray(shape) - 1) / np.maximum(extent, 1e-30))
                                .astype(np.float32))

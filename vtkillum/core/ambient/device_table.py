@@ -1,0 +1,96 @@
+"""The preintegration table kept whole on a device, sliced at any ``g`` there.
+
+A phase-function (``g``) edit needs the table slice ``L̃o(θ, σ̃t)`` and the front
+transmittance ``T̃(σ̃t)`` at the new ``g``. :class:`DeviceTable` uploads all the
+tabulated ``g`` once and builds both slices with one small kernel into arrays it
+keeps, so a ``g`` edit does no host work and no allocation. The blend is the one of
+:meth:`~vtkillum.core.ambient.table.PreintegrationTable.g_slice` (geometric in ``g``,
+in double precision, linear where an entry is 0) and
+:meth:`~vtkillum.core.ambient.table.PreintegrationTable.transmittance_slice` (linear,
+single precision), so the slices equal the host's to float rounding.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from vtkillum.core.ambient.table import PreintegrationTable
+from vtkillum.core.device import init_warp, resolve_device
+
+init_warp()
+
+
+class DeviceTable:
+    """All slices of a :class:`~vtkillum.core.ambient.table.PreintegrationTable` on a device.
+
+    Parameters
+    ----------
+    table : PreintegrationTable
+    device : str, optional
+        Warp device.
+
+    Attributes
+    ----------
+    table : PreintegrationTable
+        The host table (axes, ``sigma_max``).
+    g_slice : wp.array2d(float32)
+        ``L̃o(θ, r σ̃t)`` at the ``g`` of the last :meth:`set_g`, ``(n_theta, n_sigma)``.
+    transmittance_slice : wp.array(float32)
+        ``T̃(r σ̃t)`` at that ``g``, ``(n_sigma,)``.
+    g : float or None
+        The ``g`` the slices hold (``None`` before the first :meth:`set_g`).
+
+    The slice arrays are overwritten in place by every :meth:`set_g`.
+    """
+
+    def __init__(self, table: PreintegrationTable, device: str | None = None) -> None:
+        self.table = table
+        self.device = resolve_device(device)
+        nt, ns, _ = table.shape
+        self._radiance = wp.array(table.radiance, dtype=wp.float32, device=self.device)
+        self._transmittance = wp.array(table.transmittance, dtype=wp.float32, device=self.device)
+        self.g_slice = wp.empty((nt, ns), dtype=wp.float32, device=self.device)
+        self.transmittance_slice = wp.empty(ns, dtype=wp.float32, device=self.device)
+        self.g = None
+
+    def set_g(self, g: float) -> None:
+        """Fill :attr:`g_slice` and :attr:`transmittance_slice` at anisotropy ``g`` (clamped)."""
+        k, w = self.table.g_bracket(g)
+        k1 = min(k + 1, self.table.g.size - 1)
+        nt, ns, _ = self.table.shape
+        wp.launch(g_slice_kernel, dim=(nt, ns),
+                  inputs=[self._radiance, self._transmittance, k, k1, wp.float64(w),
+                          float(np.float32(1 - w)), float(np.float32(w)), self.g_slice,
+                          self.transmittance_slice], device=self.device)
+        self.g = float(g)
+
+
+@wp.kernel
+def g_slice_kernel(radiance: wp.array3d(dtype=wp.float32),
+                   transmittance: wp.array2d(dtype=wp.float32), k: int, k1: int,
+                   w: wp.float64, wa: float, wb: float, out: wp.array2d(dtype=wp.float32),
+                   out_transmittance: wp.array(dtype=wp.float32)):
+    """``wp.tid()`` = ``(θ index, σ̃t index)``: blend tabulated slices ``k`` and ``k1``.
+
+    ``w`` is the fraction towards ``k1``; ``wa``, ``wb`` are ``1 - w`` and ``w`` rounded to
+    float32 (the host's single-precision transmittance blend). Row 0 also writes ``T̃``.
+    """
+    i, j = wp.tid()
+    a = wp.float64(radiance[i, j, k])
+    b = wp.float64(radiance[i, j, k1])
+    one = wp.float64(1.0)
+    v = a
+    if w >= one:
+        v = b
+    elif w > wp.float64(0.0):
+        if a > wp.float64(0.0) and b > wp.float64(0.0):
+            v = wp.exp((one - w) * wp.log(a) + w * wp.log(b))
+        else:
+            v = (one - w) * a + w * b
+    out[i, j] = wp.float32(v)
+    if i == 0:
+        t = transmittance[j, k]
+        if k1 != k:
+            t = wa * transmittance[j, k] + wb * transmittance[j, k1]
+        out_transmittance[j] = t
