@@ -23,6 +23,16 @@ avoided in empty regions"). Blocks of the volume that are surely empty
 (:mod:`~vtkillum.core.ambient.empty_space`) are leapt over once the shifted
 point ``x_o`` has left all matter seen so far behind, which changes no pixel.
 
+Speed without changing the result
+---------------------------------
+* Each warp of 32 threads shades a tile of :data:`TILE` pixels (4 wide, 8 high) rather
+  than 32 pixels of one row: its rays stay together through the volume, share cache
+  lines and end at similar depths.
+* When the radius is a whole number ``m`` of steps (as with the defaults in voxels),
+  ``x_o`` of sample ``k`` *is* sample ``k - m``, so its ``σt`` is taken from a delay line
+  of the last :data:`DELAY` samples instead of a second trilinear look-up (samples leapt
+  over as empty, or before the box, count as 0, as the look-up would give).
+
 Optional terms, as in the paper's comparisons (Figs. 6d, 6e)
 ------------------------------------------------------------
 * Specular highlights: ``ks · max(n·h, 0)^shininess / (4π)`` is added to each
@@ -46,7 +56,7 @@ import warp as wp
 from vtkillum.core.ambient.empty_space import BLOCK
 from vtkillum.core.ambient.tube_march import RadianceGrid, sample_radiance
 from vtkillum.core.device import resolve_device
-from vtkillum.core.raymarch import launch_row_bands, pixel_ray, sample_count
+from vtkillum.core.raymarch import pixel_ray, sample_count
 from vtkillum.core.warp_common import (
     CameraParams,
     Lights,
@@ -61,6 +71,14 @@ from vtkillum.core.warp_common import (
 
 #: Pixels per kernel launch (the image is launched in row bands for progress reports).
 TILE_PIXELS = {"cpu": 1 << 14, "cuda": 1 << 22}
+#: Pixels (columns, rows) shaded by the 32 threads of one warp (H200, Supernova 432³ at
+#: 512²: 15 % faster than 32 pixels of a row).
+TILE = (4, 8)
+TILE_W = wp.constant(TILE[0])
+TILE_H = wp.constant(TILE[1])
+#: Longest delay line (in samples) for reusing ``σt`` at ``x_o``; longer radii sample it.
+DELAY = 64
+DelayLine = wp.types.vector(length=DELAY, dtype=wp.float32)
 
 
 def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, camera: CameraParams,
@@ -141,21 +159,45 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
     device = resolve_device(device)
     if occupied is None:  # one block covering everything, marked occupied: no skipping
         occupied = wp.ones((1, 1, 1), dtype=wp.int32, device=device)
-        block = wp.vec3(1.0e30, 1.0e30, 1.0e30)
+        block = np.full(3, 1.0e30)
     else:
         if spacing is None:
             raise ValueError("gather: pass the data spacing together with the occupancy grid")
-        block = wp.vec3(*(BLOCK * np.asarray(spacing, dtype=np.float64)).astype(np.float32))
+        block = BLOCK * np.asarray(spacing, dtype=np.float64)
     if not isinstance(table, wp.array):
         table = wp.array(np.asarray(table, dtype=np.float32), dtype=wp.float32, device=device)
-    radiance, alpha, samples, _ = launch_row_bands(
-        ambient_gather_kernel,
-        [medium, sigma_tilde, cache, lights, camera, table, float(sigma_max), float(radius),
-         float(step), int(bool(jitter)), int(seed), float(early_termination), float(specular),
-         float(shininess), float(grad_eps), float(ambient_occlusion), occupied, block],
-        int(camera.width), int(camera.height), TILE_PIXELS["cpu" if device == "cpu" else "cuda"],
-        device, progress)
+    inputs = [medium, sigma_tilde, cache, lights, camera, table, float(sigma_max), float(radius),
+              float(step), int(bool(jitter)), int(seed), float(early_termination),
+              float(specular), float(shininess), float(grad_eps), float(ambient_occlusion),
+              occupied, wp.vec3(*block.astype(np.float32)),
+              wp.vec3(*(1.0 / block).astype(np.float32)), delay_samples(radius, step)]
+    width, height = int(camera.width), int(camera.height)
+    # every pixel is written: no need to clear
+    radiance = wp.empty((height, width), dtype=wp.vec3, device=device)
+    alpha = wp.empty((height, width), dtype=wp.float32, device=device)
+    samples = wp.empty((height, width), dtype=wp.int32, device=device)
+    band_pixels = TILE_PIXELS["cpu" if device == "cpu" else "cuda"]
+    rows = max(TILE[1], (band_pixels // max(width, 1)) // TILE[1] * TILE[1])
+    tiles_x = -(-width // TILE[0])
+    for row0 in range(0, height, rows):
+        band = min(rows, height - row0)
+        threads = tiles_x * -(-band // TILE[1]) * TILE[0] * TILE[1]
+        wp.launch(ambient_gather_kernel, dim=threads,
+                  inputs=[*inputs, row0, row0 + band, tiles_x, radiance, alpha, samples],
+                  device=device)
+        if progress is not None and row0 + band < height:
+            wp.synchronize_device(device)
+            progress((row0 + band) / height)
+    wp.synchronize_device(device)
     return radiance, alpha, samples
+
+
+def delay_samples(radius: float, step: float) -> int:
+    """``m`` with ``radius = m * step`` (to float rounding) and ``1 <= m <= DELAY``, else -1."""
+    m = int(round(radius / step))
+    if 1 <= m <= DELAY and abs(m * step - radius) <= 1.0e-6 * radius:
+        return m
+    return -1
 
 
 # --- device functions -----------------------------------------------------------------------------
@@ -209,21 +251,33 @@ def ambient_gather_kernel(
     ambient_occlusion: float,
     occupied: wp.array3d(dtype=wp.int32),
     block: wp.vec3,
+    inv_block: wp.vec3,
+    delay: int,
     row0: int,
+    row_end: int,
+    tiles_x: int,
     radiance: wp.array2d(dtype=wp.vec3),
     alpha: wp.array2d(dtype=wp.float32),
     samples: wp.array2d(dtype=wp.int32),
 ):
     """Algorithm 1 for one pixel.
 
-    ``wp.tid()`` = ``(row - row0, col)`` (row 0 at the top). Positions in the volume's
-    local frame, ``step`` and ``radius`` in world units, ``σ`` in 1/world units;
-    ``occupied`` flags the blocks of size ``block`` (world units) that may hold matter
-    (:mod:`~vtkillum.core.ambient.empty_space`). Writes the gathered radiance ``J̃`` and
-    ``alpha = 1 - T`` at ``[row, col]``.
+    ``wp.tid()`` enumerates tiles of :data:`TILE` pixels of rows ``row0 .. row_end - 1``
+    (``tiles_x`` tiles per row of tiles, the pixels of a tile row by row); threads outside
+    the image return. Row 0 is at the top. Positions in the volume's local frame,
+    ``step`` and ``radius`` in world units, ``σ`` in 1/world units; ``occupied`` flags the
+    blocks of size ``block`` (world units, ``inv_block`` its reciprocal) that may hold
+    matter (:mod:`~vtkillum.core.ambient.empty_space`); ``delay`` is
+    :func:`delay_samples` (-1: sample ``σt`` at ``x_o``). Writes the gathered radiance
+    ``J̃`` and ``alpha = 1 - T`` at ``[row, col]``.
     """
-    r, c = wp.tid()
-    row = row0 + r
+    tid = wp.tid()
+    tile = tid / (TILE_W * TILE_H)
+    lane = tid - tile * (TILE_W * TILE_H)
+    row = row0 + (tile / tiles_x) * TILE_H + lane / TILE_W
+    c = (tile % tiles_x) * TILE_W + lane % TILE_W
+    if row >= row_end or c >= cam.width:
+        return
     o, d, t0, t1 = pixel_ray(cam, m.extent, row, c)
     colour = wp.vec3(0.0)
     trans = float(1.0)  # T along the ray up to the sample (alpha)
@@ -237,21 +291,24 @@ def ambient_gather_kernel(
         n = sample_count(t0, t1, step, xi)
         stop_t = 1.0 - stop_alpha
         t_matter = float(-1.0e30)  # position of the last sample with sigma_t > 0
+        recent = DelayLine()  # sigma_t of sample k at [k % DELAY] (0: leapt over or none yet)
         k = int(0)
         while k < n:
             t = t0 + (float(k) + xi) * step
             p = o + t * d
             if t - radius > t_matter:
                 # x_o has left all matter behind: leap over a surely empty block
-                bi = wp.clamp(int(wp.floor(p[0] / block[0])), 0, occupied.shape[0] - 1)
-                bj = wp.clamp(int(wp.floor(p[1] / block[1])), 0, occupied.shape[1] - 1)
-                bk = wp.clamp(int(wp.floor(p[2] / block[2])), 0, occupied.shape[2] - 1)
+                bi = wp.clamp(int(wp.floor(p[0] * inv_block[0])), 0, occupied.shape[0] - 1)
+                bj = wp.clamp(int(wp.floor(p[1] * inv_block[1])), 0, occupied.shape[1] - 1)
+                bk = wp.clamp(int(wp.floor(p[2] * inv_block[2])), 0, occupied.shape[2] - 1)
                 if occupied[bi, bj, bk] == 0:
                     lo = wp.vec3(float(bi) * block[0], float(bj) * block[1], float(bk) * block[2])
                     t_exit = block_exit(o, d, lo, lo + block)
                     k_next = int(wp.ceil((t_exit - t0) / step - xi))
                     if k_next > k:
                         k = k_next
+                        # the last `delay` samples and those leapt over are all empty
+                        recent = DelayLine()
                         continue
             s = sample_scalar(m.scalars, m.inv_spacing, p)
             sig = lookup_sigma_t(m, s)
@@ -281,7 +338,12 @@ def ambient_gather_kernel(
                 colour += (trans_out * step * m.albedo * sig) * wp.cw_mul(col, light)
             trans *= wp.exp(-sig * step)
             t_out = t - radius  # x_o = x' + r ω lies r closer to the camera
-            if t_out > 0.0:
+            if delay > 0:
+                sig_out = recent[(k - delay + DELAY) % DELAY]  # sample k - delay, at x_o
+                recent[k % DELAY] = sig
+                if t_out > 0.0:
+                    trans_out *= wp.exp(-sig_out * step)
+            elif t_out > 0.0:
                 trans_out *= wp.exp(-sigma_t_at(m, o + t_out * d) * step)
             if trans_out < stop_t:
                 break
