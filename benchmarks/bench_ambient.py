@@ -10,10 +10,15 @@ the caches of :class:`~vtkillum.core.ambient.cache.AmbientScatteringCache`:
 
 and prints them next to the paper's GTX 560 numbers of the same data set size
 and radius, with the speed-up. Needs only numpy, warp and vtkillum (no vtk).
+``--hardware-filtering`` prints two rows per data set: the exact software
+trilinear sampling ("sw") and CUDA texture filtering of σ̃t, the radiance cache and
+the scalars ("hw", :mod:`vtkillum.core.ambient.textures`; texture copies included
+in the timings).
 
 Examples
 --------
 python benchmarks/bench_ambient.py --device cuda
+python benchmarks/bench_ambient.py --device cuda --hardware-filtering
 python benchmarks/bench_ambient.py --device cpu --sizes 0.25 --image 128 --frames 2
 """
 
@@ -105,14 +110,14 @@ def median_ms(fn, repeats: int) -> float:
 
 
 def bench(name: str, scale: float, image: int, frames: int, repeats: int, device: str,
-          step_voxels: float, stop: float):
+          step_voxels: float, stop: float, hardware: bool = False):
     spec = DATASETS[name]
     dims = tuple(max(8, int(round(n * scale))) for n in spec["dims"])
     radius = spec["radius"] * (dims[0] / spec["dims"][0])  # the same fraction of the data
     volume = stand_in(name, dims)
     tf_a, tf_b = transfer_functions()
     table = load_table(0.9, progress=False)
-    cache = AmbientScatteringCache(device)
+    cache = AmbientScatteringCache(device, hardware_filtering=hardware)
     u = 1.0
     state = {"tf": tf_a, "g": 0.6, "shift": 0.0}
 
@@ -133,7 +138,8 @@ def bench(name: str, scale: float, image: int, frames: int, repeats: int, device
     def frame(cam):
         return gather_device(s.medium, s.sigma_tilde, s.radiance.grid, s.lights, cam,
                              s.table_slice, table.sigma_max, s.radius, step_voxels, True, 0,
-                             stop, device=device, occupied=s.occupied, spacing=volume.spacing)
+                             stop, device=device, occupied=s.occupied, spacing=volume.spacing,
+                             textures=s.textures)
 
     frame(make_camera(cam0, volume, image, image))  # compile the gather
 
@@ -164,6 +170,8 @@ def bench(name: str, scale: float, image: int, frames: int, repeats: int, device
         frame(cam)  # synchronised; the image stays on the device
     fps = frames / (time.perf_counter() - t)
     split = np.median(np.array(stages), axis=0)
+    if hardware and device != "cpu":
+        assert s.textures is not None, "hardware filtering was asked for but not used"
     return {"dims": dims, "radius": radius, "tf": tf_ms, "g": g_ms, "light": light_ms,
             "fps": fps, "cache": s.radiance.shape, "split": split}
 
@@ -187,18 +195,21 @@ def main(argv=None) -> None:
                     help="ray-marching step of the gather in voxels (default 1)")
     ap.add_argument("--early-termination", type=float, default=0.98,
                     help="opacity at which rays stop (paper: 0.98)")
+    ap.add_argument("--hardware-filtering", action="store_true",
+                    help="also time CUDA texture filtering (a second row per data set, 'hw')")
     args = ap.parse_args(argv)
     device = resolve_device(args.device)
     name = device_name(device)
     print(f"ambient scattering on {name}; image {args.image}², step {args.step} voxel, "
           f"early termination {args.early_termination}, volume scale {args.sizes}; "
           "paper: GTX 560")
-    print("| data set | size | r [vox] | TF [ms] (σt+SAT / σ̃t / radiance) | g [ms] | light [ms] "
+    modes = [False, True] if args.hardware_filtering else [False]
+    print("| data set | sampling | size | r [vox] | TF [ms] (σt+SAT / σ̃t / radiance) | g [ms] | light [ms] "
           "| fps | paper TF / g / light [ms], fps | speed-up TF / g / light / fps |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for ds in args.datasets:
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for ds, hardware in ((ds, hw) for ds in args.datasets for hw in modes):
         r = bench(ds, args.sizes, args.image, args.frames, args.repeats, device, args.step,
-                  args.early_termination)
+                  args.early_termination, hardware)
         p_tf, p_g, p_l, p_fps = DATASETS[ds]["paper"]
         size = "×".join(str(n) for n in r["dims"])
         speed = (p_tf / r["tf"], p_g / r["g"], p_l / r["light"], r["fps"] / p_fps)
@@ -206,7 +217,8 @@ def main(argv=None) -> None:
         ratios = (f"{speed[0]:.1f} / {speed[1]:.1f} / {speed[2]:.1f} / {speed[3]:.1f}{flag}"
                   if args.sizes == 1.0 and args.image == 512 else "— (not the paper's sizes)")
         a, b, c = r["split"]
-        print(f"| {ds} | {size} | {r['radius']:.1f} | {r['tf']:.1f} ({a:.1f} / {b:.1f} / {c:.1f}) "
+        mode = "hw texture" if hardware else "sw trilinear"
+        print(f"| {ds} | {mode} | {size} | {r['radius']:.1f} | {r['tf']:.1f} ({a:.1f} / {b:.1f} / {c:.1f}) "
               f"| {r['g']:.2f} | "
               f"{r['light']:.2f} | {r['fps']:.1f} | {p_tf:g} / {p_g:g} / {p_l:g}, {p_fps:g} | "
               f"{ratios} |", flush=True)

@@ -29,6 +29,14 @@ the new ``g``), and the radiance cache, light list and table slices are
 overwritten in place rather than reallocated. So an :class:`AmbientState` stays
 valid until the next :meth:`AmbientScatteringCache.update`, which may overwrite
 its arrays.
+
+With ``hardware_filtering=True`` on a CUDA device the cache also keeps the data
+scalars, ``σ̃t`` and the radiance cache as ``wp.Texture3D`` objects
+(:mod:`~vtkillum.core.ambient.textures`): the tube march and the gather then sample
+them by hardware trilinear filtering (faster; mean differences from the exact values
+within 2e-3 of the maximum). Each texture is refreshed by one device copy when its stage is recomputed
+(counted in that stage's timing) and reallocated only when its shape changes. On the
+CPU the option is ignored: the exact software path runs.
 """
 
 from __future__ import annotations
@@ -45,9 +53,16 @@ from vtkillum.core.ambient.device_table import DeviceTable
 from vtkillum.core.ambient.empty_space import block_ranges, occupancy
 from vtkillum.core.ambient.sat import ambient_extinction, sigma_t_grid, summed_area_table
 from vtkillum.core.ambient.table import PreintegrationTable, load_table
+from vtkillum.core.ambient.textures import (
+    AmbientTextures,
+    fits_texture,
+    hardware_filtering_available,
+    texture_from,
+)
 from vtkillum.core.ambient.tube_march import RadianceCache, radiance_cache
 from vtkillum.core.device import resolve_device
 from vtkillum.core.lights import pack_lights
+from vtkillum.core.resample import scaled_shape
 from vtkillum.core.volume import array_digest
 from vtkillum.core.warp_common import Lights, Medium, make_lights, make_medium, to_device
 
@@ -85,6 +100,9 @@ class AmbientState:
     occupied : wp.array3d(int32)
         Blocks that may hold matter, for the gather's empty-space skipping (recomputed
         with the SAT).
+    textures : AmbientTextures or None
+        With hardware filtering (after :meth:`~AmbientScatteringCache.update`): scalars,
+        ``σ̃t`` and radiance cache as textures for the gather; else None.
     """
 
     medium: Medium
@@ -98,6 +116,7 @@ class AmbientState:
     recomputed: list = field(default_factory=list)
     timings: dict = field(default_factory=dict)
     occupied: object = None
+    textures: AmbientTextures | None = None
 
 
 class AmbientScatteringCache:
@@ -107,10 +126,26 @@ class AmbientScatteringCache:
     ----------
     device : str, optional
         Warp device every array lives on.
+    hardware_filtering : bool
+        Sample ``σ̃t``, the radiance cache and the scalars through CUDA textures (hardware
+        trilinear filtering, see the module docstring). Ignored on the CPU, which always
+        runs the exact software path; also skipped (software path) for a grid larger than
+        a texture allows (:data:`~vtkillum.core.ambient.textures.MAX_TEXTURE_EXTENT` along
+        any axis, lights × cache points along x included).
+
+    Attributes
+    ----------
+    hardware_filtering : bool
+        Whether textures are used (requested and the device is CUDA).
     """
 
-    def __init__(self, device: str | None = None) -> None:
+    def __init__(self, device: str | None = None, hardware_filtering: bool = False) -> None:
+        if not isinstance(hardware_filtering, (bool, np.bool_)):
+            raise ValueError("hardware_filtering must be true or false, got "
+                             f"{hardware_filtering!r}")
         self.device = resolve_device(device)
+        self.hardware_filtering = bool(hardware_filtering) and hardware_filtering_available(
+            self.device)
         self.stats = {"sat": 0, "extinction": 0, "radiance": 0}
         self.invalidate()
 
@@ -132,6 +167,8 @@ class AmbientScatteringCache:
         self._radiance = None
         self._lights = None
         self._device_table = None
+        self._scalars_texture = None
+        self._sigma_tilde_texture = None
 
     def update(self, volume, transfer_function, unit_distance: float, albedo: float,
                anisotropy: float, lights, radius: float, radius_units: str = "voxels",
@@ -185,7 +222,9 @@ class AmbientScatteringCache:
             self._radiance = radiance_cache(self._sigma_tilde, volume.spacing, volume.extent,
                                             self._lights, dtable.transmittance_slice,
                                             table.sigma_max, state.radius, cache_scale, device,
-                                            cache_shape, out=self._radiance)
+                                            cache_shape, out=self._radiance,
+                                            sigma_tilde_texture=self._hardware_texture(
+                                                len(kinds), cache_scale, cache_shape))
             wp.synchronize_device(device)
             state.timings["radiance_ms"] = 1e3 * (time.perf_counter() - t)
             self._rad_key = rad_key
@@ -195,7 +234,20 @@ class AmbientScatteringCache:
         state.lights = self._lights
         state.table = table
         state.table_slice = dtable.g_slice
+        if self._radiance.texture is not None:
+            state.textures = AmbientTextures(self._scalars_texture, self._sigma_tilde_texture,
+                                             self._radiance.texture)
         return state
+
+    def _hardware_texture(self, n_lights: int, cache_scale: float, cache_shape):
+        """``σ̃t``'s texture when hardware filtering applies to this update, else None."""
+        if self._sigma_tilde_texture is None or n_lights == 0:
+            return None
+        shape = (scaled_shape(np.asarray(self._sigma_tilde.shape), float(cache_scale))
+                 if cache_shape is None else tuple(int(n) for n in cache_shape))
+        if not fits_texture((n_lights * shape[0], shape[1], shape[2])):
+            return None
+        return self._sigma_tilde_texture
 
     def update_extinction(self, volume, transfer_function, unit_distance: float, radius: float,
                           radius_units: str = "voxels") -> AmbientState:
@@ -216,6 +268,8 @@ class AmbientScatteringCache:
             if data_key != self._data_key:
                 self.invalidate()
                 self._scalars = to_device(volume.scalars, wp.float32, device)
+                if self.hardware_filtering and fits_texture(self._scalars.shape):
+                    self._scalars_texture = texture_from(self._scalars)
                 self._ranges = block_ranges(self._scalars, device)
                 self._data_key = data_key
             self._data_identity = identity
@@ -242,6 +296,9 @@ class AmbientScatteringCache:
             t = time.perf_counter()
             self._sigma_tilde = ambient_extinction(self._sigma_t, volume.spacing, radius_world,
                                                    device, sat=self._sat)
+            if self._scalars_texture is not None:  # same shape as the scalars
+                self._sigma_tilde_texture = texture_from(self._sigma_tilde,
+                                                         self._sigma_tilde_texture)
             wp.synchronize_device(device)
             timings["extinction_ms"] = 1e3 * (time.perf_counter() - t)
             self._ext_key = ext_key

@@ -16,11 +16,16 @@ Options (keyword arguments; the ambient ones default to the scene's
 ``ambient_occlusion``    ``True`` adds the SAT-based ambient-occlusion term
 ``ambient_occlusion_strength``  its ambient fluence relative to the sum of the
                          lights' irradiances (0.25)
+``hardware_filtering``   sample σ̃t, the radiance cache and the scalars through CUDA
+                         textures (hardware trilinear filtering: faster, on average
+                         within 2e-3 of the maximum of the exact path; False). Ignored on the
+                         CPU, which always runs the exact software path
 ``step_size``            ray-marching step, world units (default: the scene's)
 ``jitter``, ``seed``     per-pixel sample offset and its seed (True, 0)
 ``early_termination``    opacity at which rays stop (0.999; the paper used 0.98)
-``cache``                an :class:`AmbientScatteringCache` to use; by default one
-                         cache per device is kept between calls
+``cache``                an :class:`AmbientScatteringCache` to use (its own
+                         ``hardware_filtering`` applies); by default one cache per
+                         device and filtering mode is kept between calls
 ``table``                a :class:`~vtkillum.core.ambient.table.PreintegrationTable`;
                          by default the one for the scene's albedo (generated on
                          demand if it is not shipped)
@@ -47,10 +52,10 @@ from vtkillum.core.render import RenderResult
 from vtkillum.core.warp_common import make_camera
 
 AMBIENT_KEYS = ("radius", "radius_units", "radiance_cache_scale", "specular",
-                "ambient_occlusion", "ambient_occlusion_strength")
+                "ambient_occlusion", "ambient_occlusion_strength", "hardware_filtering")
 RAY_OPTIONS = {**MARCH_OPTIONS, "cache": None, "table": None}
 
-_DEFAULT_CACHES: dict[str, AmbientScatteringCache] = {}
+_DEFAULT_CACHES: dict[tuple, AmbientScatteringCache] = {}
 
 
 def render_ambient_scattering(volume, scene, width: int, height: int, device: str | None = None,
@@ -79,7 +84,7 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
     t_start = time.perf_counter()
     device = resolve_device(device)
     opts = parse_options(options, volume, scene)
-    cache = opts["cache"] or default_cache(device)
+    cache = opts["cache"] or default_cache(device, opts["hardware_filtering"])
     if cache.device != device:
         raise ValueError(f"the ambient cache lives on {cache.device}, the render asks for "
                          f"{device}; pass a cache made for {device}")
@@ -95,7 +100,7 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
         state.table_slice, state.table.sigma_max, state.radius, opts["step_size"],
         opts["jitter"], opts["seed"], opts["early_termination"], opts["specular"],
         float(scene.shading["shininess"]), grad_eps, opts["ambient_occlusion"], device, progress,
-        state.occupied, volume.spacing)
+        state.occupied, volume.spacing, state.textures)
     t_end = time.perf_counter()
     if progress is not None:
         progress(1.0)
@@ -108,6 +113,7 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
         "table_albedo": state.table.albedo,
         "radiance_cache_shape": state.radiance.shape,
         "recomputed": list(state.recomputed),
+        "hardware_filtering": state.textures is not None,
         "timings_ms": {"sat": state.timings["sat_ms"],
                        "extinction": state.timings["extinction_ms"],
                        "radiance": state.timings["radiance_ms"],
@@ -121,11 +127,13 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
     return RenderResult(radiance, alpha, info)
 
 
-def default_cache(device: str) -> AmbientScatteringCache:
-    """The cache kept between calls on ``device`` (holds the last volume's arrays)."""
-    if device not in _DEFAULT_CACHES:
-        _DEFAULT_CACHES[device] = AmbientScatteringCache(device)
-    return _DEFAULT_CACHES[device]
+def default_cache(device: str, hardware_filtering: bool = False) -> AmbientScatteringCache:
+    """The cache kept between calls on ``device`` with that filtering mode (holds the last
+    volume's arrays)."""
+    key = (device, bool(hardware_filtering))
+    if key not in _DEFAULT_CACHES:
+        _DEFAULT_CACHES[key] = AmbientScatteringCache(device, bool(hardware_filtering))
+    return _DEFAULT_CACHES[key]
 
 
 def release_default_caches() -> None:
@@ -146,7 +154,8 @@ def parse_options(options: dict, volume, scene) -> dict:
     opts.update(options)
     for key, default in (("radius", 4.0), ("radius_units", "voxels"),
                          ("radiance_cache_scale", 0.5), ("specular", 0.0),
-                         ("ambient_occlusion", False), ("ambient_occlusion_strength", 0.25)):
+                         ("ambient_occlusion", False), ("ambient_occlusion_strength", 0.25),
+                         ("hardware_filtering", False)):
         opts.setdefault(key, default)
     opts.update(ray_options(opts, volume, scene))
     spec = opts["specular"]
@@ -161,6 +170,10 @@ def parse_options(options: dict, volume, scene) -> dict:
         raise ValueError("ambient_scattering.ambient_occlusion_strength must be a number >= 0, "
                          f"got {strength!r}")
     opts["ambient_occlusion"] = float(strength) if ao else 0.0
+    if not isinstance(opts["hardware_filtering"], (bool, np.bool_)):
+        raise ValueError("ambient_scattering.hardware_filtering must be true or false, got "
+                         f"{opts['hardware_filtering']!r}")
+    opts["hardware_filtering"] = bool(opts["hardware_filtering"])
     opts["specular"] = float(spec)
     scale = opts["radiance_cache_scale"]
     if isinstance(scale, bool) or not (isinstance(scale, (int, float, np.floating))

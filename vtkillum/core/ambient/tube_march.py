@@ -31,15 +31,21 @@ Differences from the paper, and why
 The cache is a regular grid covering the volume's box ``[0, extent]`` at
 ``scale`` times the data resolution (0.5 by default, as in the paper), one RGB
 grid per light, sampled trilinearly by the gather.
+
+With a texture of ``σ̃t`` passed (``sigma_tilde_texture``, CUDA's hardware filtering, see
+:mod:`~vtkillum.core.ambient.textures`) the march samples ``σ̃t`` through it and the cache
+is written as RGBA into a staging array and copied into one texture for the gather.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import warp as wp
 
+from vtkillum.core.ambient.textures import fetch_scalar, texture_from
 from vtkillum.core.device import init_warp, resolve_device
 from vtkillum.core.resample import scaled_shape
 from vtkillum.core.warp_common import (
@@ -47,7 +53,6 @@ from vtkillum.core.warp_common import (
     Lights,
     light_incidence,
     ray_box,
-    sample_scalar,
     table_lerp,
     trilinear_index,
 )
@@ -69,9 +74,10 @@ BRICK_K = wp.constant(BRICK[2])
 class RadianceGrid:
     """Distributed radiance ``L̃d`` per light on a grid covering ``[0, extent]``."""
 
-    data: wp.array4d(dtype=wp.vec3)  # [light, i, j, k], RGB in irradiance units
+    data: wp.array4d(dtype=wp.vec3)  # [light, i, j, k], RGB in irradiance units (None: texture)
     extent: wp.vec3
     inv_spacing: wp.vec3  # grid points per world unit along x, y, z
+    points: wp.vec3i  # grid points along x, y, z
 
 
 @dataclass
@@ -84,20 +90,30 @@ class RadianceCache:
         Device struct the gather samples.
     shape : (int, int, int)
         Cache grid points along x, y, z.
+    texture : wp.Texture3D or None
+        With hardware filtering: the cache as one RGBA texture, lights stacked along its
+        depth (``grid.data`` is then None); else None.
+    staging : wp.array4d(vec4) or None
+        With hardware filtering: the RGBA cache ``[light, i, j, k]`` the texture was copied from.
     """
 
     grid: RadianceGrid
     shape: tuple
+    texture: object = None
+    staging: object = None
 
     def numpy(self) -> np.ndarray:
         """The cache as ``(n_lights, nx, ny, nz, 3)`` float32."""
+        if self.texture is not None:
+            return self.staging.numpy()[..., :3]
         return self.grid.data.numpy()
 
 
 def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmittance,
                    sigma_max: float, radius: float, scale: float = 0.5,
                    device: str | None = None, shape=None,
-                   out: RadianceCache | None = None) -> RadianceCache:
+                   out: RadianceCache | None = None,
+                   sigma_tilde_texture=None) -> RadianceCache:
     """Distribute every light by tube marching and cache the result.
 
     Parameters
@@ -128,6 +144,11 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
     out : RadianceCache, optional
         A previous cache to overwrite when it has the same grid and light count (and is
         on ``device``): a light or ``g`` edit then allocates nothing. Otherwise ignored.
+    sigma_tilde_texture : wp.Texture3D, optional
+        ``sigma_tilde`` as a texture (:func:`~vtkillum.core.ambient.textures.texture_from`):
+        the march samples it by hardware filtering and the result also comes as an RGBA
+        texture (:attr:`RadianceCache.texture`). CUDA only; see
+        :mod:`~vtkillum.core.ambient.textures` for the accuracy.
 
     Returns
     -------
@@ -152,12 +173,18 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
         transmittance = wp.array(np.asarray(transmittance, dtype=np.float32), dtype=wp.float32,
                                  device=device)
     data_shape = (lights.count,) + shape
-    if (out is not None and tuple(out.grid.data.shape) == data_shape
-            and out.grid.data.device == wp.get_device(device)):
+    hardware = sigma_tilde_texture is not None
+    kept = out.staging if (out is not None and hardware) else (
+        out.grid.data if out is not None else None)
+    if (kept is not None and tuple(kept.shape) == data_shape
+            and kept.device == wp.get_device(device)):
         grid = out.grid
+        target = kept
     else:  # the kernel writes every point: no need to clear
         grid = RadianceGrid()
-        grid.data = wp.empty(data_shape, dtype=wp.vec3, device=device)
+        target = wp.empty(data_shape, dtype=wp.vec4 if hardware else wp.vec3, device=device)
+        grid.data = None if hardware else target
+    grid.points = wp.vec3i(*shape)
     grid.extent = wp.vec3(*extent.astype(np.float32))
     grid.inv_spacing = wp.vec3(*((np.asarray(shape) - 1) / np.maximum(extent, 1e-30))
                                .astype(np.float32))
@@ -168,11 +195,18 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
     if threads > 0:
         # table entries per unit σ̃t, with the radius folded in: one multiply per step
         lookup_scale = radius * (transmittance.shape[0] - 1) / float(sigma_max)
-        wp.launch(tube_march_kernel, dim=threads,
-                  inputs=[sigma_tilde, inv_data, lights, transmittance, float(lookup_scale),
-                          radius, spacing, wp.vec3i(*shape), wp.vec3i(*bricks), grid],
+        kernel = tube_march_texture if hardware else tube_march_software
+        wp.launch(kernel, dim=threads,
+                  inputs=[sigma_tilde_texture if hardware else sigma_tilde, inv_data, lights,
+                          transmittance, float(lookup_scale), radius, spacing, wp.vec3i(*shape),
+                          wp.vec3i(*bricks), grid.extent, target],
                   device=device)
-    return RadianceCache(grid, shape)
+    if not hardware:
+        return RadianceCache(grid, shape)
+    # lights stacked along the texture's depth: [light * nx + i, j, k]
+    stacked = target.reshape((lights.count * shape[0], shape[1], shape[2]))
+    texture = texture_from(stacked, out.texture if out is not None else None)
+    return RadianceCache(grid, shape, texture, target)
 
 
 # --- device functions -----------------------------------------------------------------------------
@@ -195,20 +229,35 @@ def sample_radiance(grid: RadianceGrid, light: int, p: wp.vec3):
     return wp.lerp(wp.lerp(c00, c10, f[1]), wp.lerp(c01, c11, f[1]), f[2])
 
 
+@wp.func
+def store_radiance(out: wp.array4d(dtype=wp.vec3), li: int, i: int, j: int, k: int, v: wp.vec3):
+    """Write ``L̃d`` into the RGB cache."""
+    out[li, i, j, k] = v
+
+
+@wp.func
+def store_radiance(out: wp.array4d(dtype=wp.vec4), li: int, i: int, j: int,  # noqa: F811
+                   k: int, v: wp.vec3):
+    """Write ``L̃d`` into the RGBA staging array of the texture (alpha unused)."""
+    out[li, i, j, k] = wp.vec4(v[0], v[1], v[2], 0.0)
+
+
 # --- kernel ---------------------------------------------------------------------------------------
 @wp.kernel
-def tube_march_kernel(sigma_tilde: wp.array3d(dtype=wp.float32), inv_data_spacing: wp.vec3,
+def tube_march_kernel(sigma_tilde: Any, inv_data_spacing: wp.vec3,
                       lights: Lights, transmittance: wp.array(dtype=wp.float32),
                       lookup_scale: float, radius: float, spacing: wp.vec3, shape: wp.vec3i,
-                      bricks: wp.vec3i, grid: RadianceGrid):
+                      bricks: wp.vec3i, extent: wp.vec3, out: Any):
     """March one light's front to one cache point (eqs. 15–17).
 
     ``wp.tid()`` enumerates ``(light, brick, point in brick)``: bricks of
     :data:`BRICK` cache points, ``bricks`` of them per axis (k fastest, in bricks and
     inside them); threads beyond the grid's ``shape`` return. Point ``(i, j, k)`` lies at
     ``(i, j, k) * spacing`` (world units, local frame); ``lookup_scale`` is
-    ``r (n - 1) / sigma_max``, the transmittance table's entries per unit ``σ̃t``. Writes
-    ``L̃d`` (RGB irradiance units).
+    ``r (n - 1) / sigma_max``, the transmittance table's entries per unit ``σ̃t``; ``extent``
+    the box (world units). Writes ``L̃d`` (RGB irradiance units) to ``out[light, i, j, k]``.
+    Generic: ``sigma_tilde`` an array3d(float32) and ``out`` an array4d(vec3) (software
+    trilinear), or a ``wp.Texture3D`` and an array4d(vec4) (:data:`tube_march_texture`).
     """
     tid = wp.tid()
     per_brick = BRICK_I * BRICK_J * BRICK_K
@@ -227,7 +276,7 @@ def tube_march_kernel(sigma_tilde: wp.array3d(dtype=wp.float32), inv_data_spacin
     if lights.kind[li] == POINT:
         # Inside one radius of a point light the sphere contains it: no 1/d² divergence.
         e = e * (dist * dist) / wp.max(dist * dist, radius * radius)
-    tt = ray_box(p, to_light, grid.extent)
+    tt = ray_box(p, to_light, extent)
     length = wp.max(wp.min(tt[1], dist), 0.0)
     step = 2.0 * radius
     steps = length / step
@@ -239,7 +288,7 @@ def tube_march_kernel(sigma_tilde: wp.array3d(dtype=wp.float32), inv_data_spacin
     front = float(1.0)
     for n in range(n_full):
         centre = entry + (float(2 * n + 1) * radius) * travel
-        st = sample_scalar(sigma_tilde, inv_data_spacing, centre)
+        st = fetch_scalar(sigma_tilde, inv_data_spacing, centre)
         front *= table_lerp(transmittance, wp.clamp(st * lookup_scale, 0.0, last))
         if front < NEGLIGIBLE:
             front = 0.0
@@ -247,6 +296,14 @@ def tube_march_kernel(sigma_tilde: wp.array3d(dtype=wp.float32), inv_data_spacin
     beyond = front
     if eta > 0.0 and front > 0.0:
         centre = entry + (float(2 * n_full + 1) * radius) * travel
-        st = sample_scalar(sigma_tilde, inv_data_spacing, centre)
+        st = fetch_scalar(sigma_tilde, inv_data_spacing, centre)
         beyond = front * table_lerp(transmittance, wp.clamp(st * lookup_scale, 0.0, last))
-    grid.data[li, i, j, k] = ((1.0 - eta) * front + eta * beyond) * e
+    store_radiance(out, li, i, j, k, ((1.0 - eta) * front + eta * beyond) * e)
+
+
+#: The exact software path (the default).
+tube_march_software = wp.overload(tube_march_kernel, {
+    "sigma_tilde": wp.array3d(dtype=wp.float32), "out": wp.array4d(dtype=wp.vec3)})
+#: Hardware texture filtering of ``σ̃t`` (CUDA), RGBA output for the cache texture.
+tube_march_texture = wp.overload(tube_march_kernel, {
+    "sigma_tilde": wp.Texture3D, "out": wp.array4d(dtype=wp.vec4)})
