@@ -53,11 +53,6 @@ DATASETS = {
     "cornell": lambda: cornell_box(32),
 }
 
-#: Diffusion coefficient of the convection-diffusion cases, in squared data spacings:
-#: a diffusion length of three voxels, so the light visibly softens.
-DIFFUSION_VOXELS = 3.0
-
-
 @dataclass(frozen=True)
 class Case:
     """One reference image.
@@ -124,9 +119,6 @@ def build(case: Case):
         cam = scene.resolved_camera(volume)
         position = cam.focal_point + (cam.position - cam.focal_point) / case.zoom
         scene.camera = Camera(position, cam.focal_point, cam.view_up, cam.view_angle)
-    if case.method == "convection-diffusion":
-        h = float(volume.spacing.mean())
-        scene.options["convection_diffusion"]["scattering"] = [(DIFFUSION_VOXELS * h) ** 2] * 3
     return volume, scene
 
 

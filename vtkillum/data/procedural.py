@@ -153,6 +153,10 @@ def plume_series(steps: int = 3, shape=(48, 48, 72), seed: int = 0, dt: float = 
             for k in range(int(steps))]
 
 
+#: Diffusion length of the default scenes' convection-diffusion section, in voxels.
+DIFFUSION_VOXELS = 3.0
+
+
 # --- Cornell box --------------------------------------------------------------------------------
 def cornell_box(n: int = 64) -> Volume:
     """A Cornell box as a volume: dense walls and blocks around a thin fog.
@@ -327,7 +331,10 @@ def default_scene(name: str, volume: Volume) -> Scene:
 
     Each scene is lit from the side so that a single-scattering render shows
     self-shadowing and scattering; light strengths are chosen so that exposure 1
-    gives a well-exposed picture with the ``single`` method.
+    gives a well-exposed picture with the ``single`` method. The convection–diffusion
+    section gets a diffusion length of ``DIFFUSION_VOXELS`` voxels (``sigma_hat_s =
+    (3 h)**2`` per channel, ``h`` the mean spacing), so that method shows multiple
+    scattering out of the box (the scene file's own default, 0, turns diffusion off).
 
     Parameters
     ----------
@@ -342,7 +349,10 @@ def default_scene(name: str, volume: Volume) -> Scene:
         raise ValueError(
             f"no default scene for dataset {name!r}; known: {sorted(set(SCENE_ALIASES.values()))}"
         )
-    return _SCENES[key](volume)
+    scene = _SCENES[key](volume)
+    h = volume.mean_spacing()
+    scene.options["convection_diffusion"]["scattering"] = [(DIFFUSION_VOXELS * h) ** 2] * 3
+    return scene
 
 
 def _plume_scene(volume: Volume) -> Scene:
