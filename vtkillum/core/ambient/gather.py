@@ -36,9 +36,10 @@ Speed without changing the result
 Hardware filtering (optional, CUDA)
 -----------------------------------
 With ``textures`` (:class:`~vtkillum.core.ambient.textures.AmbientTextures`) the data
-scalars, ``σ̃t`` and the radiance cache are sampled by the GPU's texture units (one fetch
-per sample instead of eight loads; see :mod:`~vtkillum.core.ambient.textures` for the
-accuracy: within 2e-3 of the maximum on average). The gradient of the optional specular term is
+scalars, ``σ̃t``, the (half-precision) radiance cache and the table slice ``L̃o`` are
+sampled by the GPU's texture units (one fetch per sample instead of eight, or four, loads;
+see :mod:`~vtkillum.core.ambient.textures` for the accuracy: within 2e-3 of the maximum on
+average). The gradient of the optional specular term is
 still taken from the scalar array. Without ``textures`` (and always on the CPU) every
 sample is the exact software trilinear interpolation.
 
@@ -65,8 +66,8 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.ambient.empty_space import BLOCK
-from vtkillum.core.ambient.textures import AmbientTextures, fetch_scalar
-from vtkillum.core.ambient.tube_march import RadianceGrid, sample_radiance
+from vtkillum.core.ambient.textures import AmbientTextures, fetch_scalar, texture_from
+from vtkillum.core.ambient.tube_march import RadianceGrid, radiance_unit, sample_radiance
 from vtkillum.core.device import resolve_device
 from vtkillum.core.raymarch import pixel_ray, sample_count
 from vtkillum.core.warp_common import (
@@ -182,6 +183,7 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
         block = BLOCK * np.asarray(spacing, dtype=np.float64)
     if not isinstance(table, wp.array):
         table = wp.array(np.asarray(table, dtype=np.float32), dtype=wp.float32, device=device)
+    table_size = wp.vec2i(*table.shape)
     if textures is None:
         kernel = ambient_gather_software
         sources = [medium.scalars, sigma_tilde, cache.data]
@@ -190,8 +192,10 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
             raise ValueError("gather: hardware-filtered textures need a CUDA device; on the CPU "
                              "pass textures=None (the exact software path)")
         kernel = ambient_gather_texture
+        table = textures.table if textures.table is not None else texture_from(table)
         sources = [textures.scalars, textures.sigma_tilde, textures.radiance]
-    inputs = [medium, *sources, cache, lights, camera, table, float(sigma_max), float(radius),
+    inputs = [medium, *sources, cache, lights, camera, table, table_size, float(sigma_max),
+              float(radius),
               float(step), int(bool(jitter)), int(seed), float(early_termination),
               float(specular), float(shininess), float(grad_eps), float(ambient_occlusion),
               occupied, wp.vec3(*block.astype(np.float32)),
@@ -227,23 +231,27 @@ def delay_samples(radius: float, step: float) -> int:
 
 # --- device functions -----------------------------------------------------------------------------
 @wp.func
-def fetch_radiance(src: wp.array4d(dtype=wp.vec3), cache: RadianceGrid, light: int, p: wp.vec3):
+def fetch_radiance(src: wp.array4d(dtype=wp.vec3), cache: RadianceGrid, lights: Lights,
+                   light: int, radius: float, p: wp.vec3):
     """Software trilinear sample of light ``light``'s cache at ``p`` (``src`` is ``cache.data``)."""
     return sample_radiance(cache, light, p)
 
 
 @wp.func
-def fetch_radiance(src: wp.Texture3D, cache: RadianceGrid, light: int, p: wp.vec3):  # noqa: F811
+def fetch_radiance(src: wp.Texture3D, cache: RadianceGrid, lights: Lights,  # noqa: F811
+                   light: int, radius: float, p: wp.vec3):
     """Hardware-filtered sample of light ``light``'s slab of the stacked RGBA cache texture.
 
     The depth coordinate is clamped into the light's slab (texel centres
-    ``light * nx + 0.5 .. light * nx + nx - 0.5``) so no other light filters in.
+    ``light * nx + 0.5 .. light * nx + nx - 0.5``) so no other light filters in; the
+    texture holds the radiance in units of
+    :func:`~vtkillum.core.ambient.tube_march.radiance_unit`.
     """
     u = wp.cw_mul(p, cache.inv_spacing)
     nx = cache.points[0]
     x = wp.clamp(u[0], 0.0, float(nx - 1)) + float(light * nx) + 0.5
     v = wp.texture_sample(src, wp.vec3(u[2] + 0.5, u[1] + 0.5, x), dtype=wp.vec4f)
-    return wp.vec3(v[0], v[1], v[2])
+    return radiance_unit(lights, light, radius) * wp.vec3(v[0], v[1], v[2])
 
 
 @wp.func
@@ -255,11 +263,12 @@ def sigma_t_from(m: Medium, scalars: Any, p: wp.vec3):
 
 
 @wp.func
-def lookup_table(table: wp.array2d(dtype=wp.float32), cos_theta: float, optical_radius: float,
-                 sigma_max: float):
-    """Bilinear ``L̃o`` at ``θ = arccos(cos_theta)`` and ``r σ̃t`` (both axes clamped)."""
-    nt = table.shape[0]
-    ns = table.shape[1]
+def lookup_table(table: wp.array2d(dtype=wp.float32), size: wp.vec2i, cos_theta: float,
+                 optical_radius: float, sigma_max: float):
+    """Bilinear ``L̃o`` at ``θ = arccos(cos_theta)`` and ``r σ̃t`` (both axes clamped); ``size``
+    is the table's ``(n_theta, n_sigma)``."""
+    nt = size[0]
+    ns = size[1]
     u = wp.acos(wp.clamp(cos_theta, -1.0, 1.0)) * (float(nt - 1) / wp.pi)
     v = wp.clamp(optical_radius / sigma_max * float(ns - 1), 0.0, float(ns - 1))
     i = wp.clamp(int(u), 0, nt - 2)
@@ -269,6 +278,18 @@ def lookup_table(table: wp.array2d(dtype=wp.float32), cos_theta: float, optical_
     a = wp.lerp(table[i, j], table[i + 1, j], fu)
     b = wp.lerp(table[i, j + 1], table[i + 1, j + 1], fu)
     return wp.lerp(a, b, fv)
+
+
+@wp.func
+def lookup_table(table: wp.Texture2D, size: wp.vec2i, cos_theta: float,  # noqa: F811
+                 optical_radius: float, sigma_max: float):
+    """:func:`lookup_table` by hardware bilinear filtering of the slice as a texture (θ rows,
+    ``r σ̃t`` columns: texel ``(j + 0.5, i + 0.5)`` is entry ``[i, j]``; clamp addressing)."""
+    nt = size[0]
+    ns = size[1]
+    u = wp.acos(wp.clamp(cos_theta, -1.0, 1.0)) * (float(nt - 1) / wp.pi)
+    v = wp.clamp(optical_radius / sigma_max * float(ns - 1), 0.0, float(ns - 1))
+    return wp.texture_sample(table, wp.vec2(v + 0.5, u + 0.5), dtype=float)
 
 
 @wp.func
@@ -293,7 +314,8 @@ def ambient_gather_kernel(
     cache: RadianceGrid,
     lights: Lights,
     cam: CameraParams,
-    table: wp.array2d(dtype=wp.float32),
+    table: Any,
+    table_size: wp.vec2i,
     sigma_max: float,
     radius: float,
     step: float,
@@ -324,10 +346,10 @@ def ambient_gather_kernel(
     blocks of size ``block`` (world units, ``inv_block`` its reciprocal) that may hold
     matter (:mod:`~vtkillum.core.ambient.empty_space`); ``delay`` is
     :func:`delay_samples` (-1: sample ``σt`` at ``x_o``). Writes the gathered radiance
-    ``J̃`` and ``alpha = 1 - T`` at ``[row, col]``. Generic: ``scalars``, ``sigma_tilde``
-    and ``radiance_src`` are ``m.scalars``, the σ̃t array and ``cache.data``
-    (:data:`ambient_gather_software`) or three ``wp.Texture3D``
-    (:data:`ambient_gather_texture`).
+    ``J̃`` and ``alpha = 1 - T`` at ``[row, col]``. Generic: ``scalars``, ``sigma_tilde``,
+    ``radiance_src`` and ``table`` are ``m.scalars``, the σ̃t array, ``cache.data`` and the
+    table slice array (:data:`ambient_gather_software`) or three ``wp.Texture3D`` and a
+    ``wp.Texture2D`` (:data:`ambient_gather_texture`).
     """
     tid = wp.tid()
     tile = tid / (TILE_W * TILE_H)
@@ -383,13 +405,15 @@ def ambient_gather_kernel(
                 for li in range(lights.count):
                     to_light, dist, e = light_incidence(lights, li, p)
                     # cos θ_j = ω · ω_j with ω = -d (to the camera), ω_j = -to_light (travel).
-                    lobe = lookup_table(table, wp.dot(d, to_light), tau_amb, sigma_max)
+                    lobe = lookup_table(table, table_size, wp.dot(d, to_light), tau_amb,
+                                        sigma_max)
                     if specular > 0.0 and wp.length_sq(normal) > 0.0:
                         h = wp.normalize(to_light - d)
                         lobe += specular * wp.pow(wp.max(wp.dot(normal, h), 0.0), shininess) / (
                             4.0 * wp.pi)
                     # at x_j = x' - r ω_j
-                    ld = fetch_radiance(radiance_src, cache, li, p + radius * to_light)
+                    ld = fetch_radiance(radiance_src, cache, lights, li, radius,
+                                        p + radius * to_light)
                     light += lobe * ld
                     e_sum += e
                 if ambient_occlusion > 0.0:
@@ -415,7 +439,9 @@ def ambient_gather_kernel(
 #: The exact software path (the default).
 ambient_gather_software = wp.overload(ambient_gather_kernel, {
     "scalars": wp.array3d(dtype=wp.float32), "sigma_tilde": wp.array3d(dtype=wp.float32),
-    "radiance_src": wp.array4d(dtype=wp.vec3)})
-#: Hardware texture filtering (CUDA): scalars, σ̃t and the RGBA radiance cache as textures.
+    "radiance_src": wp.array4d(dtype=wp.vec3), "table": wp.array2d(dtype=wp.float32)})
+#: Hardware texture filtering (CUDA): scalars, σ̃t, the RGBA radiance cache and the table
+#: slice as textures.
 ambient_gather_texture = wp.overload(ambient_gather_kernel, {
-    "scalars": wp.Texture3D, "sigma_tilde": wp.Texture3D, "radiance_src": wp.Texture3D})
+    "scalars": wp.Texture3D, "sigma_tilde": wp.Texture3D, "radiance_src": wp.Texture3D,
+    "table": wp.Texture2D})

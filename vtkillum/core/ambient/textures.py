@@ -18,13 +18,17 @@ of depth ``nx``, height ``ny`` and width ``nz`` (warp's ``(depth, height, width)
 with unnormalised coordinates, so point ``(i, j, k)`` is the texel centre
 ``(k + 0.5, j + 0.5, i + 0.5)``; clamp addressing gives the value of the nearest
 border point outside the grid, as the software path's clamping does. The radiance
-cache of all lights is one RGBA float texture with the lights stacked along the
-depth axis (``[light * nx + i, j, k]``); samples are clamped into their light's slab,
-so no light's radiance filters into another's.
+cache of all lights is one RGBA half-precision texture with the lights stacked along the
+depth axis (``[light * nx + i, j, k]``), each light in units of its brightest irradiance
+(:func:`~vtkillum.core.ambient.tube_march.radiance_unit`, so nothing overflows; relative
+rounding 2⁻¹¹); samples are clamped into their light's slab, so no light's radiance
+filters into another's. The table slice ``L̃o(θ, r σ̃t)`` is a 2D float texture
+(θ rows, ``r σ̃t`` columns), bilinearly filtered.
 
 Textures cannot be written by kernels in warp 1.19 (``surface_access`` only exposes a
 raw CUDA handle), so each grid is computed into a warp array and copied into its
-texture (a device-to-array copy, about 0.2 ms for a 216³ RGBA cache on an H200).
+texture (a device-to-array copy, about 0.1 ms for a 216³ half-precision RGBA cache on an
+H200).
 """
 
 from __future__ import annotations
@@ -53,12 +57,16 @@ class AmbientTextures:
     sigma_tilde : wp.Texture3D
         Ambient extinction ``σ̃t``, float, ``(nx, ny, nz)``.
     radiance : wp.Texture3D
-        Radiance cache, RGBA float, lights stacked along the depth axis.
+        Radiance cache, RGBA half precision, lights stacked along the depth axis.
+    table : wp.Texture2D or None
+        The table slice ``L̃o`` at the scene's ``g`` (None: the gather makes one from the
+        table array it is given).
     """
 
     scalars: object
     sigma_tilde: object
     radiance: object
+    table: object = None
 
 
 def hardware_filtering_available(device: str) -> bool:
@@ -72,22 +80,32 @@ def fits_texture(shape) -> bool:
 
 
 def texture_from(array, current=None):
-    """A linearly filtered, clamped ``wp.Texture3D`` holding ``array``.
+    """A linearly filtered, clamped ``wp.Texture3D`` (or ``wp.Texture2D``) holding ``array``.
 
-    ``array`` is a contiguous warp array of shape ``(depth, height, width)`` (float32 or
-    vec4). ``current`` is overwritten (one device copy, no allocation) when it has the
-    same shape and channel count and lives on the same device; otherwise a new texture
-    is made.
+    ``array`` is a contiguous warp array of shape ``(depth, height, width)`` (or
+    ``(height, width)``) of float32, vec4 or vec4h. ``current`` is overwritten (one device
+    copy, no allocation) when it has the same shape, element type and channel count and
+    lives on the same device; otherwise a new texture is made.
     """
     channels = int(getattr(array.dtype, "_length_", 1))  # vec4: 4, float32: 1
+    scalar = getattr(array.dtype, "_wp_scalar_type_", array.dtype)
     shape = tuple(int(n) for n in array.shape[:3])
-    if (current is not None and (current.depth, current.height, current.width) == shape
-            and current.num_channels == channels and current.device == array.device):
+    cls = wp.Texture2D if len(shape) == 2 else wp.Texture3D
+    if (isinstance(current, cls) and _texture_shape(current) == shape
+            and current.num_channels == channels and current.dtype == scalar
+            and current.device == array.device):
         current.copy_from(array)
         return current
-    return wp.Texture3D(array, filter_mode=wp.TextureFilterMode.LINEAR,
-                        address_mode=wp.TextureAddressMode.CLAMP, normalized_coords=False,
-                        device=array.device)
+    return cls(array, filter_mode=wp.TextureFilterMode.LINEAR,
+               address_mode=wp.TextureAddressMode.CLAMP, normalized_coords=False,
+               device=array.device)
+
+
+def _texture_shape(texture) -> tuple:
+    """A texture's array shape: ``(height, width)`` or ``(depth, height, width)``."""
+    if isinstance(texture, wp.Texture2D):
+        return (texture.height, texture.width)
+    return (texture.depth, texture.height, texture.width)
 
 
 # --- device functions: one name, an array overload (exact) and a texture overload ----------------

@@ -34,7 +34,11 @@ grid per light, sampled trilinearly by the gather.
 
 With a texture of ``σ̃t`` passed (``sigma_tilde_texture``, CUDA's hardware filtering, see
 :mod:`~vtkillum.core.ambient.textures`) the march samples ``σ̃t`` through it and the cache
-is written as RGBA into a staging array and copied into one texture for the gather.
+is written as half-precision RGBA into a staging array and copied into one texture for the
+gather. Half precision halves that copy and the gather's cache reads; so that no light can
+overflow it, each light's radiance is stored in units of its brightest irradiance
+(:func:`radiance_unit`: ``max(E)`` of a directional light, ``max(I) / r²`` of a point light),
+so stored values lie in [0, 1] with a relative rounding of 2⁻¹¹.
 """
 
 from __future__ import annotations
@@ -93,19 +97,30 @@ class RadianceCache:
     texture : wp.Texture3D or None
         With hardware filtering: the cache as one RGBA texture, lights stacked along its
         depth (``grid.data`` is then None); else None.
-    staging : wp.array4d(vec4) or None
-        With hardware filtering: the RGBA cache ``[light, i, j, k]`` the texture was copied from.
+    staging : wp.array4d(vec4h) or None
+        With hardware filtering: the half-precision RGBA cache ``[light, i, j, k]`` the texture
+        was copied from, in units of :func:`radiance_unit`.
+    lights : Lights or None
+        With hardware filtering: the lights the cache was marched for (for :meth:`numpy`).
+    radius : float
+        The sphere radius ``r`` it was marched with (world units).
     """
 
     grid: RadianceGrid
     shape: tuple
     texture: object = None
     staging: object = None
+    lights: Lights | None = None
+    radius: float = 0.0
 
     def numpy(self) -> np.ndarray:
-        """The cache as ``(n_lights, nx, ny, nz, 3)`` float32."""
+        """The cache as ``(n_lights, nx, ny, nz, 3)`` float32 (irradiance units)."""
         if self.texture is not None:
-            return self.staging.numpy()[..., :3]
+            rgb = self.lights.rgb.numpy().astype(np.float64)
+            units = rgb.max(axis=1)
+            units[self.lights.kind.numpy() == POINT] /= self.radius * self.radius
+            values = self.staging.numpy()[..., :3].astype(np.float32)
+            return values * units.astype(np.float32)[:, None, None, None, None]
         return self.grid.data.numpy()
 
 
@@ -182,7 +197,7 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
         target = kept
     else:  # the kernel writes every point: no need to clear
         grid = RadianceGrid()
-        target = wp.empty(data_shape, dtype=wp.vec4 if hardware else wp.vec3, device=device)
+        target = wp.empty(data_shape, dtype=wp.vec4h if hardware else wp.vec3, device=device)
         grid.data = None if hardware else target
     grid.points = wp.vec3i(*shape)
     grid.extent = wp.vec3(*extent.astype(np.float32))
@@ -206,7 +221,7 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
     # lights stacked along the texture's depth: [light * nx + i, j, k]
     stacked = target.reshape((lights.count * shape[0], shape[1], shape[2]))
     texture = texture_from(stacked, out.texture if out is not None else None)
-    return RadianceCache(grid, shape, texture, target)
+    return RadianceCache(grid, shape, texture, target, lights, radius)
 
 
 # --- device functions -----------------------------------------------------------------------------
@@ -230,16 +245,30 @@ def sample_radiance(grid: RadianceGrid, light: int, p: wp.vec3):
 
 
 @wp.func
-def store_radiance(out: wp.array4d(dtype=wp.vec3), li: int, i: int, j: int, k: int, v: wp.vec3):
-    """Write ``L̃d`` into the RGB cache."""
+def radiance_unit(lights: Lights, li: int, radius: float):
+    """Brightest irradiance of light ``li`` anywhere: ``max(E)``, or ``max(I) / r²`` of a point
+    light (held there within one radius); the half-precision cache stores ``L̃d`` in this unit."""
+    c = lights.rgb[li]
+    u = wp.max(c[0], wp.max(c[1], c[2]))
+    if lights.kind[li] == POINT:
+        u = u / (radius * radius)
+    return u
+
+
+@wp.func
+def store_radiance(out: wp.array4d(dtype=wp.vec3), li: int, i: int, j: int, k: int,
+                   v: wp.vec3, unit: float):
+    """Write ``L̃d`` into the RGB cache (irradiance units; ``unit`` unused)."""
     out[li, i, j, k] = v
 
 
 @wp.func
-def store_radiance(out: wp.array4d(dtype=wp.vec4), li: int, i: int, j: int,  # noqa: F811
-                   k: int, v: wp.vec3):
-    """Write ``L̃d`` into the RGBA staging array of the texture (alpha unused)."""
-    out[li, i, j, k] = wp.vec4(v[0], v[1], v[2], 0.0)
+def store_radiance(out: wp.array4d(dtype=wp.vec4h), li: int, i: int, j: int,  # noqa: F811
+                   k: int, v: wp.vec3, unit: float):
+    """Write ``L̃d / unit`` into the half-precision RGBA staging array (alpha unused)."""
+    w = v * wp.where(unit > 0.0, 1.0 / unit, 0.0)
+    out[li, i, j, k] = wp.vec4h(wp.float16(w[0]), wp.float16(w[1]), wp.float16(w[2]),
+                                wp.float16(0.0))
 
 
 # --- kernel ---------------------------------------------------------------------------------------
@@ -257,7 +286,8 @@ def tube_march_kernel(sigma_tilde: Any, inv_data_spacing: wp.vec3,
     ``r (n - 1) / sigma_max``, the transmittance table's entries per unit ``σ̃t``; ``extent``
     the box (world units). Writes ``L̃d`` (RGB irradiance units) to ``out[light, i, j, k]``.
     Generic: ``sigma_tilde`` an array3d(float32) and ``out`` an array4d(vec3) (software
-    trilinear), or a ``wp.Texture3D`` and an array4d(vec4) (:data:`tube_march_texture`).
+    trilinear), or a ``wp.Texture3D`` and an array4d(vec4h) in units of
+    :func:`radiance_unit` (:data:`tube_march_texture`).
     """
     tid = wp.tid()
     per_brick = BRICK_I * BRICK_J * BRICK_K
@@ -298,12 +328,13 @@ def tube_march_kernel(sigma_tilde: Any, inv_data_spacing: wp.vec3,
         centre = entry + (float(2 * n_full + 1) * radius) * travel
         st = fetch_scalar(sigma_tilde, inv_data_spacing, centre)
         beyond = front * table_lerp(transmittance, wp.clamp(st * lookup_scale, 0.0, last))
-    store_radiance(out, li, i, j, k, ((1.0 - eta) * front + eta * beyond) * e)
+    store_radiance(out, li, i, j, k, ((1.0 - eta) * front + eta * beyond) * e,
+                   radiance_unit(lights, li, radius))
 
 
 #: The exact software path (the default).
 tube_march_software = wp.overload(tube_march_kernel, {
     "sigma_tilde": wp.array3d(dtype=wp.float32), "out": wp.array4d(dtype=wp.vec3)})
-#: Hardware texture filtering of ``σ̃t`` (CUDA), RGBA output for the cache texture.
+#: Hardware texture filtering of ``σ̃t`` (CUDA), half-precision RGBA output for the cache texture.
 tube_march_texture = wp.overload(tube_march_kernel, {
-    "sigma_tilde": wp.Texture3D, "out": wp.array4d(dtype=wp.vec4)})
+    "sigma_tilde": wp.Texture3D, "out": wp.array4d(dtype=wp.vec4h)})
