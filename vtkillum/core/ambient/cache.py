@@ -54,8 +54,10 @@ from vtkillum.core.ambient.sat import ambient_extinction, sigma_t_grid, summed_a
 from vtkillum.core.ambient.table import PreintegrationTable, load_table
 from vtkillum.core.ambient.textures import (
     AmbientTextures,
+    data_texture,
     fits_texture,
     hardware_filtering_available,
+    optics_texture,
     texture_from,
 )
 from vtkillum.core.ambient.tube_march import RadianceCache, radiance_cache
@@ -168,10 +170,12 @@ class AmbientScatteringCache:
         self._radiance = None
         self._lights = None
         self._device_table = None
-        self._scalars_texture = None
+        self._textured = False
+        self._scalars_texture = None  # scalars and σ̃t, two channels (data_texture)
         self._sigma_tilde_texture = None
         self._table_texture = None
         self._table_texture_key = None
+        self._optics_texture = None
 
     def update(self, volume, transfer_function, unit_distance: float, albedo: float,
                anisotropy: float, lights, radius: float, radius_units: str = "voxels",
@@ -243,7 +247,8 @@ class AmbientScatteringCache:
                 self._table_texture = texture_from(dtable.g_slice, self._table_texture)
                 self._table_texture_key = texture_key
             state.textures = AmbientTextures(self._scalars_texture, self._sigma_tilde_texture,
-                                             self._radiance.texture, self._table_texture)
+                                             self._radiance.texture, self._table_texture,
+                                             self._optics_texture)
         return state
 
     def _hardware_texture(self, n_lights: int, cache_scale: float, cache_shape):
@@ -275,8 +280,8 @@ class AmbientScatteringCache:
             if data_key != self._data_key:
                 self.invalidate()
                 self._scalars = to_device(volume.scalars, wp.float32, device)
-                if self.hardware_filtering and fits_texture(self._scalars.shape):
-                    self._scalars_texture = texture_from(self._scalars)
+                # hardware filtering of this data (its textures follow with σ̃t)
+                self._textured = self.hardware_filtering and fits_texture(self._scalars.shape)
                 self._ranges = block_ranges(self._scalars, device)
                 self._data_key = data_key
             self._data_identity = identity
@@ -292,6 +297,8 @@ class AmbientScatteringCache:
             self._sigma_t = sigma_t_grid(self._medium, device)
             self._sat = summed_area_table(self._sigma_t, device)
             self._occupied = occupancy(self._medium, self._ranges, device)
+            if self._textured:  # the transfer function as one RGBA texture
+                self._optics_texture = optics_texture(self._medium, self._optics_texture)
             wp.synchronize_device(device)
             timings["sat_ms"] = 1e3 * (time.perf_counter() - t)
             self._tf_key = tf_key
@@ -303,9 +310,11 @@ class AmbientScatteringCache:
             t = time.perf_counter()
             self._sigma_tilde = ambient_extinction(self._sigma_t, volume.spacing, radius_world,
                                                    device, sat=self._sat)
-            if self._scalars_texture is not None:  # same shape as the scalars
+            if self._textured:  # same shape as the scalars
                 self._sigma_tilde_texture = texture_from(self._sigma_tilde,
                                                          self._sigma_tilde_texture)
+                self._scalars_texture = data_texture(self._scalars, self._sigma_tilde,
+                                                     self._scalars_texture)
             wp.synchronize_device(device)
             timings["extinction_ms"] = 1e3 * (time.perf_counter() - t)
             self._ext_key = ext_key

@@ -36,8 +36,8 @@ Speed without changing the result
 Hardware filtering (optional, CUDA)
 -----------------------------------
 With ``textures`` (:class:`~vtkillum.core.ambient.textures.AmbientTextures`) the data
-scalars, ``σ̃t``, the (half-precision) radiance cache and the table slice ``L̃o`` are
-sampled by the GPU's texture units (one fetch per sample instead of eight, or four, loads;
+scalars, ``σ̃t``, the (half-precision) radiance cache, the table slice ``L̃o`` and the
+transfer function's colour/``σt`` tables (one RGBA 1D texture) are sampled by the GPU's texture units (one fetch per sample instead of eight, or four, loads;
 see :mod:`~vtkillum.core.ambient.textures` for the accuracy: within 2e-3 of the maximum on
 average). The gradient of the optional specular term is
 still taken from the scalar array. Without ``textures`` (and always on the CPU) every
@@ -66,7 +66,15 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.ambient.empty_space import BLOCK
-from vtkillum.core.ambient.textures import AmbientTextures, fetch_scalar, texture_from
+from vtkillum.core.ambient.textures import (
+    AmbientTextures,
+    fetch_ambient,
+    fetch_data,
+    fetch_optics,
+    optics_color,
+    optics_texture,
+    texture_from,
+)
 from vtkillum.core.ambient.tube_march import RadianceGrid, radiance_unit, sample_radiance
 from vtkillum.core.device import resolve_device
 from vtkillum.core.raymarch import pixel_ray, sample_count
@@ -76,8 +84,6 @@ from vtkillum.core.warp_common import (
     Medium,
     inside_box,
     light_incidence,
-    lookup_color,
-    lookup_sigma_t,
     view_normal,
 )
 
@@ -186,14 +192,16 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
     table_size = wp.vec2i(*table.shape)
     if textures is None:
         kernel = ambient_gather_software
-        sources = [medium.scalars, sigma_tilde, cache.data]
+        sources = [medium.scalars, sigma_tilde, cache.data, medium.sigma_table]
     else:
         if not wp.get_device(device).is_cuda:
             raise ValueError("gather: hardware-filtered textures need a CUDA device; on the CPU "
                              "pass textures=None (the exact software path)")
         kernel = ambient_gather_texture
         table = textures.table if textures.table is not None else texture_from(table)
-        sources = [textures.scalars, textures.sigma_tilde, textures.radiance]
+        optics = textures.optics if textures.optics is not None else optics_texture(medium)
+        # textures.scalars holds σ̃t too (sigma_tilde=0 selects that overload)
+        sources = [textures.scalars, 0, textures.radiance, optics]
     inputs = [medium, *sources, cache, lights, camera, table, table_size, float(sigma_max),
               float(radius),
               float(step), int(bool(jitter)), int(seed), float(early_termination),
@@ -255,11 +263,12 @@ def fetch_radiance(src: wp.Texture3D, cache: RadianceGrid, lights: Lights,  # no
 
 
 @wp.func
-def sigma_t_from(m: Medium, scalars: Any, p: wp.vec3):
-    """Extinction at local position ``p`` (0 outside the volume), scalars from ``scalars``."""
+def sigma_t_from(m: Medium, scalars: Any, optics: Any, p: wp.vec3):
+    """Extinction at local position ``p`` (0 outside the volume), scalars from ``scalars``,
+    the transfer function from ``optics`` (:func:`~vtkillum.core.ambient.textures.fetch_optics`)."""
     if not inside_box(p, m.extent):
         return 0.0
-    return lookup_sigma_t(m, fetch_scalar(scalars, m.inv_spacing, p))
+    return fetch_optics(optics, m, fetch_data(scalars, m.inv_spacing, p)[0])[3]
 
 
 @wp.func
@@ -311,6 +320,7 @@ def ambient_gather_kernel(
     scalars: Any,
     sigma_tilde: Any,
     radiance_src: Any,
+    optics: Any,
     cache: RadianceGrid,
     lights: Lights,
     cam: CameraParams,
@@ -347,9 +357,11 @@ def ambient_gather_kernel(
     matter (:mod:`~vtkillum.core.ambient.empty_space`); ``delay`` is
     :func:`delay_samples` (-1: sample ``σt`` at ``x_o``). Writes the gathered radiance
     ``J̃`` and ``alpha = 1 - T`` at ``[row, col]``. Generic: ``scalars``, ``sigma_tilde``,
-    ``radiance_src`` and ``table`` are ``m.scalars``, the σ̃t array, ``cache.data`` and the
-    table slice array (:data:`ambient_gather_software`) or three ``wp.Texture3D`` and a
-    ``wp.Texture2D`` (:data:`ambient_gather_texture`).
+    ``radiance_src``, ``optics`` and ``table`` are ``m.scalars``, the σ̃t array,
+    ``cache.data``, ``m.sigma_table`` and the table slice array
+    (:data:`ambient_gather_software`) or the two-channel scalar/σ̃t ``wp.Texture3D``, 0
+    (σ̃t comes with the scalars), the radiance ``wp.Texture3D``, the RGBA colour/σt
+    ``wp.Texture1D`` and a ``wp.Texture2D`` (:data:`ambient_gather_texture`).
     """
     tid = wp.tid()
     tile = tid / (TILE_W * TILE_H)
@@ -390,13 +402,15 @@ def ambient_gather_kernel(
                         # the last `delay` samples and those leapt over are all empty
                         recent = DelayLine()
                         continue
-            s = fetch_scalar(scalars, m.inv_spacing, p)
-            sig = lookup_sigma_t(m, s)
+            data = fetch_data(scalars, m.inv_spacing, p)
+            s = data[0]
+            opt = fetch_optics(optics, m, s)
+            sig = opt[3]
             count += 1
             if sig > 0.0:
                 t_matter = t
-                col = lookup_color(m, s)
-                tau_amb = radius * fetch_scalar(sigma_tilde, m.inv_spacing, p)
+                col = optics_color(optics, m, s, opt)
+                tau_amb = radius * fetch_ambient(sigma_tilde, m.inv_spacing, p, data)
                 normal = wp.vec3(0.0)
                 if specular > 0.0:
                     normal = view_normal(m, p, d, grad_eps)
@@ -427,7 +441,7 @@ def ambient_gather_kernel(
                 if t_out > 0.0:
                     trans_out *= wp.exp(-sig_out * step)
             elif t_out > 0.0:
-                trans_out *= wp.exp(-sigma_t_from(m, scalars, o + t_out * d) * step)
+                trans_out *= wp.exp(-sigma_t_from(m, scalars, optics, o + t_out * d) * step)
             if trans_out < stop_t:
                 break
             k += 1
@@ -439,9 +453,10 @@ def ambient_gather_kernel(
 #: The exact software path (the default).
 ambient_gather_software = wp.overload(ambient_gather_kernel, {
     "scalars": wp.array3d(dtype=wp.float32), "sigma_tilde": wp.array3d(dtype=wp.float32),
-    "radiance_src": wp.array4d(dtype=wp.vec3), "table": wp.array2d(dtype=wp.float32)})
-#: Hardware texture filtering (CUDA): scalars, σ̃t, the RGBA radiance cache and the table
-#: slice as textures.
+    "radiance_src": wp.array4d(dtype=wp.vec3), "optics": wp.array(dtype=wp.float32),
+    "table": wp.array2d(dtype=wp.float32)})
+#: Hardware texture filtering (CUDA): scalars with σ̃t, the RGBA radiance cache, the transfer
+#: function's colour/σt tables and the table slice as textures.
 ambient_gather_texture = wp.overload(ambient_gather_kernel, {
-    "scalars": wp.Texture3D, "sigma_tilde": wp.Texture3D, "radiance_src": wp.Texture3D,
-    "table": wp.Texture2D})
+    "scalars": wp.Texture3D, "sigma_tilde": int, "radiance_src": wp.Texture3D,
+    "optics": wp.Texture1D, "table": wp.Texture2D})

@@ -23,7 +23,11 @@ depth axis (``[light * nx + i, j, k]``), each light in units of its brightest ir
 (:func:`~vtkillum.core.ambient.tube_march.radiance_unit`, so nothing overflows; relative
 rounding 2⁻¹¹); samples are clamped into their light's slab, so no light's radiance
 filters into another's. The table slice ``L̃o(θ, r σ̃t)`` is a 2D float texture
-(θ rows, ``r σ̃t`` columns), bilinearly filtered.
+(θ rows, ``r σ̃t`` columns), bilinearly filtered. The transfer function's tables
+(``Medium.color_table`` and ``Medium.sigma_table``) are one 1D RGBA float texture
+(colour in RGB, ``σt`` in A; :func:`optics_texture`), so one fetch per sample gives
+both instead of two software lerps of 4096-entry arrays; likewise the gather reads the
+data scalars and ``σ̃t`` from one two-channel texture (:func:`data_texture`).
 
 Textures cannot be written by kernels in warp 1.19 (``surface_access`` only exposes a
 raw CUDA handle), so each grid is computed into a warp array and copied into its
@@ -38,7 +42,13 @@ from dataclasses import dataclass
 import warp as wp
 
 from vtkillum.core.device import init_warp
-from vtkillum.core.warp_common import sample_scalar
+from vtkillum.core.warp_common import (
+    Medium,
+    lookup_color,
+    lookup_sigma_t,
+    sample_scalar,
+    table_coord,
+)
 
 init_warp()
 
@@ -53,20 +63,25 @@ class AmbientTextures:
     Attributes
     ----------
     scalars : wp.Texture3D
-        The data scalars, float, ``(nx, ny, nz)``.
+        The data scalars and ``σ̃t`` side by side (two channels, :func:`data_texture`),
+        ``(nx, ny, nz)``: one fetch gives the gather both.
     sigma_tilde : wp.Texture3D
-        Ambient extinction ``σ̃t``, float, ``(nx, ny, nz)``.
+        Ambient extinction ``σ̃t``, float, ``(nx, ny, nz)`` (for the tube march).
     radiance : wp.Texture3D
         Radiance cache, RGBA half precision, lights stacked along the depth axis.
     table : wp.Texture2D or None
         The table slice ``L̃o`` at the scene's ``g`` (None: the gather makes one from the
         table array it is given).
+    optics : wp.Texture1D or None
+        The transfer function's colour (RGB) and ``σt`` (A) tables (:func:`optics_texture`;
+        None: the gather makes one from the medium).
     """
 
     scalars: object
     sigma_tilde: object
     radiance: object
     table: object = None
+    optics: object = None
 
 
 def hardware_filtering_available(device: str) -> bool:
@@ -80,17 +95,18 @@ def fits_texture(shape) -> bool:
 
 
 def texture_from(array, current=None):
-    """A linearly filtered, clamped ``wp.Texture3D`` (or ``wp.Texture2D``) holding ``array``.
+    """A linearly filtered, clamped ``wp.Texture3D`` (``wp.Texture2D``, ``wp.Texture1D``)
+    holding ``array``.
 
     ``array`` is a contiguous warp array of shape ``(depth, height, width)`` (or
-    ``(height, width)``) of float32, vec4 or vec4h. ``current`` is overwritten (one device
+    ``(height, width)``, or ``(width,)``) of float32, vec4 or vec4h. ``current`` is overwritten (one device
     copy, no allocation) when it has the same shape, element type and channel count and
     lives on the same device; otherwise a new texture is made.
     """
     channels = int(getattr(array.dtype, "_length_", 1))  # vec4: 4, float32: 1
     scalar = getattr(array.dtype, "_wp_scalar_type_", array.dtype)
     shape = tuple(int(n) for n in array.shape[:3])
-    cls = wp.Texture2D if len(shape) == 2 else wp.Texture3D
+    cls = {1: wp.Texture1D, 2: wp.Texture2D, 3: wp.Texture3D}[len(shape)]
     if (isinstance(current, cls) and _texture_shape(current) == shape
             and current.num_channels == channels and current.dtype == scalar
             and current.device == array.device):
@@ -103,6 +119,8 @@ def texture_from(array, current=None):
 
 def _texture_shape(texture) -> tuple:
     """A texture's array shape: ``(height, width)`` or ``(depth, height, width)``."""
+    if isinstance(texture, wp.Texture1D):
+        return (texture.width,)
     if isinstance(texture, wp.Texture2D):
         return (texture.height, texture.width)
     return (texture.depth, texture.height, texture.width)
@@ -121,3 +139,93 @@ def fetch_scalar(src: wp.Texture3D, inv_spacing: wp.vec3, p: wp.vec3):  # noqa: 
     """Hardware-filtered sample of a point-centred scalar grid at local position ``p``."""
     u = wp.cw_mul(p, inv_spacing)
     return wp.texture_sample(src, wp.vec3(u[2] + 0.5, u[1] + 0.5, u[0] + 0.5), dtype=float)
+
+
+def data_texture(scalars, sigma_tilde, current=None):
+    """The scalars and ``σ̃t`` (warp arrays of one shape) as one two-channel float texture
+    (``current`` is overwritten when it fits; see :func:`texture_from`)."""
+    pair = wp.empty(scalars.shape, dtype=wp.vec2f, device=scalars.device)
+    wp.launch(pack_data_kernel, dim=scalars.shape, inputs=[scalars, sigma_tilde, pair],
+              device=scalars.device)
+    return texture_from(pair, current)
+
+
+def optics_texture(medium: Medium, current=None):
+    """The medium's colour and ``σt`` tables as one 1D RGBA float texture (``current`` is
+    overwritten when it fits; see :func:`texture_from`). Entry ``i`` is texel ``i + 0.5``."""
+    n = medium.sigma_table.shape[0]
+    packed = wp.empty(n, dtype=wp.vec4f, device=medium.sigma_table.device)
+    wp.launch(pack_optics_kernel, dim=n, inputs=[medium.sigma_table, medium.color_table, packed],
+              device=packed.device)
+    return texture_from(packed, current)
+
+
+@wp.func
+def fetch_data(src: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.vec3):
+    """The scalar at ``p`` (software trilinear) in the first component; ``σ̃t`` is not
+    fetched here (see :func:`fetch_ambient`)."""
+    return wp.vec2(sample_scalar(src, inv_spacing, p), 0.0)
+
+
+@wp.func
+def fetch_data(src: wp.Texture3D, inv_spacing: wp.vec3, p: wp.vec3):  # noqa: F811
+    """Scalar and ``σ̃t`` at ``p`` by one hardware-filtered fetch of the :func:`data_texture`."""
+    u = wp.cw_mul(p, inv_spacing)
+    return wp.texture_sample(src, wp.vec3(u[2] + 0.5, u[1] + 0.5, u[0] + 0.5), dtype=wp.vec2f)
+
+
+@wp.func
+def fetch_ambient(src: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.vec3,
+                  data: wp.vec2):
+    """``σ̃t`` at ``p`` by software trilinear interpolation of ``src``."""
+    return sample_scalar(src, inv_spacing, p)
+
+
+@wp.func
+def fetch_ambient(src: int, inv_spacing: wp.vec3, p: wp.vec3, data: wp.vec2):  # noqa: F811
+    """``σ̃t`` from the :func:`fetch_data` result (already fetched with the scalar)."""
+    return data[1]
+
+
+@wp.func
+def fetch_optics(src: wp.array(dtype=wp.float32), m: Medium, s: float):
+    """``σt`` of data value ``s`` in the fourth component (software lerp of ``m.sigma_table``;
+    ``src`` is that table); the colour comes from :func:`optics_color`."""
+    return wp.vec4(0.0, 0.0, 0.0, lookup_sigma_t(m, s))
+
+
+@wp.func
+def fetch_optics(src: wp.Texture1D, m: Medium, s: float):  # noqa: F811
+    """Colour (xyz) and ``σt`` (w) of data value ``s`` by one hardware-filtered fetch of the
+    :func:`optics_texture` (same table coordinate as the software lerps)."""
+    return wp.texture_sample(src, table_coord(m, s) + 0.5, dtype=wp.vec4f)
+
+
+@wp.func
+def optics_color(src: wp.array(dtype=wp.float32), m: Medium, s: float, optics: wp.vec4):
+    """Scattering colour of data value ``s`` (software lerp of ``m.color_table``)."""
+    return lookup_color(m, s)
+
+
+@wp.func
+def optics_color(src: wp.Texture1D, m: Medium, s: float, optics: wp.vec4):  # noqa: F811
+    """Scattering colour from the :func:`fetch_optics` result (already fetched)."""
+    return wp.vec3(optics[0], optics[1], optics[2])
+
+
+@wp.kernel
+def pack_optics_kernel(sigma: wp.array(dtype=wp.float32), color: wp.array(dtype=wp.vec3),
+                       out: wp.array(dtype=wp.vec4f)):
+    """``out[i] = (color[i], sigma[i])``; ``wp.tid()`` is the table entry."""
+    i = wp.tid()
+    c = color[i]
+    out[i] = wp.vec4f(c[0], c[1], c[2], sigma[i])
+
+
+@wp.kernel
+def pack_data_kernel(scalars: wp.array3d(dtype=wp.float32),
+                     sigma_tilde: wp.array3d(dtype=wp.float32),
+                     out: wp.array3d(dtype=wp.vec2f)):
+    """``out[i, j, k] = (scalars, sigma_tilde)[i, j, k]``; ``wp.tid()`` is ``(i, j, k)``."""
+    i, j, k = wp.tid()
+    out[i, j, k] = wp.vec2f(scalars[i, j, k], sigma_tilde[i, j, k])
