@@ -563,7 +563,7 @@ class AmbientScatteringInputs(VTKPythonAlgorithmBase):
         self.optics_image = vtkImageData()
         for image in (self.data_image, self.extinction_image, self.radiance_image,
                       self.optics_image):
-            _placeholder(image)
+            _empty_start_image(image)
         #: vtkUniforms receiving the geometry-dependent parameters (set by the volume).
         self.uniforms = None
         #: AmbientState of the last update.
@@ -771,11 +771,11 @@ def _set_image(target: vtkImageData, geometry: vtkImageData, name: str, values) 
     target.Modified()
 
 
-def _placeholder(image: vtkImageData) -> None:
+def _empty_start_image(image: vtkImageData) -> None:
     """A 2×2×2 zero image, so the mapper has scalars before the first update."""
     image.SetDimensions(2, 2, 2)
     array = numpy_to_vtk(np.zeros(8, dtype=np.float32), deep=True)
-    array.SetName("placeholder")
+    array.SetName("empty")
     image.GetPointData().SetScalars(array)
 
 
