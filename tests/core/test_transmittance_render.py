@@ -52,3 +52,38 @@ def test_bad_scale():
     volume, scene = _scene_and_volume()
     with pytest.raises(ValueError, match="light_volume_scale"):
         render(volume, scene, "transmittance", 8, 8, "cpu", light_volume_scale=0)
+
+
+def test_camera_change_reuses_the_light_volumes_an_edit_does_not(device, monkeypatch):
+    """Camera-independent work is kept with the Volume between renders (interactive windows)."""
+    from vtkillum.core import transmittance_render
+    from vtkillum.core.camera import Camera
+
+    calls = []
+    original = transmittance_render.light_transmittance
+
+    def counting(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(transmittance_render, "light_transmittance", counting)
+    volume, scene = _scene_and_volume()
+    render(volume, scene, "transmittance", 16, 16, device)
+    scene.camera = Camera((2.0, 0.4, 3.0), (0, 0, 0), (0, 1, 0), 35.0)
+    render(volume, scene, "transmittance", 16, 16, device)
+    assert len(calls) == 1
+    scene.lights = scene.lights[:1]
+    render(volume, scene, "transmittance", 16, 16, device)
+    assert len(calls) == 2
+
+    cd_first = render(volume, scene, "convection-diffusion", 16, 16, device)
+    assert cd_first.info["convection_diffusion"]["opacity"]
+    scene.camera = Camera((0.3, 0.4, 4.0), (0, 0, 0), (0, 1, 0), 35.0)
+    cd_moved = render(volume, scene, "convection-diffusion", 16, 16, device)
+    stats = cd_moved.info["convection_diffusion"]
+    assert not stats["opacity"] and not stats["convected"] and not stats["diffused"]
+
+    scene.transfer_function = TransferFunction([0.0, 1.0], [0.0, 0.5])
+    cd_edited = render(volume, scene, "convection-diffusion", 16, 16, device)
+    assert cd_edited.info["convection_diffusion"]["opacity"]
+    assert not np.allclose(cd_edited.radiance, cd_moved.radiance)

@@ -115,10 +115,15 @@ def render_convection_diffusion(volume, scene, width, height, device=None, progr
         if key in options:
             cd[key] = options.pop(key)
     scheme = options.pop("convection_scheme", "characteristics")
-    solver = ConvectionDiffusionSolver(device=device, convection_scheme=scheme,
-                                       **{k: cd.get(k, v) for k, v in OPTIONS.items()})
+    config = {k: cd.get(k, v) for k, v in OPTIONS.items()}
+    # One solver per volume and configuration, kept with the volume: a new camera (an
+    # interactive window re-rendering) recomputes nothing, an edit only what Algorithm 1 says.
+    solver = volume.derived(
+        "convection_diffusion_solver", (device, scheme, repr(sorted(config.items()))),
+        lambda: ConvectionDiffusionSolver(device=device, convection_scheme=scheme, **config))
     stats = solver.update(volume, scene.resolved_transfer_function(volume),
-                          scene.resolved_unit_distance(volume), scene.lights)
+                          scene.resolved_unit_distance(volume), scene.lights,
+                          volume_key=volume.content_key)
     result = render_illuminated(volume, scene, width, height, device, progress,
                                 illumination=solver.illumination_volume(volume), **options)
     result.info["convection_diffusion"] = stats.as_dict()

@@ -36,10 +36,16 @@ def render_transmittance(volume, scene, width, height, device=None, progress=Non
     if not (0.0 < float(light_volume_scale) <= 1.0):
         raise ValueError(f"light_volume_scale must lie in (0, 1], got {light_volume_scale}")
     shape = scaled_shape(volume.dims, light_volume_scale)
+    tf = scene.resolved_transfer_function(volume)
+    u = scene.resolved_unit_distance(volume)
+    # The light volume does not depend on the camera: kept with the volume until an input
+    # it depends on changes.
+    key = (device, shape, tf.scalars.tobytes(), tf.opacity.tobytes(), float(u),
+           repr([light.to_dict() for light in scene.lights]))
     t0 = time.perf_counter()
-    _, fluence = light_transmittance(
-        volume, scene.resolved_transfer_function(volume), scene.resolved_unit_distance(volume),
-        scene.lights, shape=shape, device=device)
+    fluence = volume.derived(
+        "transmittance_fluence", key,
+        lambda: light_transmittance(volume, tf, u, scene.lights, shape=shape, device=device)[1])
     t1 = time.perf_counter()
     result = render_illuminated(volume, scene, width, height, device, progress,
                                 illumination=IlluminationVolume.for_volume(volume, fluence),

@@ -119,6 +119,7 @@ class Volume(GridGeometry):
         if d.shape != (3, 3) or not np.allclose(d.T @ d, np.eye(3), atol=1e-6):
             raise ValueError("volume direction must be an orthonormal 3x3 matrix")
         self.direction = d
+        self._derived = {}
 
     @property
     def dims(self) -> tuple[int, int, int]:
@@ -132,6 +133,27 @@ class Volume(GridGeometry):
         into ``scalars`` in place, or this and the caches keyed on it go stale.
         """
         return float(self.scalars.min()), float(self.scalars.max())
+
+    @cached_property
+    def content_key(self) -> str:
+        """:func:`array_digest` of the scalars, computed once per Volume (see ``value_range``)."""
+        return array_digest(self.scalars)
+
+    def derived(self, name: str, key, make):
+        """Data derived from this volume, kept with it: ``make()`` runs again only when ``key``
+        differs from the one stored under ``name``.
+
+        Renders that are called again and again with the same Volume (a camera moving in an
+        interactive window, a benchmark) reuse the device copy of the scalars and camera-
+        independent light volumes instead of recomputing them per frame. One entry per
+        ``name``, so an edited transfer function replaces its predecessor; everything is
+        freed with the Volume.
+        """
+        entry = self._derived.get(name)
+        if entry is None or entry[0] != key:
+            entry = (key, make())
+            self._derived[name] = entry
+        return entry[1]
 
 
 def array_digest(array) -> str:

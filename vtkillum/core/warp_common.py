@@ -367,7 +367,9 @@ def make_medium(volume, transfer_function, unit_distance: float, albedo: float =
     sig, col, lo, hi = transfer_function.lookup_tables(unit_distance, volume.value_range)
     m = Medium()
     if scalars is None:
-        scalars = to_device(volume.scalars, wp.float32, device)
+        # Uploaded once per Volume and device (a Volume's data do not change).
+        scalars = volume.derived(f"scalars@{device}", None,
+                                 lambda: to_device(volume.scalars, wp.float32, device))
     elif tuple(scalars.shape) != tuple(volume.dims):
         raise ValueError(f"uploaded scalars of shape {tuple(scalars.shape)} do not belong to a "
                          f"volume of {tuple(volume.dims)} points; upload the volume's own scalars")
