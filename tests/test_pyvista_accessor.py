@@ -55,7 +55,7 @@ def test_transmittance_of_a_homogeneous_slab_is_beer_lambert():
     grid = slab()
     out = grid.illum.transmittance(DirectionalLight((0, 0, -1)), transfer_function=grey(2.0),
                                    opacity_unit_distance=1.0, device="cpu")
-    t = as_ijk(out, "transmittance_0")
+    t = as_ijk(out, "transmittance")
     depth = (10 - np.arange(11)) * 0.1  # light enters at the top (k = 10)
     np.testing.assert_allclose(t[3, 3, :], np.exp(-2.0 * depth), rtol=2e-3, atol=1e-5)
     np.testing.assert_allclose(as_ijk(out, "fluence")[3, 3, :, 0], np.exp(-2.0 * depth),

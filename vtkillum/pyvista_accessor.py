@@ -277,8 +277,9 @@ def transmittance(grid, lights=None, scalars=None, *, cmap=None, opacity="linear
     Returns
     -------
     pyvista.ImageData
-        ``fluence`` (RGB, active), ``transmittance_0`` ..., and at full resolution the
-        input arrays.
+        ``fluence`` (RGB, active), ``transmittance`` (one component per light),
+        ``scattered_fluence`` (zeros), and at full resolution the input arrays
+        (:mod:`vtkillum.io.illumination_arrays`).
 
     Examples
     --------
@@ -292,7 +293,7 @@ def transmittance(grid, lights=None, scalars=None, *, cmap=None, opacity="linear
     >>> out = grid.illum.transmittance(vtkillum.DirectionalLight((0, 0, -1)),
     ...                                transfer_function=tf, opacity_unit_distance=1.0,
     ...                                device="cpu")
-    >>> t = out["transmittance_0"].reshape(11, 6, 6)       # [k, j, i]
+    >>> t = out["transmittance"].reshape(11, 6, 6)         # [k, j, i], one light
     >>> round(float(t[0, 3, 3]), 3), round(float(np.exp(-1.0)), 3)
     (0.368, 0.368)
     """
@@ -392,11 +393,9 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
     volume = volume_from_image_data(grid, scalars, association="points")
     illumination = options.get("illumination")
     if isinstance(illumination, vtkImageData):
-        from vtkillum.core.illumination import IlluminationVolume
-        from vtkillum.io.convert import point_array
+        from vtkillum.io.illumination_arrays import illumination_from_image
 
-        options["illumination"] = IlluminationVolume.for_volume(
-            volume, point_array(illumination, "fluence"))
+        options["illumination"] = illumination_from_image(illumination, volume)
     if camera is not None and isinstance(camera, pv.Camera):
         from vtkillum.mappers.camera_bridge import camera_from_vtk
 

@@ -133,3 +133,34 @@ def pack_lights(lights, rotation=None, origin=None):
             vecs[i] = R.T @ (l.position - o)
             rgb[i] = l.intensity
     return kinds, vecs.astype(np.float32), rgb.astype(np.float32)
+
+
+def irradiance_on_grid(light, volume, shape) -> np.ndarray:
+    """RGB irradiance of one light at the points of a grid covering ``volume``'s box.
+
+    Parameters
+    ----------
+    light : DirectionalLight or PointLight
+    volume : vtkillum.core.volume.Volume
+        Gives the box (local frame ``[0, extent]``) and its world placement.
+    shape : (3,) int
+        Grid points per axis (at least 2 each).
+
+    Returns
+    -------
+    ndarray (nx, ny, nz, 3) float32
+        Constant for a directional light; ``I / d**2`` for a point light, with ``d``
+        held at half a grid spacing or more so that a light on a grid point stays finite
+        (a picture of the light for display; renderers evaluate ``I / d**2`` per sample).
+    """
+    shape = tuple(int(n) for n in shape)
+    if light.kind == DIRECTIONAL:
+        return np.broadcast_to(np.asarray(light.irradiance, np.float32),
+                               (*shape, 3)).copy()
+    spacing = volume.extent / (np.asarray(shape) - 1)
+    p = volume.to_local(light.position)
+    axes = [np.arange(n) * h - c for n, h, c in zip(shape, spacing, p)]
+    d2 = (axes[0][:, None, None] ** 2 + axes[1][None, :, None] ** 2
+          + axes[2][None, None, :] ** 2)
+    d2 = np.maximum(d2, (0.5 * float(spacing.min())) ** 2)
+    return (np.asarray(light.intensity)[None, None, None, :] / d2[..., None]).astype(np.float32)

@@ -34,7 +34,7 @@ from vtkillum.core.transfer_function import TransferFunction, check_unit_distanc
 
 #: Options of the methods that have their own scene section: field -> default.
 METHOD_OPTIONS: dict[str, dict] = {
-    "path": {"spp": 64, "max_bounces": 16, "seed": 0},
+    "path": {"spp": 64, "max_bounces": 0, "seed": 0},  # max_bounces 0: unlimited (roulette)
     "convection_diffusion": {
         "light_volume_scale": 0.5,     # light-volume resolution relative to the data
         "scattering": [0.0, 0.0, 0.0],  # per-channel diffusion coefficient sigma_hat_s, world units²

@@ -31,6 +31,7 @@ from vtkmodules.vtkRenderingCore import vtkRenderer, vtkTexture
 
 from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import IlluminationVolume
+from vtkillum.io.illumination_arrays import illumination_from_image
 from vtkillum.core.render import METHODS, RenderResult, render
 from vtkillum.core.scene import Scene
 from vtkillum.core.tonemap import tonemap
@@ -158,10 +159,7 @@ class ComputeVolumeRenderer:
         elif isinstance(illumination, np.ndarray):
             self.illumination = IlluminationVolume.for_volume(self.volume, illumination)
         elif isinstance(illumination, vtkImageData):
-            fluence = point_array(illumination, "fluence")
-            if fluence.ndim == 3:
-                fluence = np.repeat(fluence[..., None], 3, axis=-1)
-            self.illumination = IlluminationVolume.for_volume(self.volume, fluence)
+            self.illumination = illumination_from_image(illumination, self.volume)
         else:
             raise TypeError(
                 "illumination must be an IlluminationVolume, an (nx, ny, nz, 3) array or image "

@@ -451,7 +451,7 @@ class ScalarFluenceImage(VTKPythonAlgorithmBase):
             if isinstance(il, np.ndarray):
                 il = IlluminationVolume.for_volume(volume, il)
             il.check_matches(volume)
-            fluence = il.fluence
+            fluence = il.fluence(volume, self._lights)
         else:
             fluence = unshadowed_fluence(volume, self._lights)
         if fluence.shape[:3] != volume.dims:
