@@ -85,7 +85,7 @@ MODE_NAMES = {EMISSION: "emission", SINGLE: "single", ILLUMINATION: "illuminatio
 #: Options every ray-cast method accepts, with their defaults. ``near_cells``: how far
 #: (in light-grid cells) ``illumination`` marches the direct light's shadow ray exactly
 #: before reading the cached transmittance (0: read the grid at the sample).
-RAYCAST_OPTIONS = {**RAY_OPTIONS, "near_cells": 1.0}
+RAYCAST_OPTIONS = {**RAY_OPTIONS, "near_cells": 2.0}
 
 #: Pixels per kernel launch when the image is tiled into row bands (progress reporting).
 TILE_PIXELS = {"cpu": 1 << 14, "cuda": 1 << 20}
