@@ -50,8 +50,11 @@ from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLight
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
 from vtkillum.filters.rgba_output import DEFAULT_EXPOSURE, with_rgba_output
-from vtkillum.io.convert import transfer_function_from_vtk, transfer_function_to_vtk
-from vtkillum.io.convert import volume_from_image_data
+from vtkillum.io.convert import (
+    transfer_function_from_vtk,
+    transfer_function_to_vtk,
+    volume_from_image_data,
+)
 
 #: Name of the accessor on ``pyvista.ImageData``.
 ACCESSOR = "illum"

@@ -131,16 +131,10 @@ from vtkillum.core.lights import DIRECTIONAL, pack_lights
 from vtkillum.core.scene import Scene
 from vtkillum.core.transfer_function import TABLE_SIZE
 from vtkillum.core.volume import Volume
-from vtkillum.io.convert import (
-    add_point_array,
-    direction_matrix,
-    first_point,
-    image_like,
-    volume_from_image_data,
-)
+from vtkillum.io.convert import add_point_array, image_like, volume_from_image_data
 from vtkillum.io.illumination_arrays import illumination_from_image, lights_from_field
 from vtkillum.mappers.camera_bridge import GridSummary, apply_scene_to_volume_property
-from vtkillum.mappers.inputs import connect_input, rendered_point_array
+from vtkillum.mappers.inputs import check_covers, connect_input, rendered_point_array
 
 #: Lights the shader takes: two 4-channel transmittance textures.
 MAX_LIGHTS = 8
@@ -826,7 +820,7 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
 
         # The illumination and its lights.
         if fimage is not None:
-            _check_covers(fimage, volume)
+            check_covers(fimage, volume)
             illumination = illumination_from_image(fimage, volume)
             lights = lights_from_field(fimage) or list(scene.lights)
             light_key = ("image", fimage.GetAddressAsString("vtkImageData"), fimage.GetMTime())
@@ -1014,26 +1008,18 @@ def _as_fluence_array(array: np.ndarray) -> np.ndarray:
     return a
 
 
-def _check_covers(fimage, volume: Volume) -> None:
-    """Raise unless the illumination image ``fimage`` covers the data's box (any resolution)."""
-    if fimage is None or fimage.GetNumberOfPoints() == 0:
-        raise ValueError("the illumination input produced no image; check its pipeline")
-    dims = np.array(fimage.GetDimensions())
-    spacing = np.array(fimage.GetSpacing(), dtype=np.float64)
-    direction = direction_matrix(fimage)
-    first = first_point(fimage.GetOrigin(), fimage.GetExtent(), spacing, direction)
-    last = first + direction @ ((dims - 1) * spacing)
-    data_last = volume.origin + volume.direction @ volume.extent
-    tol = 1e-5 * float(np.linalg.norm(volume.extent)) + 1e-9
-    if (min(dims) < 2 or not np.allclose(direction, volume.direction, atol=1e-6)
-            or np.abs(first - volume.origin).max() > tol or np.abs(last - data_last).max() > tol):
-        raise ValueError(
-            f"the illumination image (first point {first.tolist()}, last {last.tolist()}) does "
-            f"not cover the data's box (first {volume.origin.tolist()}, last "
-            f"{data_last.tolist()}) with the same orientation; compute it from the same data"
-        )
-
-
-__all__ = ["IlluminatedVolume", "IlluminationInputs", "MAX_LIGHTS", "NEAR_CELLS", "UNIFORMS",
-           "GLSL_LAYOUT_DEC", "GLSL_SHADING_DEC", "GLSL_RAY_INIT", "GLSL_SAMPLE",
-           "glsl_layout_dec", "shading_uniforms", "set_uniforms", "optics_rows"]
+__all__ = [
+    "GLSL_LAYOUT_DEC",
+    "GLSL_RAY_INIT",
+    "GLSL_SAMPLE",
+    "GLSL_SHADING_DEC",
+    "MAX_LIGHTS",
+    "NEAR_CELLS",
+    "UNIFORMS",
+    "IlluminatedVolume",
+    "IlluminationInputs",
+    "glsl_layout_dec",
+    "optics_rows",
+    "set_uniforms",
+    "shading_uniforms",
+]
