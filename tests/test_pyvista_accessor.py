@@ -168,3 +168,60 @@ def test_clear_errors():
         pva.lights_from_pyvista(["sun"])
     with pytest.raises(ValueError, match="name one of"):
         pva.add_illuminated_volume(pv.Plotter(off_screen=True), grid, illumination="magic")
+
+
+def blobs(n=20):
+    grid = pv.ImageData(dimensions=(n, n, n), spacing=(0.1, 0.1, 0.1), origin=(-1.0, 0.5, 0.2))
+    x, y, z = (np.asarray(c) for c in grid.points.T)
+    c = grid.center
+    grid["density"] = np.exp(-((x - c[0]) ** 2 + (y - c[1]) ** 2 + (z - c[2]) ** 2) / 0.25)
+    return grid
+
+
+def test_add_illuminated_volume_is_phase_aware_and_matches_render():
+    """The plotter shows the warp caster's phase-aware picture; the lights come with ``lit``."""
+    grid = blobs()
+    tf = TransferFunction([0.0, 0.3, 1.0], [0.0, 0.2, 0.6], [[1.0, 0.9, 0.7]] * 3)
+    light = DirectionalLight((1.0, -0.6, -0.4), (3.0, 3.0, 3.0))
+    lit = grid.illum.transmittance(light, transfer_function=tf, opacity_unit_distance=0.2,
+                                   device="cpu")
+    assert pva.lights_from_pyvista(None)[0].to_dict() != light.to_dict()
+    shots, references = {}, {}
+    for g in (0.6, 0.0):
+        pl = pv.Plotter(off_screen=True, window_size=(48, 48))
+        pl.set_background("black")
+        actor = pva.add_illuminated_volume(pl, grid, illumination=lit, transfer_function=tf,
+                                           opacity_unit_distance=0.2, anisotropy=g,
+                                           exposure=6.0)
+        assert [l.to_dict() for l in actor.lights] == [light.to_dict()]
+        pl.camera_position = [(3.0, 3.5, 4.0), grid.center, (0, 1, 0)]
+        shots[g] = pl.screenshot(return_img=True)[..., :3].astype(float) / 255.0
+        references[g] = 6.0 * grid.illum.render(
+            "illumination", illumination=lit, transfer_function=tf, opacity_unit_distance=0.2,
+            anisotropy=g, camera=pl.camera, width=48, height=48, device="cpu", jitter=False,
+            early_termination=1.0 - 1.0 / 255.0).radiance
+        pl.close()
+    for g, shot in shots.items():
+        diff = np.abs(shot - references[g]) / references[g].max()
+        assert references[g].max() > 0.3
+        assert diff.mean() < 3e-3 and np.percentile(diff, 99) < 1.2e-2, (g, diff.mean())
+    # g = 0.6 with the camera across the light differs from g = 0 (the phase is applied).
+    assert np.abs(shots[0.6] - shots[0.0]).mean() > 10 * 3e-3
+
+
+def test_illumination_lights_must_match_the_given_lights():
+    grid = slab()
+    lit = grid.illum.transmittance(DirectionalLight((0, 0, -1)), transfer_function=grey(1.0),
+                                   opacity_unit_distance=1.0, device="cpu")
+    with pytest.raises(ValueError, match="other lights"):
+        grid.illum.render("illumination", illumination=lit, lights=DirectionalLight((1, 0, 0)),
+                          transfer_function=grey(1.0), opacity_unit_distance=1.0, width=8,
+                          height=8, device="cpu")
+    with pytest.raises(ValueError, match="other lights"):
+        pva.add_illuminated_volume(pv.Plotter(off_screen=True), grid, illumination=lit,
+                                   lights=DirectionalLight((1, 0, 0)),
+                                   transfer_function=grey(1.0), opacity_unit_distance=1.0)
+    # the same lights given again are fine
+    grid.illum.render("illumination", illumination=lit, lights=DirectionalLight((0, 0, -1)),
+                      transfer_function=grey(1.0), opacity_unit_distance=1.0, width=8, height=8,
+                      device="cpu")

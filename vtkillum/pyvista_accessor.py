@@ -172,6 +172,34 @@ def _scalars(grid, scalars):
     return grid.point_data[scalars]
 
 
+def _illumination_lights(image, lights, core_lights) -> list:
+    """The lights an illumination image was computed with, or ``core_lights`` without them.
+
+    Raises ``ValueError`` when ``lights`` were given and differ from the image's.
+    """
+    from vtkillum.io.illumination_arrays import lights_from_field
+
+    stored = lights_from_field(image)
+    if not stored:
+        return core_lights
+    if lights is not None and not _same_lights(core_lights, stored):
+        raise ValueError(
+            "the illumination was computed with other lights than lights=...; leave lights "
+            "out (the illumination's are used) or recompute the illumination with them"
+        )
+    return stored
+
+
+def _same_lights(a, b) -> bool:
+    def row(light):
+        d = light.to_dict()
+        return [d["type"] == "point", *d.get("direction", d.get("position")),
+                *d.get("irradiance", d.get("intensity"))]
+
+    return len(a) == len(b) and all(np.allclose(row(x), row(y), rtol=1e-6, atol=1e-9)
+                                    for x, y in zip(a, b))
+
+
 def _check_grid(grid) -> None:
     if not isinstance(grid, vtkImageData):
         raise TypeError(f"expected a pyvista.ImageData (uniform grid), got {type(grid).__name__}; "
@@ -321,8 +349,13 @@ def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity=
     Returns
     -------
     pyvista.ImageData
-        ``fluence`` (active), ``direct_fluence``, ``transmittance_<l>`` on the light
-        grid (or, with ``rgba=True``, on the data grid with ``illuminated_rgba``).
+        The filter's arrays on the light grid (or, with ``rgba=True``, on the data grid
+        with ``illuminated_rgba``): ``fluence`` (active; the total light as an isotropic
+        fluence) and what :class:`ConvectionDiffusionLightFilter` writes besides, and its
+        lights as field data. :func:`add_illuminated_volume` and :func:`render` read it
+        with :func:`vtkillum.io.illumination_arrays.illumination_from_image` (per-light
+        ``transmittance`` and ``scattered_fluence`` when present, else ``fluence`` as
+        isotropic scattered light).
     """
     if np.ndim(scattering) == 0:
         scattering = (float(scattering),) * 3
@@ -369,6 +402,12 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
         ``"emission"``, ``"single"``, ``"illumination"`` (give ``illumination=`` an
         output of :func:`transmittance` / :func:`convection_diffusion`, or an
         ``IlluminationVolume``), ``"path"``, ...
+    lights : optional
+        See the module docstring. With ``illumination=`` a filter output, default: the
+        lights it was computed with (stored with it); other lights are an error.
+    anisotropy : float
+        Henyey–Greenstein ``g`` of the phase function (also applied to the direct light
+        of an illumination volume).
     camera : vtkillum.Camera or pyvista.Camera, optional
         Default: framing the volume like ``vtkRenderer.ResetCamera``.
     filename : str, optional
@@ -394,18 +433,22 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
     ctf, otf, u = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
                           transfer_function, opacity_unit_distance)
     volume = volume_from_image_data(grid, scalars, association="points")
+    core_lights = lights_from_pyvista(lights)
     illumination = options.get("illumination")
     if isinstance(illumination, vtkImageData):
         from vtkillum.io.illumination_arrays import illumination_from_image
+        from vtkillum.mappers.inputs import check_covers
 
+        check_covers(illumination, volume)
         options["illumination"] = illumination_from_image(illumination, volume)
+        core_lights = _illumination_lights(illumination, lights, core_lights)
     if camera is not None and isinstance(camera, pv.Camera):
         from vtkillum.mappers.camera_bridge import camera_from_vtk
 
         camera = camera_from_vtk(camera, aspect=width / height)
     scene = Scene(transfer_function=transfer_function_from_vtk(ctf, otf),
                   opacity_unit_distance=u, albedo=albedo, anisotropy=anisotropy,
-                  lights=lights_from_pyvista(lights), camera=camera, background=background)
+                  lights=core_lights, camera=camera, background=background)
     result = core_render(volume, scene, method, width, height, device=device, **options)
     if filename is not None:
         write_png(filename, tonemap(exposure * result.radiance, result.alpha, background,
@@ -417,14 +460,15 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
 def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cmap=None,
                            opacity="linear", clim=None, n_colors=256, flip_scalars=False,
                            transfer_function=None, opacity_unit_distance=None, lights=None,
-                           albedo=0.9, exposure=4 * np.pi, shading=None, step_size=None, name=None,
-                           reset_camera=None, render=True):
+                           albedo=0.9, anisotropy=0.0, exposure=4 * np.pi, shading=None,
+                           step_size=None, name=None, reset_camera=None, render=True):
     """Add ``grid`` shaded by an illumination volume to a pyvista plotter.
 
     Builds an :class:`~vtkillum.mappers.IlluminatedVolume` (VTK's GPU ray caster
-    with the illumination-volume source term) and adds it with
-    ``plotter.add_actor``; ``cmap``, ``opacity``, ``clim`` follow
-    ``Plotter.add_volume``.
+    with the phase-aware illumination-volume source term: the direct light per light
+    with the Henyey–Greenstein phase function, the scattered light isotropic; see
+    :mod:`vtkillum.core.illumination`) and adds it with ``plotter.add_actor``;
+    ``cmap``, ``opacity``, ``clim`` follow ``Plotter.add_volume``.
 
     Parameters
     ----------
@@ -432,19 +476,26 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     grid : pyvista.ImageData
         Point scalars (``scalars``, default the active ones).
     illumination : optional
-        The fluence: the output of :func:`transmittance` / :func:`convection_diffusion`
-        (any pyvista/VTK image with a ``fluence`` array covering the grid's box), a
-        VTK algorithm or output port producing one, an ``IlluminationVolume`` or
-        ``(nx, ny, nz, 3)`` array, the name of a method (``"transmittance"`` or
-        ``"convection_diffusion"``, computed here with these lights and transfer
-        function), or ``None`` for unshadowed light.
+        The illumination volume: the output of :func:`transmittance` /
+        :func:`convection_diffusion` (any pyvista/VTK image covering the grid's box with
+        the arrays of :mod:`vtkillum.io.illumination_arrays`: per-light
+        ``transmittance`` and ``scattered_fluence``, or only a ``fluence`` taken as
+        isotropic scattered light), a VTK algorithm or output port producing one, an
+        ``IlluminationVolume`` or ``(nx, ny, nz, 3)`` scattered-fluence array, the name
+        of a method (``"transmittance"`` or ``"convection_diffusion"``, computed here with
+        these lights and transfer function), or ``None`` for unshadowed direct light.
     lights : optional
-        As in :func:`transmittance`; also used for shading directions.
-    albedo, exposure : float
-        Scattering albedo; factor on the radiance written to the frame buffer. The
-        default 4π shows a fully lit voxel under irradiance 1 as albedo × colour (the
-        isotropic phase function spreads scattered light over 4π sr), as the ParaView
-        plugin does.
+        As in :func:`transmittance`; also the Phong directions. A filter output carries
+        the lights it was computed with, and those are used (other ``lights`` are an
+        error).
+    albedo, anisotropy : float
+        Scattering albedo; Henyey–Greenstein ``g`` applied to the direct light.
+    exposure : float
+        Factor on the radiance written to the frame buffer. The default 4π shows a fully
+        lit voxel under irradiance 1 as albedo × colour when ``g = 0`` (the isotropic
+        phase function spreads scattered light over 4π sr), as the ParaView plugin does;
+        with ``g > 0`` the side facing away from the light (forward scattering) is
+        brighter.
     shading : dict, optional
         ``{"ambient", "diffuse", "specular", "shininess"}`` of the illumination
         shading (default ambient 1: pure scattering).
@@ -487,8 +538,11 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
         tf = transfer_function_from_vtk(ctf, otf)
         illumination = methods[illumination](grid, core_lights, scalars, transfer_function=tf,
                                              opacity_unit_distance=u, albedo=albedo)
+    elif isinstance(illumination, vtkImageData):
+        core_lights = _illumination_lights(illumination, lights, core_lights)
     scene = Scene(transfer_function=transfer_function_from_vtk(ctf, otf),
-                  opacity_unit_distance=u, albedo=albedo, lights=core_lights,
+                  opacity_unit_distance=u, albedo=albedo, anisotropy=anisotropy,
+                  lights=core_lights,
                   step_size=step_size, shading=dict(SHADING_DEFAULTS, **(shading or {})))
     volume = IlluminatedVolume(grid, scene, illumination=illumination, array_name=scalars,
                                exposure=exposure)

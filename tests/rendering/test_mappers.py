@@ -18,25 +18,37 @@ Tolerances, relative to the reference image's maximum (exposure puts it at 0.8 o
 the 8-bit range), over all pixels and channels: OpenGL vs warp mean abs error <
 ``MEAN_TOL`` (3e-3) and 99th percentile < ``P99_TOL`` (1.2e-2). Measured (mean / p99):
 
-====================================================  ===================
-case                                                  OpenGL vs warp
-====================================================  ===================
-blobs, 2 lights + scattered, Phong, g = 0.3           7.5e-4 / 2.4e-3
-blobs, directional, g = +0.6                          7.5e-4 / 2.4e-3
-blobs, directional, g = -0.6                          7.6e-4 / 2.4e-3
-blobs, point light near the data, g = 0.4             7.5e-4 / 2.4e-3
-blobs, 2 lights (directional + point), g = 0.3        7.5e-4 / 2.4e-3
-sharp sphere, half-resolution light grid, g = 0.6     1.0e-3 / 3.9e-3
-====================================================  ===================
+=====================================================  ===================
+case                                                   OpenGL vs warp
+=====================================================  ===================
+blobs, 2 lights + scattered, Phong, g = 0.3            7.5e-4 / 2.4e-3
+blobs, directional, g = +0.6                           7.5e-4 / 2.4e-3
+blobs, directional, g = -0.6                           7.4e-4 / 2.4e-3
+blobs, point light near the data, g = 0.4              7.4e-4 / 2.4e-3
+blobs, 2 lights (directional + point), g = 0.3         7.5e-4 / 2.4e-3
+sharp sphere, half-resolution light grid, g = 0.6      3.0e-4 / 2.4e-3
+half-resolution illumination image from a pipeline     7.5e-4 / 2.4e-3
+CLI ``transmittance`` vs filter output port, g = 0.5   7.5e-4 / 2.4e-3
+=====================================================  ===================
 
-8-bit quantisation alone is about 6e-4 of the maximum. The comparison sees every
-ingredient: a constant scattered fluence, the unshadowed default, mirrored lights,
-``g = 0`` in place of the scene's (phase ignored) and the near-field march dropped
-(``near_cells=0``, grid-aligned bands on the sphere) all fail it. The same tolerance
-holds for OpenGL vs the compute path, for a half-resolution illumination image read
-from a pipeline and in a pyvista Plotter. The compute path must show the tone-mapped
-warp image to 1/255, and the CLI's ``single`` render (it takes no illumination volume)
-to half a level of the 8-bit display.
+That is the 8-bit read-back alone: the compute path (the warp image, quantised) and
+the OpenGL image agree to 1e-6. The comparison sees every ingredient; these fail it:
+
+=====================================================  ===================
+perturbation                                           mean / p99
+=====================================================  ===================
+constant scattered fluence (its σt-weighted mean)      3.5e-2 / 0.31
+no illumination (unshadowed default)                   0.11 / 0.71
+lights mirrored                                        1.1e-2 / 7.2e-2
+phase ignored (g = 0 for 0.3, blobs)                   5.7e-3 / 3.3e-2
+phase ignored (g = 0 for 0.6, sphere)                  1.1e-2 / 0.23
+near-field march dropped (``near_cells=0``, sphere)    1.3e-2 / 0.15
+=====================================================  ===================
+
+Against exact single scattering (warp ``single``) the sphere's OpenGL image has a
+relative RMSE of 0.038 with the march and 0.22 without it (grid-aligned bands). The
+compute path must show the tone-mapped warp image to 1/255, and the CLI's ``single``
+render (it takes no illumination volume) to half a level of the 8-bit display.
 """
 
 import copy
@@ -289,7 +301,9 @@ def test_phase_and_near_field_march_on_a_sharp_sphere():
     print(f"rel. RMSE vs single: near_cells 2 {with_march:.3f}, near_cells 0 {without_march:.3f}")
     assert with_march < 0.06
     assert without_march > 2.5 * with_march
-    assert not within(rel_errors(banded, expected))
+    dropped = rel_errors(banded, expected)
+    print(f"near-field march dropped: mean {dropped[0]:.2e}, p99 {dropped[1]:.2e}")
+    assert not within(dropped)
     # The bands are the grid's: the warp caster without the march shows the same image.
     no_march = exposure * warp_reference(volume, scene, illumination, near_cells=0.0).radiance
     assert within(rel_errors(banded, no_march))
@@ -299,7 +313,9 @@ def test_phase_and_near_field_march_on_a_sharp_sphere():
     isotropic = copy.copy(scene)
     isotropic.anisotropy = 0.0
     actor.set_scene(isotropic)
-    assert not within(rel_errors(read_window_rgb(window), expected))
+    ignored = rel_errors(read_window_rgb(window), expected)
+    print(f"phase ignored: mean {ignored[0]:.2e}, p99 {ignored[1]:.2e}")
+    assert not within(ignored)
     window.Finalize()
 
 

@@ -468,13 +468,17 @@ GLSL_RAY_INIT = """//VTK::Shading::Init
   }
 """
 
-# Per sample (//VTK::Shading::Impl): replaces VTK's classification and blending.
+# Per sample (//VTK::Shading::Impl): replaces VTK's classification and blending. Samples
+# outside the data's box (a host whose bounding box is larger) are empty, as in the warp caster.
 GLSL_SAMPLE = """
     if (!g_skip)
     {
       vec3 il_p = il_toLocal((in_volumeMatrix[0] * in_textureDatasetMatrix[0] *
         vec4(g_dataPos, 1.0)).xyz);
-      vec4 il_opt = il_optics(il_scalar(il_p));
+      vec3 il_tol = 1.0e-5 * il_extent;
+      bool il_inside = all(greaterThanEqual(il_p, -il_tol)) &&
+        all(lessThanEqual(il_p, il_extent + il_tol));
+      vec4 il_opt = il_inside ? il_optics(il_scalar(il_p)) : vec4(0.0);
       if (il_opt.a > 0.0)
       {
         float il_alpha = 1.0 - exp(-il_opt.a * il_step);
@@ -865,19 +869,21 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
             scattered = None
         else:
             transmittance, scattered = illumination.transmittance, illumination.scattered
+        # Placeholders cover the data's box too: the ray caster marches the union of all
+        # inputs' boxes.
+        placeholder = np.zeros((2, 2, 2, 4), np.float32)
         for half, target in enumerate(self.direct_images):
             channels = None if transmittance is None else transmittance[4 * half: 4 * half + 4]
             if channels is None or len(channels) == 0:
-                _empty_start_image(target)
-                target.Modified()
+                _set_image(target, image_like(volume, shape=(2, 2, 2)), "unused", placeholder)
                 continue
             packed = np.zeros(channels.shape[1:] + (4,), np.float32)
             packed[..., : len(channels)] = np.moveaxis(channels, 0, -1)
             _set_image(target, image_like(volume, shape=packed.shape[:3]), "transmittance",
                        packed)
         if scattered is None:
-            _empty_start_image(self.scattered_image)
-            self.scattered_image.Modified()
+            _set_image(self.scattered_image, image_like(volume, shape=(2, 2, 2)), "unused",
+                       placeholder)
         else:
             packed = np.zeros(scattered.shape[:3] + (4,), np.float32)
             packed[..., :3] = scattered
