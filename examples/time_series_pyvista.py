@@ -107,7 +107,8 @@ def main(argv=None) -> int:
         add_illuminated_volume(plotter, grid, illumination=illumination,
                                transfer_function=scene.transfer_function,
                                opacity_unit_distance=scene.resolved_unit_distance(series[k][1]),
-                               lights=scene.lights, albedo=scene.albedo, exposure=opts.exposure,
+                               lights=scene.lights, albedo=scene.albedo,
+                               anisotropy=scene.anisotropy, exposure=opts.exposure,
                                name="plume", reset_camera=False, render=False)
         if index == 0:
             apply_camera_to_vtk(scene.resolved_camera(series[0][1]), plotter.camera)

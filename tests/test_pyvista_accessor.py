@@ -192,7 +192,7 @@ def test_add_illuminated_volume_is_phase_aware_and_matches_render():
         pl.set_background("black")
         actor = pva.add_illuminated_volume(pl, grid, illumination=lit, transfer_function=tf,
                                            opacity_unit_distance=0.2, anisotropy=g,
-                                           exposure=6.0)
+                                           exposure=6.0, jitter=False)
         assert [l.to_dict() for l in actor.lights] == [light.to_dict()]
         pl.camera_position = [(3.0, 3.5, 4.0), grid.center, (0, 1, 0)]
         shots[g] = pl.screenshot(return_img=True)[..., :3].astype(float) / 255.0

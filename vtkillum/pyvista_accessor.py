@@ -461,7 +461,8 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
                            opacity="linear", clim=None, n_colors=256, flip_scalars=False,
                            transfer_function=None, opacity_unit_distance=None, lights=None,
                            albedo=0.9, anisotropy=0.0, exposure=4 * np.pi, shading=None,
-                           step_size=None, name=None, reset_camera=None, render=True):
+                           step_size=None, jitter=True, name=None, reset_camera=None,
+                           render=True):
     """Add ``grid`` shaded by an illumination volume to a pyvista plotter.
 
     Builds an :class:`~vtkillum.mappers.IlluminatedVolume` (VTK's GPU ray caster
@@ -501,6 +502,9 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
         shading (default ambient 1: pure scattering).
     step_size : float, optional
         Sample distance of the ray caster; default half the smallest spacing.
+    jitter : bool
+        Per-pixel offset of the samples (noise instead of wood-grain rings at sharp
+        surfaces); ``False`` samples step midpoints.
     name, reset_camera, render
         As in ``Plotter.add_actor``.
 
@@ -545,7 +549,7 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
                   lights=core_lights,
                   step_size=step_size, shading=dict(SHADING_DEFAULTS, **(shading or {})))
     volume = IlluminatedVolume(grid, scene, illumination=illumination, array_name=scalars,
-                               exposure=exposure)
+                               exposure=exposure, jitter=jitter)
     plotter.add_actor(volume, name=name, reset_camera=reset_camera, render=render)
     return volume
 

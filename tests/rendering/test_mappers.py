@@ -153,6 +153,7 @@ def warp_reference(volume, scene, illumination, **options):
 def render_opengl(image, scene, illumination, exposure, **kwargs):
     """``(image, actor, window)``: ``image`` read back from an offscreen window."""
     renderer = vtkRenderer()
+    kwargs.setdefault("jitter", False)
     actor = IlluminatedVolume(image, scene, illumination=illumination, exposure=exposure,
                               **kwargs)
     renderer.AddVolume(actor)
@@ -457,7 +458,8 @@ def test_pyvista_plotter_add_actor(setup):
     pv = pytest.importorskip("pyvista")
     volume, scene, illumination, reference, exposure = setup
     grid = pv.wrap(image_data_from_volume(volume))
-    actor = IlluminatedVolume(grid, scene, illumination=illumination, exposure=exposure)
+    actor = IlluminatedVolume(grid, scene, illumination=illumination, exposure=exposure,
+                              jitter=False)
     shot = pyvista_screenshot(actor, scene.camera, WIDTH, HEIGHT)
     assert shot.shape[:2] == (HEIGHT, WIDTH)
     assert shot.max() > 0.5 and (shot.max(-1) > 0.05).mean() > 0.3  # not blank
@@ -632,3 +634,18 @@ def test_cli_transmittance_matches_filter_and_opengl_mapper(tmp_path):
     computed = read_window_rgb(window)
     assert within(rel_errors(computed, exposure * cli_radiance))
     window.Finalize()
+
+
+def test_jitter_keeps_the_mean_and_varies_per_pixel(setup):
+    """``jitter=True`` (the default) offsets each pixel's samples: same energy, other pixels."""
+    volume, scene, illumination, reference, exposure = setup
+    fixed, _, window = render_opengl(image_data_from_volume(volume), scene, illumination,
+                                     exposure, jitter=False)
+    window.Finalize()
+    jittered, actor, window = render_opengl(image_data_from_volume(volume), scene, illumination,
+                                            exposure, jitter=True)
+    assert actor.jitter
+    window.Finalize()
+    assert abs(jittered.sum() / fixed.sum() - 1.0) < 0.01
+    assert np.abs(jittered - fixed).max() > 2.0 / 255.0
+    assert rel_errors(jittered, reference.radiance)[0] < 2 * MEAN_TOL

@@ -87,7 +87,8 @@ laid out in textures:
 Tolerance vs the warp caster
 ----------------------------
 ``tests/rendering/test_mappers.py`` compares 64² renders, 8-bit read back, with
-``render_illuminated(..., jitter=False, early_termination=1 - 1/255)``: mean abs
+``render_illuminated(..., jitter=False, early_termination=1 - 1/255)`` (the mapper with
+``jitter=False``): mean abs
 difference below 3e-3 of the reference's maximum and 99th percentile below 1.2e-2,
 for directional and point lights, one and two lights, g = 0, ±0.6 and a sharp sphere
 (the measured values are in that module's docstring). Differences come from the 8-bit
@@ -95,8 +96,12 @@ frame buffer, the texture unit's interpolation weights and float32 arithmetic.
 
 Simplifications and limits
 --------------------------
-* Samples lie at ``t0 + (k + 1/2) Δ`` from the box entry without jitter (the warp
-  caster with ``jitter=False``); the mapper's ``UseJittering`` is off.
+* Samples lie at ``t0 + (k + ξ) Δ`` from the box entry, ``ξ`` a per-pixel hash in
+  [0, 1) by default (``jitter=True``, like the warp caster's default: deterministic steps
+  through a sharp surface show wood-grain rings, jitter turns them into noise) or 1/2
+  with ``jitter=False`` (the warp caster with ``jitter=False``, what the tests compare).
+  The hash is not the warp caster's random stream, so jittered images agree with it
+  only on average. VTK's own ``UseJittering`` (a tiled noise texture) is off.
 * Grids are interpolated by the texture unit (trilinear, clamped to the box as the
   warp samplers; GPUs may use 8-bit interpolation weights).
 * Input: point data with one component (the core's convention), not split into
@@ -173,6 +178,8 @@ UNIFORMS = {
     "il_lightRGB": "float[3 * MAX_LIGHTS]: per light RGB irradiance or intensity",
     "il_near": "float: length of the exact near-field march (world units)",
     "il_hasScattered": "int: 1 when a scattered fluence is bound",
+    "il_jitter": "int: 0 samples at step midpoints; n > 0 jitters the first sample per pixel "
+                 "(n seeds the hash)",
 }
 
 # --- GLSL ----------------------------------------------------------------------------------------
@@ -457,14 +464,30 @@ vec3 il_source(vec3 p, vec3 d, vec3 color)
 
 # Per ray, before the loop (//VTK::Shading::Init; the tag is kept for VTK's own code).
 # g_dataPos is in the texture coordinates of the multi-volume's box; VTK starts one step
-# (g_rayJitter = g_dirStep without jitter) inside it, the warp caster half a step.
+# (g_rayJitter = g_dirStep with VTK's jittering off) inside it. The first sample goes to
+# fraction xi of the first step: 1/2 (the warp caster's jitter=False), or with il_jitter a
+# per-pixel hash in [0, 1) (pcg2d, Jarzynski & Olano 2020), which turns the rings of
+# deterministic steps through sharp surfaces into noise without repeating per tile.
 GLSL_RAY_INIT = """//VTK::Shading::Init
   {
     mat4 il_texToWorld = in_volumeMatrix[0] * in_textureDatasetMatrix[0];
     vec3 il_stepWorld = (il_texToWorld * vec4(g_dirStep, 0.0)).xyz;
     il_step = length(il_stepWorld);
     il_dir = il_dirToLocal(il_stepWorld / il_step);
-    g_dataPos += 0.5 * g_dirStep - g_rayJitter;
+    float il_xi = 0.5;
+    if (il_jitter != 0)
+    {
+      uvec2 v = uvec2(gl_FragCoord.xy) + uvec2(uint(il_jitter) * 1664525u, 1013904223u);
+      v = v * 1664525u + 1013904223u;
+      v.x += v.y * 1664525u;
+      v.y += v.x * 1664525u;
+      v = v ^ (v >> 16u);
+      v.x += v.y * 1664525u;
+      v.y += v.x * 1664525u;
+      v = v ^ (v >> 16u);
+      il_xi = float(v.x >> 8u) * (1.0 / 16777216.0);
+    }
+    g_dataPos += il_xi * g_dirStep - g_rayJitter;
   }
 """
 
@@ -521,6 +544,10 @@ class IlluminatedVolume(vtkMultiVolume):
     near_cells : float
         Length of the exact near-field march in transmittance-grid cells (default
         :data:`NEAR_CELLS`, the warp caster's; 0 reads the grid at the sample).
+    jitter : bool
+        Offset each pixel's first sample by a hash in [0, 1) of a step (default True):
+        noise instead of wood-grain rings at sharp surfaces. ``False``: samples at step
+        midpoints, as the warp caster with ``jitter=False``.
 
     Notes
     -----
@@ -537,7 +564,7 @@ class IlluminatedVolume(vtkMultiVolume):
 
     def __init__(self, data, scene: Scene | None = None, illumination=None,
                  array_name: str | None = None, exposure: float = 1.0,
-                 near_cells: float = NEAR_CELLS) -> None:
+                 near_cells: float = NEAR_CELLS, jitter: bool = True) -> None:
         super().__init__()
         self.inputs = IlluminationInputs()
         self.inputs.SetArrayName(array_name)
@@ -576,6 +603,7 @@ class IlluminatedVolume(vtkMultiVolume):
         self.inputs.uniforms = shader.GetFragmentCustomUniforms()
         self._exposure = 1.0
         self.exposure = exposure
+        self.jitter = jitter
         self._scene = None
         self._ready = False
         self.near_cells = near_cells
@@ -630,6 +658,18 @@ class IlluminatedVolume(vtkMultiVolume):
             raise ValueError(f"exposure must be a positive number, got {value}")
         self._exposure = value
         self.GetShaderProperty().GetFragmentCustomUniforms().SetUniformf("il_exposure", value)
+        self.Modified()
+
+    @property
+    def jitter(self) -> bool:
+        """Whether each pixel's first sample is offset by a hash (see the class docstring)."""
+        return self._jitter
+
+    @jitter.setter
+    def jitter(self, value: bool) -> None:
+        self._jitter = bool(value)
+        self.GetShaderProperty().GetFragmentCustomUniforms().SetUniformi(
+            "il_jitter", int(self._jitter))
         self.Modified()
 
     @property
