@@ -4,9 +4,11 @@
 
 Writes ``readme_vtk.png`` (the VTK section: a smoke plume lit by a
 ``ConvectionDiffusionLightFilter`` through :class:`vtkillum.mappers.IlluminatedVolume`)
-and ``readme_pyvista.png`` (the pyvista section: the CT head phantom, standing in for
+and ``readme_pyvista.png`` (the pyvista section: the CT head phantom at 128³, smoothed by
+a Gaussian of one voxel like a scanner's point-spread function and standing in for
 ``head.vti``, lit by ``grid.illum.transmittance`` and shown with
-``add_illuminated_volume``). The code between the ``README`` markers is the README's,
+``add_illuminated_volume``; unsmoothed, the phantom's voxelised skin shows terraces as
+contour rings, in ``single`` as much as here). The code between the ``README`` markers is the README's,
 except that the windows render off screen and are saved instead of shown.
 """
 
@@ -60,9 +62,16 @@ def pyvista_picture(path: Path, size: int) -> None:
     from vtkillum.data.procedural import ct_phantom
     from vtkillum.io.convert import image_data_from_volume
 
+    from scipy.ndimage import gaussian_filter
+
+    from vtkillum.core.volume import Volume
+
+    phantom = ct_phantom(128)
+    smooth = Volume(gaussian_filter(phantom.scalars, 1.0), spacing=phantom.spacing,
+                    origin=phantom.origin)
     with tempfile.TemporaryDirectory() as tmp:
         head = Path(tmp) / "head.vti"
-        pv.wrap(image_data_from_volume(ct_phantom(96), "density")).save(head)
+        pv.wrap(image_data_from_volume(smooth, "density")).save(head)
         cwd = os.getcwd()
         os.chdir(tmp)
         try:
@@ -74,6 +83,7 @@ def pyvista_picture(path: Path, size: int) -> None:
             lit = grid.illum.transmittance(vtkillum.DirectionalLight((1, -1, -1), (3, 3, 3)),
                                            cmap="bone", opacity="linear")
             pl = pv.Plotter(off_screen=True, window_size=(size, size))
+            pl.set_background("black")
             vtkillum.add_illuminated_volume(pl, grid, illumination=lit, cmap="bone",
                                             opacity="linear")
             # --- end README (pl.show() replaced by a screenshot) ---------------------------
