@@ -12,6 +12,7 @@ contour rings, in ``single`` as much as here). The code between the ``README`` m
 except that the windows render off screen and are saved instead of shown.
 """
 
+# ruff: noqa: I001  (the README's code is kept as the README has it, imports included)
 from __future__ import annotations
 
 import argparse

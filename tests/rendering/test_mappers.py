@@ -649,3 +649,15 @@ def test_jitter_keeps_the_mean_and_varies_per_pixel(setup):
     assert abs(jittered.sum() / fixed.sum() - 1.0) < 0.01
     assert np.abs(jittered - fixed).max() > 2.0 / 255.0
     assert rel_errors(jittered, reference.radiance)[0] < 2 * MEAN_TOL
+
+
+def test_volume_survives_its_window_and_shows_in_a_new_one(setup):
+    volume, scene, illumination, reference, exposure = setup
+    first, actor, window = render_opengl(image_data_from_volume(volume), scene, illumination,
+                                         exposure)
+    window.Finalize()
+    renderer = vtkRenderer()
+    renderer.AddVolume(actor)
+    again = read_window_rgb(offscreen_window(renderer, scene.camera, WIDTH, HEIGHT))
+    assert np.abs(again - first).max() <= 1.0 / 255.0
+    assert within(rel_errors(again, reference.radiance))
