@@ -8,14 +8,20 @@ when headless.
 
 Every class here subclasses a filter of :mod:`vtkillum.filters` and only declares
 its ParaView properties (server-manager XML through ParaView's decorators); the
-computation stays in the filters. The few methods defined here adapt ParaView's
-calling conventions (a light table, ParaView's colour map object).
+computation stays in the filters. What ParaView needs on top (a light table,
+ParaView's colour map, errors in ParaView's words, the output arrays the render
+view reads) is :class:`vtkillum_paraview.glue.ParaViewGlue`.
 
-Illuminated display: the illumination filters output ``illuminated_rgba``
-(:mod:`vtkillum.filters.rgba_output`), colour × illumination and opacity, which the
-standard volume representation renders with *Map Scalars* off, *Multi Components
-Mapping* on and an opacity function that accounts for the opacity unit distance
-(:func:`rgba_opacity_points`); :func:`ShowIlluminated` sets all of that up.
+One transfer function: the filters have no colour or opacity editor of their own.
+They take the colour map and opacity function of the array their display colours
+by (hidden properties ``LookupTable`` and ``ScalarOpacityFunction``, kept linked
+by :mod:`vtkillum_paraview.links`), so editing it in the Color Map Editor
+re-executes the filter.
+
+Rendered, not baked: in the render view the illumination (per-light
+transmittance, scattered fluence, lights) is applied per sample by the GPU ray
+caster (:mod:`vtkillum_paraview.display`). ``OutputRGBA`` adds the older baked
+``illuminated_rgba`` array for remote or parallel rendering (:func:`ShowIlluminated`).
 """
 
 from __future__ import annotations
@@ -24,11 +30,14 @@ import sys
 from pathlib import Path
 from xml.sax.saxutils import escape
 
+_HERE = Path(__file__).resolve().parent
+if str(_HERE) not in sys.path:  # the vtkillum_paraview package next to this file
+    sys.path.insert(0, str(_HERE))
 try:
-    import vtkillum  # noqa: F401
+    import vtkillum
 except ImportError:
     # Loaded from a checkout: the package sits next to this directory.
-    _repo = Path(__file__).resolve().parents[1]
+    _repo = _HERE.parent
     if (_repo / "vtkillum" / "__init__.py").is_file():
         sys.path.insert(0, str(_repo))
     else:
@@ -44,25 +53,19 @@ except ImportError as err:
     ) from err
 
 from paraview.util.vtkAlgorithm import smdomain, smhint, smproperty, smproxy
-from vtkmodules.vtkCommonCore import vtkWeakReference
-from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
+from vtkillum_paraview.glue import DEFAULT_EXPOSURE, ParaViewGlue, light_row
 
-from vtkillum.core.cd_convection import SCHEMES
-from vtkillum.core.cd_diffusion import SOLVERS
 from vtkillum.filters.ambient_extinction import RADIUS_UNITS, AmbientExtinctionFilter
 from vtkillum.filters.base import DEFAULT_CACHE_MB
 from vtkillum.filters.convection_diffusion_light import (
     DEFAULT_LIGHT_VOLUME_SCALE,
+    SCHEMES,
+    SOLVERS,
     ConvectionDiffusionLightFilter,
 )
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
-from vtkillum.filters.rgba_output import (
-    DEFAULT_EXPOSURE,
-    RGBA_ARRAY,
-    RGBA_TYPES,
-    IlluminatedRGBAOutput,
-)
+from vtkillum.filters.rgba_output import RGBA_ARRAY, RGBA_TYPES, IlluminatedRGBAOutput
 
 paraview_plugin_name = "vtkIllum"
 paraview_plugin_version = vtkillum.__version__
@@ -116,39 +119,36 @@ INPUT_ARRAY = """
   <ArrayListDomain name="array_list" attribute_type="Scalars" input_domain_name="input_array">
     <RequiredProperties><Property name="Input" function="Input" /></RequiredProperties>
   </ArrayListDomain>
-  <Documentation>The point array to illuminate (one component).</Documentation>
+  <Documentation>The point array to illuminate. Its colour map and opacity function (the
+  Color Map Editor's, for this array) are the filter's transfer function; the display
+  colours by it. A vector array is reduced as the display colours it (Magnitude or one
+  component).</Documentation>
 </StringVectorProperty>"""
 
+# No editor of their own: the display's colour map and opacity function of the Scalars array,
+# set and kept up to date by vtkillum_paraview.links (a filter-owned colour map property
+# crashed ParaView 5.11's Properties panel, issue 12).
 TRANSFER_FUNCTIONS = """
-<ProxyProperty name="ScalarOpacityFunction" command="SetScalarOpacity"
-               panel_widget="transfer_function_editor">
-  <RangedTransferFunctionDomain name="proxy_list">
-    <RequiredProperties>
-      <Property function="Input" name="Input" />
-      <Property function="ArraySelection" name="SelectInputScalars" />
-    </RequiredProperties>
-  </RangedTransferFunctionDomain>
-  <Documentation>Opacity per unit distance as a function of the data value (Edit opens
-  ParaView's curve editor; the reset button fits it to the array's range). Python:
-  filter.ScalarOpacityFunction.Points = [x0, a0, 0.5, 0, x1, a1, 0.5, 0, ...].</Documentation>
+<ProxyProperty name="LookupTable" command="SetLookupTable" null_on_empty="1"
+               panel_visibility="never">
+  <ProxyGroupDomain name="groups"><Group name="lookup_tables" /></ProxyGroupDomain>
+  <Documentation>The colour map of the Scalars array (scattering colour), the one the
+  Color Map Editor edits; set by the plugin from the display.</Documentation>
 </ProxyProperty>
-<ProxyProperty name="ColorTransferFunction" command="SetColorMap">
-  <ProxyListDomain name="proxy_list">
-    <Proxy group="lookup_tables" name="PVLookupTable" />
-  </ProxyListDomain>
-  <Documentation>Scattering colour as a function of the data value: the filter's own
-  colour map (Python: filter.ColorTransferFunction.ApplyPreset('Inferno (matplotlib)', True),
-  .RescaleTransferFunction(lo, hi), .RGBPoints = [...]), or any colour map proxy, e.g.
-  GetColorTransferFunction('density').</Documentation>
+<ProxyProperty name="ScalarOpacityFunction" command="SetOpacityFunction" null_on_empty="1"
+               panel_visibility="never">
+  <ProxyGroupDomain name="groups"><Group name="piecewise_functions" /></ProxyGroupDomain>
+  <Documentation>The opacity function of the Scalars array (opacity per Scalar Opacity Unit
+  Distance); set by the plugin from the display.</Documentation>
 </ProxyProperty>"""
 
 LIGHTS = """
 <DoubleVectorProperty name="Lights" command="AddLight" clean_command="RemoveAllLights"
                       repeat_command="1" number_of_elements_per_command="7"
                       number_of_elements="7" default_values="0 1 -1 -1 1 1 1">
-  <Documentation>One row per light: Type (0 directional, 1 point), X Y Z (directional: the
-  direction the light travels; point: its position, world units), R G B (directional:
-  irradiance; point: intensity, irradiance = intensity / distance^2).</Documentation>
+  <Documentation>One row per light, world coordinates: Type (0 directional, 1 point),
+  X Y Z (directional: the direction the light travels; point: its position), R G B
+  (directional: irradiance; point: intensity, irradiance = intensity / distance^2).</Documentation>
   <Hints>
     <ShowComponentLabels>
       <ComponentLabel component="0" label="Type" />
@@ -171,11 +171,13 @@ CACHE_STATISTICS = """
 
 
 def optical_model_xml(albedo=True) -> str:
-    """Input array, transfer functions, opacity unit distance (and albedo)."""
+    """Input array, (hidden) transfer functions, opacity unit distance (and albedo)."""
     parts = [INPUT_ARRAY, TRANSFER_FUNCTIONS,
              _number("double", "ScalarOpacityUnitDistance", "SetScalarOpacityUnitDistance", 0.0,
                      "Opacity unit distance u (world units): the opacity function gives the "
-                     "opacity of a slab of thickness u. 0 means the mean voxel spacing.", lo=0.0)]
+                     "opacity of a slab of thickness u. 0: the display's (it follows the "
+                     "display's Scalar Opacity Unit Distance; ParaView's default is the "
+                     "approximate cell length).", lo=0.0, advanced=True)]
     if albedo:
         parts.append(_number("double", "Albedo", "SetAlbedo", 0.9,
                              "Single-scattering albedo: the fraction of extinction that scatters.",
@@ -184,31 +186,34 @@ def optical_model_xml(albedo=True) -> str:
 
 
 def lighting_xml() -> str:
-    """Anisotropy, lights and device."""
+    """Lights, anisotropy, exposure and device."""
     return "".join([
-        _number("double", "Anisotropy", "SetAnisotropy", 0.0,
-                "Henyey-Greenstein g in (-1, 1): > 0 forward, < 0 backward scattering.",
-                lo=-0.99, hi=0.99),
         LIGHTS,
+        _number("double", "Anisotropy", "SetAnisotropy", 0.0,
+                "Henyey-Greenstein g in (-1, 1): > 0 forward, < 0 backward scattering; the "
+                "render view applies the phase function per sample.", lo=-0.99, hi=0.99),
+        _number("double", "Exposure", "SetExposure", round(DEFAULT_EXPOSURE, 6),
+                "Factor on the scattered radiance; 4 pi shows a fully lit voxel under "
+                "irradiance 1 in albedo x colour. Does not recompute the illumination.",
+                lo=0.0, hi=100.0),
         _string_list("Device", "SetDevice", ("auto", "cpu", "cuda"), "auto",
                      "Warp device: auto (CUDA when present, else CPU; VTKILLUM_DEVICE "
-                     "overrides), cpu or cuda."),
+                     "overrides), cpu or cuda.", advanced=True),
     ])
 
 
 def output_xml(scale_command="SetOutputScale", scale_default=1.0, rgba=True) -> str:
     """Resolution, RGBA output and cache properties."""
     parts = [_number("double", "LightVolumeScale", scale_command, scale_default,
-                     "Resolution of the illumination volume relative to the data, in (0, 1].",
+                     "Resolution of the illumination grid relative to the data, in (0, 1]; "
+                     "the output stays on the data's grid (illumination resampled).",
                      lo=0.05, hi=1.0)]
     if rgba:
         parts += [
-            _boolean("OutputRGBA", "SetOutputRGBA", 1,
-                     f"Add '{RGBA_ARRAY}' (colour x illumination, opacity) as active scalars, "
-                     "rendered by the Volume representation with Map Scalars off."),
-            _number("double", "Exposure", "SetExposure", round(DEFAULT_EXPOSURE, 6),
-                    "Factor on the radiance per step; 4 pi shows a fully lit voxel under "
-                    "irradiance 1 in albedo x colour.", lo=0.0, hi=100.0),
+            _boolean("OutputRGBA", "SetOutputRGBA", 0,
+                     f"Also bake '{RGBA_ARRAY}' (colour x illumination, opacity) as active "
+                     "scalars, for remote or parallel rendering (vtkillum_plugin."
+                     "ShowIlluminated); the render view does not need it.", advanced=True),
             _number("double", "Gamma", "SetGamma", 1.0,
                     "Display gamma of the RGBA colour (1: linear like VTK).", lo=0.2, hi=5.0,
                     advanced=True),
@@ -227,67 +232,20 @@ def output_xml(scale_command="SetOutputScale", scale_default=1.0, rgba=True) -> 
     return "".join(parts)
 
 
-# === glue between ParaView's calling conventions and the filters ================================
-class ParaViewGlue:
-    """Methods ParaView calls that the filters spell differently.
-
-    * ``AddLight(type, x, y, z, r, g, b)``: one row of the ``Lights`` table.
-    * ``SetColorMap(lut)``: ParaView's colour map is a
-      ``vtkDiscretizableColorTransferFunction``, which the filters read through a
-      plain ``vtkColorTransferFunction`` copy kept in sync with it.
-    * ``GetCacheStatisticsVector()``: the cache counters as numbers for an
-      information property.
-    """
-
-    def AddLight(self, kind, x, y, z, r, g, b) -> int:
-        kind = int(round(kind))
-        if kind == 0:
-            return self.AddDirectionalLight((x, y, z), (r, g, b))
-        if kind == 1:
-            return self.AddPointLight((x, y, z), (r, g, b))
-        raise ValueError(f"light Type must be 0 (directional) or 1 (point), got {kind}")
-
-    def SetColorMap(self, lut) -> None:
-        previous = getattr(self, "_paraview_lut", None)
-        if previous is not None:
-            previous[0].RemoveObserver(previous[1])
-            self._paraview_lut = None
-        if lut is None:
-            self.SetColorTransferFunction(None)
-            return
-        copy = vtkColorTransferFunction()
-        copy.DeepCopy(lut)
-        ref = vtkWeakReference()
-        ref.Set(copy)
-
-        def sync(caller, event, ref=ref):
-            target = ref.Get()
-            if target is not None:
-                target.DeepCopy(caller)  # modifies the copy: the filter re-executes
-
-        self._paraview_lut = (lut, lut.AddObserver("ModifiedEvent", sync))
-        self.SetColorTransferFunction(copy)
-
-    def GetCacheStatisticsVector(self) -> list:
-        stats = self.GetCacheStatistics()
-        return [float(stats.hits), float(stats.misses), float(stats.entries),
-                stats.bytes / 2.0**20]
-
-
 def _proxy(name: str, label: str, *property_xmls: str):
     """Declare a filter proxy: image-data input, ``property_xmls`` in panel order, and the
     ``vtkIllum`` menu and Volume-representation hints."""
 
     def decorate(cls):
+        cls.paraview_label = label
         cls = smdomain.datatype(dataTypes=["vtkImageData"], composite_data_supported=False)(cls)
-        cls = smdomain.xml('<InputArrayDomain name="input_array" attribute_type="point" '
-                           'number_of_components="1" />')(cls)
+        cls = smdomain.xml('<InputArrayDomain name="input_array" attribute_type="point" />')(cls)
         cls = smproperty.input(name="Input", port_index=0)(cls)
         for xml in property_xmls:
             cls = smproperty.xml(xml)(cls)
         cls = smhint.xml(f'<ShowInMenu category="{MENU}" />'
                          '<RepresentationType view="RenderView" type="Volume" />')(cls)
-        return smproxy.filter(name=name, label=label)(cls)
+        return smproxy.filter(name=name, label=label, support_reload=False)(cls)
 
     return decorate
 
@@ -304,6 +262,8 @@ def _proxy(name: str, label: str, *property_xmls: str):
 class OpticalProperties(ParaViewGlue, OpticalPropertiesFilter):
     """sigma_t, scattering colour, sigma_s and sigma_a per point (OpticalPropertiesFilter)."""
 
+    full_resolution_output = False
+
 
 @_proxy("vtkIllumLightTransmittance", "vtkIllum Light Transmittance",
         optical_model_xml(),
@@ -312,8 +272,8 @@ class OpticalProperties(ParaViewGlue, OpticalPropertiesFilter):
                 "Longest step along shadow rays (world units); 0: half the smallest spacing.",
                 lo=0.0, advanced=True),
         output_xml())
-class LightTransmittance(ParaViewGlue, IlluminatedRGBAOutput, LightTransmittanceFilter):
-    """Shadow rays to every light: fluence, transmittance_i and illuminated_rgba."""
+class LightTransmittance(IlluminatedRGBAOutput, ParaViewGlue, LightTransmittanceFilter):
+    """Shadow rays to every light: transmittance per light (single scattering)."""
 
 
 @_proxy("vtkIllumConvectionDiffusionLight", "vtkIllum Convection-Diffusion Light",
@@ -338,9 +298,9 @@ class LightTransmittance(ParaViewGlue, IlluminatedRGBAOutput, LightTransmittance
                      "Discretisation of the light transport along the light direction.",
                      advanced=True),
         output_xml("SetLightVolumeScale", DEFAULT_LIGHT_VOLUME_SCALE))
-class ConvectionDiffusionLight(ParaViewGlue, IlluminatedRGBAOutput,
+class ConvectionDiffusionLight(IlluminatedRGBAOutput, ParaViewGlue,
                                ConvectionDiffusionLightFilter):
-    """Zhang & Ma's convection-diffusion light volume: fluence and illuminated_rgba."""
+    """Zhang & Ma's convection-diffusion light volume: transmittance and scattered fluence."""
 
 
 @_proxy("vtkIllumAmbientExtinction", "vtkIllum Ambient Extinction",
@@ -351,37 +311,46 @@ class ConvectionDiffusionLight(ParaViewGlue, IlluminatedRGBAOutput,
         _string_list("RadiusUnits", "SetRadiusUnits", RADIUS_UNITS, RADIUS_UNITS[0],
                      "voxels: Radius times the mean spacing; world: world units."),
         _boolean("ComputeRadiance", "SetComputeRadiance", 1,
-                 "Also tube-march the radiance cache (needed for the RGBA output)."),
+                 "Also tube-march the radiance cache (the light the render view shows)."),
         output_xml())
-class AmbientExtinction(ParaViewGlue, IlluminatedRGBAOutput, AmbientExtinctionFilter):
-    """Ament et al.'s ambient extinction and radiance cache; illuminated_rgba from the cache."""
+class AmbientExtinction(IlluminatedRGBAOutput, ParaViewGlue, AmbientExtinctionFilter):
+    """Ament et al.'s ambient extinction and radiance cache (the cache is the fluence)."""
 
 
 # === pvpython helpers =================================================================================
 def ShowIlluminated(source, view=None, array: str = RGBA_ARRAY):
-    """Show an illumination filter's ``illuminated_rgba`` as an illuminated volume.
+    """Show a filter's baked ``illuminated_rgba`` (OutputRGBA on) as a volume.
 
-    Volume representation coloured directly by the RGBA array (Map Scalars off,
-    Multi Components Mapping on) with the opacity function of
+    For remote or parallel rendering, where the render view's per-sample
+    illumination (:mod:`vtkillum_paraview.display`) is not available. Volume
+    representation coloured directly by the RGBA array (Map Scalars off, Multi
+    Components Mapping on) with a colour map and opacity function of its own
+    (``UseSeparateColorMap``: two filters never share them) whose points are
     :func:`rgba_opacity_points`. Returns the representation.
     """
     from paraview import simple
 
     view = view or simple.GetActiveViewOrCreate("RenderView")
+    if not int(source.GetPropertyValue("OutputRGBA")):
+        source.SetPropertyWithName("OutputRGBA", 1)
+    source.UpdatePipeline(float(view.ViewTime))  # the view's time: no extra time-step entry
+    info = source.GetDataInformation().GetPointDataInformation().GetArrayInformation(array)
+    if info is None:
+        raise ValueError(f"{source.GetXMLLabel()} produced no point array {array!r}: it failed "
+                         "to execute; see the Output Messages window")
     display = simple.Show(source, view)
     display.SetRepresentationType("Volume")
+    display.UseSeparateColorMap = 1
     simple.ColorBy(display, ("POINTS", array))
     display.MapScalars = 0
     display.MultiComponentsMapping = 1
-    info = source.GetDataInformation().GetPointDataInformation().GetArrayInformation(array)
-    if info is None:
-        raise ValueError(f"{source.GetXMLLabel()} has no point array {array!r}; switch its "
-                         "OutputRGBA on")
     top = 1.0 if info.GetDataType() in (10, 11) else 255.0  # VTK_FLOAT, VTK_DOUBLE
-    simple.GetOpacityTransferFunction(array).Points = rgba_opacity_points(
-        unit_distance(source), top)
+    opacity = simple.GetOpacityTransferFunction(array, display, separate=True)
+    opacity.Points = rgba_opacity_points(unit_distance(source), top)
+    display.ScalarOpacityFunction = opacity
     display.ScalarOpacityUnitDistance = 1.0
-    simple.HideScalarBarIfNotNeeded(simple.GetColorTransferFunction(array), view)
+    simple.HideScalarBarIfNotNeeded(simple.GetColorTransferFunction(array, display,
+                                                                    separate=True), view)
     return display
 
 
@@ -404,27 +373,43 @@ def rgba_opacity_points(unit_distance: float, top: float = 255.0, n: int = 256) 
 
 
 def unit_distance(source) -> float:
-    """The opacity unit distance a filter proxy uses (0 resolves to the mean spacing)."""
-    u = float(source.ScalarOpacityUnitDistance)
+    """The opacity unit distance a filter proxy uses (0 resolves to ParaView's default, the
+    approximate cell length of its input)."""
+    u = float(source.GetPropertyValue("ScalarOpacityUnitDistance"))
     if u > 0:
         return u
-    info = source.Input.GetDataInformation()
-    extent, bounds = info.GetExtent(), info.GetBounds()
-    spacings = [(bounds[2 * a + 1] - bounds[2 * a]) / max(extent[2 * a + 1] - extent[2 * a], 1)
-                for a in range(3)]
-    return float(sum(spacings) / 3.0) if any(spacings) else 1.0
+    import math
+
+    info = source.GetProperty("Input").GetProxy(0).GetDataInformation()
+    bounds = info.GetBounds()
+    diagonal = math.sqrt(sum((bounds[2 * a + 1] - bounds[2 * a]) ** 2 for a in range(3)))
+    cells = info.GetNumberOfCells()
+    return diagonal / cells ** (1.0 / 3.0) if cells > 0 and diagonal > 0 else 1.0
 
 
 def SetLights(source, lights) -> None:
-    """Fill a filter proxy's light table from core ``DirectionalLight``/``PointLight`` objects."""
+    """Fill a filter proxy's Lights table from core ``DirectionalLight``/``PointLight`` objects."""
     rows = []
     for light in lights:
-        point = light.to_dict()["type"] == "point"
-        vector = light.position if point else light.direction
-        rgb = light.intensity if point else light.irradiance
-        rows += [float(point), *map(float, vector), *map(float, rgb)]
+        rows += light_row(light)
     source.Lights = rows
 
 
-__all__ = ["OpticalProperties", "LightTransmittance", "ConvectionDiffusionLight",
-           "AmbientExtinction", "ShowIlluminated", "SetLights", "rgba_opacity_points", "unit_distance"]
+def CacheStatistics(source) -> dict:
+    """The time-step cache counters of a filter proxy: hits, misses, entries, megabytes."""
+    source.UpdatePropertyInformation()
+    values = list(source.GetProperty("CacheStatistics"))
+    return dict(zip(("hits", "misses", "entries", "megabytes"), values))
+
+
+__all__ = [
+    "AmbientExtinction",
+    "CacheStatistics",
+    "ConvectionDiffusionLight",
+    "LightTransmittance",
+    "OpticalProperties",
+    "SetLights",
+    "ShowIlluminated",
+    "rgba_opacity_points",
+    "unit_distance",
+]

@@ -31,16 +31,16 @@ SIZE = [160, 160]
 SHAPE = (20, 20, 30)
 
 simple.LoadPlugin(str(PLUGIN), ns=globals())
-import vtkillum_plugin as plugin  # noqa: E402  (registered by LoadPlugin)
-from vtkmodules.vtkIOXML import vtkXMLImageDataWriter  # noqa: E402
+import importlib
+import pkgutil
 
-import importlib  # noqa: E402
-import pkgutil  # noqa: E402
+import vtkillum_plugin as plugin
+from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
 
-import vtkillum.filters as vtkillum_filters  # noqa: E402
-from vtkillum.data.procedural import plume_series, smoke_plume  # noqa: E402
-from vtkillum.filters.base import IlluminationFilterBase  # noqa: E402
-from vtkillum.io.convert import image_data_from_volume  # noqa: E402
+import vtkillum.filters as vtkillum_filters
+from vtkillum.data.procedural import plume_series, smoke_plume
+from vtkillum.filters.base import IlluminationFilterBase
+from vtkillum.io.convert import image_data_from_volume
 
 summary = {"paraview": simple.GetParaViewVersion().GetVersion(), "filters": {}, "series": {}}
 # Plume transfer function: transparent air, wisps, body, core (data in [0, 1]).
@@ -78,11 +78,15 @@ def frame(view) -> None:
     simple.ResetCamera(view)
 
 
-def configure(proxy) -> None:
+def configure(proxy, colors=COLORS) -> None:
     # Explicit: ParaView 5.11 may default the array to the one last coloured by elsewhere.
     proxy.Scalars = ["POINTS", "density"]
-    proxy.ScalarOpacityFunction.Points = OPACITY
-    proxy.ColorTransferFunction.RGBPoints = COLORS
+    lut = simple.GetColorTransferFunction("density")
+    lut.RGBPoints = colors
+    opacity = simple.GetOpacityTransferFunction("density")
+    opacity.Points = OPACITY
+    proxy.LookupTable = lut
+    proxy.ScalarOpacityFunction = opacity
     if hasattr(proxy, "Lights"):
         proxy.Lights = LIGHT_A
 
@@ -142,25 +146,23 @@ for label, (name, cls) in sorted(entries.items()):
         shots.append(path.name)
     record["screenshots"] = shots
     record["cache"] = proxy.GetClientSideObject().GetCacheStatistics().as_dict()
-    proxy.UpdatePropertyInformation()
-    record["cache_property"] = list(proxy.GetProperty("CacheStatistics"))
+    record["cache_property"] = list(plugin.CacheStatistics(proxy).values())
     summary["filters"][label] = record
     simple.Delete(view)
 
 # --- 3. the RGBA path agrees with ParaView's own volume rendering -----------------------------------
 for rgba_type in ("uint8", "float32"):
     unlit = vtkIllumLightTransmittance(Input=reader)  # noqa: F821 (from LoadPlugin)
-    configure(unlit)
-    unlit.ColorTransferFunction.RGBPoints = [0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]
+    configure(unlit, colors=[0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0])
     unlit.Albedo = 1.0
     unlit.Exposure = 12.566370614359172  # 4 pi: an unshadowed white voxel shows white
     unlit.RGBAType = rgba_type
     unlit.ScalarOpacityUnitDistance = 1.0e6  # no shadows in the filter ...
     view = new_view()
-    plugin.ShowIlluminated(unlit, view)
+    display = plugin.ShowIlluminated(unlit, view)
     spacing = 2.0 / (SHAPE[0] - 1)
-    # ... but the data's own opacity unit distance in the display.
-    simple.GetOpacityTransferFunction(plugin.RGBA_ARRAY).Points = \
+    # ... but the data's own opacity unit distance in the display (its own opacity function).
+    simple.GetOpacityTransferFunction(plugin.RGBA_ARRAY, display, separate=True).Points = \
         plugin.rgba_opacity_points(spacing, 1.0 if rgba_type == "float32" else 255.0)
     frame(view)
     simple.SaveScreenshot(str(OUT / f"rgba_{rgba_type}.png"), view, ImageResolution=SIZE)

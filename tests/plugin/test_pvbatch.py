@@ -17,7 +17,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "paraview_plugin"))
-import pvbatch_env  # noqa: E402
+import pvbatch_env
 
 pytestmark = [
     pytest.mark.plugin,
@@ -80,7 +80,8 @@ def test_illumination_filters_output_rgba_and_fluence(run):
     _, summary = run
     for label in ILLUMINATION[:2]:
         arrays = summary["filters"][label]["arrays"]
-        assert {"illuminated_rgba", "fluence", "transmittance_0", "density"} <= set(arrays)
+        assert {"illuminated_rgba", "fluence", "transmittance", "scattered_fluence",
+                "density"} <= set(arrays)
     arrays = summary["filters"]["vtkIllum Ambient Extinction"]["arrays"]
     assert {"illuminated_rgba", "ambient_extinction", "ambient_radiance"} <= set(arrays)
     assert "sigma_t" in summary["filters"]["vtkIllum Optical Properties"]["arrays"]

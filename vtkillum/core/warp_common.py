@@ -15,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp, resolve_device
-from vtkillum.core.lights import pack_lights
+from vtkillum.core.lights import pack_lights, resolved_radius
 
 init_warp()
 
@@ -84,11 +84,13 @@ class CameraParams:
 
 @wp.struct
 class Lights:
-    """Light list: kind (0 directional, 1 point), travel direction or position, RGB."""
+    """Light list: kind (0 directional, 1 point), travel direction or position, RGB, and
+    the source radius of point lights (irradiance ``I / max(d, radius)**2``)."""
 
     kind: wp.array(dtype=wp.int32)
     vec: wp.array(dtype=wp.vec3)
     rgb: wp.array(dtype=wp.vec3)
+    radius: wp.array(dtype=wp.float32)
     count: int
 
 
@@ -351,13 +353,17 @@ def free_path(sigma: float, state: wp.uint32):
 # --- lights and camera ---------------------------------------------------------------------------
 @wp.func
 def light_incidence(lights: Lights, li: int, p: wp.vec3):
-    """Unit direction from ``p`` towards light ``li``, its distance, and the RGB irradiance at ``p``."""
+    """Unit direction from ``p`` towards light ``li``, its distance, and the RGB irradiance at ``p``.
+
+    Point lights give ``I / max(d, r)**2`` with ``r`` their source radius (bounded next to
+    the light, see :mod:`vtkillum.core.lights`).
+    """
     if lights.kind[li] == DIRECTIONAL:
         return -lights.vec[li], FAR, lights.rgb[li]
     d = lights.vec[li] - p
-    dist2 = wp.max(wp.dot(d, d), 1.0e-12)
-    dist = wp.sqrt(dist2)
-    return d / dist, dist, lights.rgb[li] / dist2
+    dist = wp.max(wp.length(d), 1.0e-20)
+    r = wp.max(dist, lights.radius[li])
+    return d / dist, dist, lights.rgb[li] / (r * r)
 
 
 @wp.func
@@ -491,6 +497,8 @@ def make_lights(lights, volume, device: str | None = None) -> Lights:
     out.kind = wp.array(kinds, dtype=wp.int32, device=device)
     out.vec = wp.array(vecs, dtype=wp.vec3, device=device)
     out.rgb = wp.array(rgb, dtype=wp.vec3, device=device)
+    out.radius = wp.array(np.array([resolved_radius(light, volume) for light in lights],
+                                   np.float32), dtype=wp.float32, device=device)
     out.count = len(kinds)
     return out
 

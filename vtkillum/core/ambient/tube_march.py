@@ -305,7 +305,8 @@ def tube_march_kernel(sigma_tilde: Any, inv_data_spacing: wp.vec3,
     to_light, dist, e = light_incidence(lights, li, p)
     if lights.kind[li] == POINT:
         # Inside one radius of a point light the sphere contains it: no 1/d² divergence.
-        e = e * (dist * dist) / wp.max(dist * dist, radius * radius)
+        r = wp.max(radius, lights.radius[li])
+        e = lights.rgb[li] / wp.max(dist * dist, r * r)
     tt = ray_box(p, to_light, extent)
     length = wp.max(wp.min(tt[1], dist), 0.0)
     step = 2.0 * radius

@@ -1,0 +1,227 @@
+"""A session in the real ParaView GUI, driven by ``test_gui.py``.
+
+Run as ``xvfb-run -a paraview --dr --script=gui_session.py`` with the environment of
+``paraview_plugin/pvbatch_env.py`` and ``VTKILLUM_GUI_OUT`` naming an output
+directory. The script runs inside the GUI's Python: it loads the plugin, then plays
+a list of steps, each from a one-shot timer of the render view's interactor, so
+that between two steps the GUI runs its event loop (builds the Properties panel of
+the active source, paints the window) exactly as it does for a user:
+
+1. every vtkIllum filter is created on a Wavelet, made active (the Properties
+   panel is built for it), shown, a property is changed and applied;
+2. the colour map of the coloured array is edited (a preset applied) and the
+   picture taken before and after (``SaveScreenshot`` of the view);
+3. a light of Type 2 is entered: the error must name the Lights row;
+4. the state is saved (.pvsm), every vtkIllum filter deleted, the state loaded
+   again and every filter selected again;
+5. the whole window is grabbed from the X server (panels included).
+
+It writes ``summary.json`` and, as its very last action, the marker ``done``, then
+closes the main window like a window manager would, so that ParaView exits through
+its normal shutdown. The pytest side asserts the exit status, the marker and the
+pictures.
+"""
+
+import json
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+
+from paraview import simple
+
+OUT = Path(os.environ["VTKILLUM_GUI_OUT"])
+ROOT = Path(os.environ["VTKILLUM_ROOT"])  # ``paraview --script`` defines no __file__
+PLUGIN = ROOT / "paraview_plugin" / "vtkillum_plugin.py"
+sys.path.insert(0, str(ROOT / "paraview_plugin"))
+from vtkillum_paraview import x11
+
+LABELS = ["vtkIllum Optical Properties", "vtkIllum Light Transmittance",
+          "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction"]
+VIEW_SIZE = [400, 400]
+summary = {"steps": [], "filters": {}, "errors": []}
+
+
+def log(message: str) -> None:
+    summary["steps"].append(message)
+    with open(OUT / "progress.txt", "a") as f:
+        f.write(message + "\n")
+
+
+def constructor(label: str):
+    return globals()[label.replace(" ", "").replace("-", "")]  # from LoadPlugin(ns=globals())
+
+
+def view():
+    return simple.GetActiveViewOrCreate("RenderView")
+
+
+def grab_window(name: str) -> None:
+    with x11.Display() as display:
+        window = display.find_window("ParaView 5")
+        image = display.grab(window)
+    x11.write_png(OUT / name, image)
+    summary.setdefault("window_grabs", []).append(name)
+
+
+def vtkillum_sources() -> dict:
+    return {name: proxy for (name, _), proxy in simple.GetSources().items()
+            if proxy.GetXMLName().startswith("vtkIllum")}
+
+
+# === the steps ==============================================================================
+state = {}
+
+
+def step_setup():
+    simple.LoadPlugin(str(PLUGIN), ns=globals())
+    wavelet = simple.Wavelet(registrationName="Wavelet1")
+    state["wavelet"] = wavelet
+    v = view()
+    v.ViewSize = VIEW_SIZE
+    v.OrientationAxesVisibility = 0
+    display = simple.Show(wavelet, v)
+    display.SetRepresentationType("Outline")
+    simple.Render(v)
+    log("setup")
+
+
+def make_create_step(label):
+    def step():
+        proxy = constructor(label)(Input=state["wavelet"])
+        simple.SetActiveSource(proxy)  # the Properties panel is built for it
+        display = simple.Show(proxy, view())
+        simple.Render(view())
+        state.setdefault("proxies", {})[label] = proxy
+        summary["filters"][label] = {
+            "representation": str(display.Representation),
+            "color_array": list(display.ColorArrayName),
+            "arrays": [proxy.PointData[i].GetName() for i in range(len(proxy.PointData))],
+        }
+        log(f"created {label}")
+    return step
+
+
+def make_edit_step(label):
+    def step():
+        proxy = state["proxies"][label]
+        simple.SetActiveSource(proxy)
+        proxy.Albedo = 0.6
+        proxy.UpdatePipeline()
+        simple.Render(view())
+        summary["filters"][label]["albedo_after_edit"] = float(proxy.Albedo)
+        log(f"edited {label}")
+    return step
+
+
+def step_show_one():
+    """Hide all but the Light Transmittance volume; picture; edit the colour map; picture."""
+    lt = state["proxies"]["vtkIllum Light Transmittance"]
+    for label, proxy in state["proxies"].items():
+        if proxy is not lt:
+            simple.Hide(proxy, view())
+    simple.Hide(state["wavelet"], view())
+    simple.SetActiveSource(lt)
+    v = view()
+    v.CameraPosition = [0.0, -60.0, 25.0]
+    v.CameraFocalPoint = [0.0, 0.0, 0.0]
+    v.CameraViewUp = [0.0, 0.0, 1.0]
+    simple.Render(v)
+    simple.SaveScreenshot(str(OUT / "view_before_colour_edit.png"), v, ImageResolution=VIEW_SIZE)
+    executions = lt.GetClientSideObject().GetMTime()
+    lut = simple.GetColorTransferFunction("RTData")
+    lut.ApplyPreset("Inferno (matplotlib)", True)
+    simple.Render(v)
+    simple.SaveScreenshot(str(OUT / "view_after_colour_edit.png"), v, ImageResolution=VIEW_SIZE)
+    summary["colour_edit_changed_filter_mtime"] = lt.GetClientSideObject().GetMTime() != executions
+    log("colour map edited")
+
+
+def step_grab_1():
+    grab_window("window_filters.png")
+    log("window grabbed")
+
+
+def step_bad_light():
+    lt = state["proxies"]["vtkIllum Light Transmittance"]
+    lt.Lights = [2, 1, 0, 0, 1, 1, 1]
+    lt.UpdatePipeline()
+    summary["bad_light_error"] = lt.GetClientSideObject().GetLastError()
+    lt.Lights = [0, 1, -1, -1, 1, 1, 1]
+    lt.UpdatePipeline()
+    summary["good_light_error"] = lt.GetClientSideObject().GetLastError()
+    log("bad light")
+
+
+def step_save_delete():
+    path = OUT / "session.pvsm"
+    simple.SaveState(str(path))
+    for name, proxy in vtkillum_sources().items():
+        simple.Delete(proxy)
+    summary["after_delete"] = sorted(vtkillum_sources())
+    simple.Render(view())
+    log("saved and deleted")
+
+
+def step_load():
+    # Everything goes, then the state comes back (the GUI builds its items again).
+    for proxy in list(simple.GetSources().values()):
+        simple.Delete(proxy)
+    simple.LoadState(str(OUT / "session.pvsm"))
+    summary["after_load"] = sorted(vtkillum_sources())
+    log("state loaded")
+
+
+def step_select_loaded():
+    for name, proxy in vtkillum_sources().items():
+        simple.SetActiveSource(proxy)
+    v = simple.GetActiveView()
+    if v is not None:
+        simple.Render(v)
+    log("loaded filters selected")
+
+
+def step_grab_2():
+    grab_window("window_after_load.png")
+    log("window grabbed after load")
+
+
+def step_finish():
+    (OUT / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
+    (OUT / "done").write_text("the GUI session reached its end\n")
+    with x11.Display() as display:
+        display.request_close(display.find_window("ParaView 5"))
+
+
+STEPS = ([step_setup] + [make_create_step(label) for label in LABELS]
+         + [make_edit_step(label) for label in LABELS[1:]]
+         + [step_show_one, step_grab_1, step_bad_light, step_save_delete, step_load,
+            step_select_loaded, step_grab_2, step_finish])
+
+
+# === the driver: one step per timer tick, the GUI's event loop in between ====================
+def run_next(interactor, event=None):
+    if not STEPS or time.monotonic() < state.get("due", 0.0):
+        return
+    step = STEPS.pop(0)
+    try:
+        step()
+    except Exception:  # recorded; the pytest side fails on it
+        summary["errors"].append(f"{step.__name__}: {traceback.format_exc()}")
+        log(f"FAILED {step.__name__}")
+        if step is not step_finish:
+            STEPS[:] = [step_finish]
+    state["due"] = time.monotonic() + 0.5
+    if STEPS:
+        interactor.CreateOneShotTimer(600)
+
+
+OUT.mkdir(parents=True, exist_ok=True)
+try:
+    _interactor = view().GetRenderWindow().GetInteractor()
+    _interactor.AddObserver("TimerEvent", run_next)
+    _interactor.CreateOneShotTimer(500)
+except Exception:
+    summary["errors"].append(f"driver: {traceback.format_exc()}")
+    step_finish()

@@ -1,0 +1,119 @@
+"""The plugin in the real ParaView GUI (Debian's ParaView 5.11 under xvfb-run).
+
+``gui_session.py`` runs inside ``paraview --script`` and plays the steps a user
+takes (see its docstring); this module runs it once and judges what it left:
+ParaView must exit with status 0 through its normal shutdown (a crash while the
+Properties panel is built gives SIGSEGV, status 139), the script must reach its
+end (the marker file), and the pictures must show what they should.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "paraview_plugin"))
+import pvbatch_env
+
+MISSING = [tool for tool in ("paraview", "xvfb-run") if __import__("shutil").which(tool) is None]
+pytestmark = [
+    pytest.mark.plugin,
+    pytest.mark.skipif(bool(MISSING), reason=f"{', '.join(MISSING)} not found: the GUI test "
+                       "needs Debian's ParaView and xvfb-run"),
+]
+
+SCRIPT = Path(__file__).with_name("gui_session.py")
+LABELS = ["vtkIllum Optical Properties", "vtkIllum Light Transmittance",
+          "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction"]
+
+
+def run_gui(out: Path, shim: Path, timeout: float = 420.0):
+    """Run the GUI session; returns (exit status, stdout + stderr). On a timeout the whole
+    process group (xvfb-run, Xvfb, paraview) is killed and the status is None."""
+    env = pvbatch_env.pvbatch_environment(pvbatch_env.make_shim_dir(shim))
+    env["VTKILLUM_GUI_OUT"] = str(out)
+    env["VTKILLUM_ROOT"] = str(ROOT)
+    env["XDG_CONFIG_HOME"] = str(out / "config")  # a fresh ParaView configuration
+    env.setdefault("QT_QPA_PLATFORM", "xcb")
+    command = ["xvfb-run", "-a", "-s", "-screen 0 1600x1000x24", "paraview", "--dr",
+               f"--script={SCRIPT}"]
+    proc = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True, start_new_session=True)
+    try:
+        log, _ = proc.communicate(timeout=timeout)
+        return proc.returncode, log
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        log, _ = proc.communicate()
+        return None, log + f"\n[killed after {timeout} s]"
+
+
+@pytest.fixture(scope="module")
+def gui(tmp_path_factory):
+    out = tmp_path_factory.mktemp("gui")
+    shim = tmp_path_factory.mktemp("pvshim")
+    for attempt in range(2):
+        status, log = run_gui(out, shim)
+        # xvfb-run -a occasionally loses the race for a display number: try once more.
+        if "bad X server connection" not in log and "cannot open display" not in log.lower():
+            break
+    (out / "paraview.log").write_text(log)
+    return out, status, log
+
+
+def image(path: Path) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGB")).astype(np.float64)
+
+
+def test_gui_exits_cleanly_after_the_whole_session(gui):
+    out, status, log = gui
+    progress = (out / "progress.txt").read_text() if (out / "progress.txt").exists() else ""
+    assert status == 0, f"ParaView exited with {status}\n{progress}\n{log[-3000:]}"
+    assert (out / "done").exists(), f"the GUI script did not reach its end:\n{progress}"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["errors"] == [], summary["errors"]
+
+
+def test_every_filter_is_created_selected_edited_and_shown_as_a_volume(gui):
+    out, _, _ = gui
+    summary = json.loads((out / "summary.json").read_text())
+    assert sorted(summary["filters"]) == sorted(LABELS)
+    for label, record in summary["filters"].items():
+        assert record["representation"].strip("'") == "Volume", label
+    for label in LABELS[1:]:
+        assert summary["filters"][label]["albedo_after_edit"] == pytest.approx(0.6)
+        # The display colours by the data array: one colour map, the data's.
+        assert summary["filters"][label]["color_array"] == ["POINTS", "RTData"], label
+
+
+def test_state_saved_deleted_and_loaded_again(gui):
+    out, _, _ = gui
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["after_delete"] == []
+    assert len(summary["after_load"]) == len(LABELS)
+    assert "vtkIllum" in (out / "session.pvsm").read_text()
+
+
+def test_a_wrong_light_names_the_row_and_column_without_a_traceback(gui):
+    out, _, log = gui
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["bad_light_error"] == \
+        "Lights row 1: Type must be 0 (directional) or 1 (point), got 2"
+    assert summary["good_light_error"] is None
+    assert "Traceback" not in log, log[log.find("Traceback") - 200:][:3000]
+
+
+def test_window_grabs_show_the_gui(gui):
+    out, _, _ = gui
+    for name in ("window_filters.png", "window_after_load.png"):
+        shot = image(out / name)
+        assert shot.shape[0] > 400 and shot.shape[1] > 600, name
+        assert shot.std() > 20.0, f"{name} looks blank"
