@@ -12,7 +12,7 @@ composites the same source term as the warp ray caster
         C += T α J ;  T *= 1 - α
 
 with ``w_l`` the unit vector towards light ``l``, ``E_l`` its irradiance at the
-sample (directional: ``E``; point: ``I / d²``), ``φ_s`` the isotropic scattered
+sample (directional: ``E``; point: ``I / max(d, r)²``, ``r`` its source radius), ``φ_s`` the isotropic scattered
 fluence and ``S`` the Phong factor (two-sided normal from central differences one
 voxel apart, mean over the lights, ``S = ka + kd`` where the gradient vanishes). The
 direct light's transmittance is read the way
@@ -99,7 +99,8 @@ maximum and 99th percentile below 1.2e-2, for directional and point lights, one 
 lights, g = 0.3, ±0.6, a pipeline input at half resolution and a sharp sphere with a
 half-resolution light grid. Measured: 3e-4 to 7.5e-4 mean and 2.4e-3 99th percentile
 in every case, which is the 8-bit read-back alone (the quantised warp image and the
-OpenGL image agree to 1e-6); the per-case values are in that module's docstring.
+OpenGL image agree to 1e-6; every pixel lies within half an 8-bit level of the warp
+radiance); the per-case values are in that module's docstring.
 
 Simplifications and limits
 --------------------------
@@ -139,7 +140,7 @@ from vtkmodules.vtkRenderingVolume import vtkMultiVolume
 from vtkmodules.vtkRenderingVolumeOpenGL2 import vtkOpenGLGPUVolumeRayCastMapper
 
 from vtkillum.core.illumination import IlluminationVolume, gradient_threshold, shading_terms
-from vtkillum.core.lights import DIRECTIONAL, pack_lights
+from vtkillum.core.lights import DIRECTIONAL, pack_lights, resolved_radius
 from vtkillum.core.scene import Scene
 from vtkillum.core.transfer_function import TABLE_SIZE
 from vtkillum.core.volume import Volume
@@ -183,6 +184,8 @@ UNIFORMS = {
     "il_lights": "float[4 * MAX_LIGHTS]: per light kind (0 directional, 1 point), then the "
                  "travel direction or the position (local)",
     "il_lightRGB": "float[3 * MAX_LIGHTS]: per light RGB irradiance or intensity",
+    "il_lightRadius": "float[MAX_LIGHTS]: source radius of point lights (irradiance "
+                      "I / max(d, r)^2; vtkillum.core.lights.resolved_radius)",
     "il_near": "float: length of the exact near-field march (world units)",
     "il_hasScattered": "int: 1 when a scattered fluence is bound",
     "il_jitter": "int: 0 samples at step midpoints; n > 0 jitters the first sample per pixel "
@@ -316,7 +319,8 @@ float il_hg(float cosTheta, float g)
 }
 
 // Unit vector from p towards light l, its distance (1e30: directional) and the RGB
-// irradiance at p (warp_common.light_incidence).
+// irradiance at p: E, or I / max(d, r)^2 for a point light of source radius r
+// (warp_common.light_incidence).
 void il_incidence(int l, vec3 p, out vec3 toLight, out float dist, out vec3 irradiance)
 {
   vec3 v = vec3(il_lights[4 * l + 1], il_lights[4 * l + 2], il_lights[4 * l + 3]);
@@ -330,10 +334,10 @@ void il_incidence(int l, vec3 p, out vec3 toLight, out float dist, out vec3 irra
   else
   {
     vec3 d = v - p;
-    float d2 = max(dot(d, d), 1.0e-12);
-    dist = sqrt(d2);
+    dist = max(length(d), 1.0e-20);
     toLight = d / dist;
-    irradiance = rgb / d2;
+    float r = max(dist, il_lightRadius[l]);
+    irradiance = rgb / (r * r);
   }
 }
 
@@ -968,9 +972,11 @@ def shading_uniforms(volume: Volume, scene: Scene, lights, illumination, near_ce
     kinds, vecs, rgb = pack_lights(lights, volume.direction, volume.origin)
     packed = np.zeros((MAX_LIGHTS, 4), np.float64)
     colours = np.zeros((MAX_LIGHTS, 3), np.float64)
+    radii = np.zeros(MAX_LIGHTS, np.float64)
     packed[: len(kinds), 0] = np.where(kinds == DIRECTIONAL, 0.0, 1.0)
     packed[: len(kinds), 1:] = vecs
     colours[: len(kinds)] = rgb
+    radii[: len(kinds)] = [resolved_radius(light, volume) for light in lights]
     if illumination is None:
         n_direct, near, has_scattered = len(lights), 0.0, 0
     else:
@@ -999,6 +1005,7 @@ def shading_uniforms(volume: Volume, scene: Scene, lights, illumination, near_ce
         "il_numDirect": int(n_direct),
         "il_lights": packed.reshape(-1).tolist(),
         "il_lightRGB": colours.reshape(-1).tolist(),
+        "il_lightRadius": radii.tolist(),
         "il_near": float(near),
         "il_hasScattered": has_scattered,
     }
@@ -1011,9 +1018,9 @@ def set_uniforms(uniforms, values: dict) -> None:
             uniforms.SetUniformi(name, value)
         elif isinstance(value, float):
             uniforms.SetUniformf(name, value)
-        elif len(value) == 3 and name not in ("il_lights", "il_lightRGB"):
+        elif len(value) == 3 and name not in ("il_lights", "il_lightRGB", "il_lightRadius"):
             uniforms.SetUniform3f(name, value)
-        elif len(value) == 4 and name == "il_shading":
+        elif name == "il_shading":
             uniforms.SetUniform4f(name, value)
         else:
             uniforms.SetUniform1fv(name, len(value), value)
