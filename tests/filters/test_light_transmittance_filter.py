@@ -87,3 +87,16 @@ def test_needs_a_light(make_image):
     f = make_filter()
     with pytest.raises(ValueError, match="no lights"):
         f.execute(homogeneous(make_image))
+
+
+def test_lights_field_keeps_the_source_radius(make_image):
+    from vtkillum.io.illumination_arrays import lights_from_field
+
+    f = make_filter()
+    f.AddDirectionalLight((0, -1, 0), (1.0, 2.0, 3.0))
+    f.AddPointLight((0, 0, 0), (1.0, 1.0, 1.0))
+    f._lights[1].radius = 0.75  # the filter API has no radius setter; the core light does
+    f.Modified()
+    lights = lights_from_field(f.execute(homogeneous(make_image)))
+    assert lights[0].kind == 0 and np.allclose(lights[0].irradiance, (1, 2, 3))
+    assert lights[1].kind == 1 and lights[1].radius == 0.75

@@ -15,8 +15,9 @@ resolution):
 ``scattered_fluence`` (3 components)
     ``phi_s``, the isotropic fluence of scattered light (zeros without scattering).
 
-and field data ``vtkillum_lights``, one tuple of 7 per light: kind (0 directional,
-1 point), travel direction or position (world), RGB irradiance or intensity. A
+and field data ``vtkillum_lights``, one tuple of 8 per light: kind (0 directional,
+1 point), travel direction or position (world), RGB irradiance or intensity, source
+radius (0: half a voxel; 0 for directional lights; tuples of 7 are read as radius 0). A
 consumer rebuilds the illumination volume with :func:`illumination_from_image`; an
 image with only a ``fluence`` array (e.g. from another tool) is taken as an
 isotropic scattered fluence.
@@ -73,13 +74,13 @@ def illumination_arrays(illumination: IlluminationVolume, volume, lights, shape)
 
 
 def add_lights_field(image, lights) -> None:
-    """Store ``lights`` as the field-data array ``vtkillum_lights`` (n, 7) of ``image``."""
-    rows = np.zeros((len(lights), 7), np.float64)
+    """Store ``lights`` as the field-data array ``vtkillum_lights`` (n, 8) of ``image``."""
+    rows = np.zeros((len(lights), 8), np.float64)
     for i, light in enumerate(lights):
         if light.kind == DIRECTIONAL:
-            rows[i] = [0, *light.direction, *light.irradiance]
+            rows[i] = [0, *light.direction, *light.irradiance, 0.0]
         else:
-            rows[i] = [1, *light.position, *light.intensity]
+            rows[i] = [1, *light.position, *light.intensity, light.radius]
     array = numpy_to_vtk(rows, deep=True)
     array.SetName(LIGHTS_FIELD)
     image.GetFieldData().AddArray(array)
@@ -90,9 +91,10 @@ def lights_from_field(image) -> list | None:
     array = image.GetFieldData().GetArray(LIGHTS_FIELD) if image is not None else None
     if array is None:
         return None
-    rows = vtk_to_numpy(array).reshape(-1, 7)
-    return [DirectionalLight(r[1:4], r[4:7]) if r[0] < 0.5 else PointLight(r[1:4], r[4:7])
-            for r in rows]
+    width = array.GetNumberOfComponents()
+    rows = vtk_to_numpy(array).reshape(-1, width)
+    return [DirectionalLight(r[1:4], r[4:7]) if r[0] < 0.5
+            else PointLight(r[1:4], r[4:7], r[7] if width > 7 else 0.0) for r in rows]
 
 
 def illumination_from_image(image, volume) -> IlluminationVolume:
