@@ -126,3 +126,71 @@ def mask_bins(mask: int) -> list[int]:
     return [i for i in range(BITS) if (int(mask) >> i) & 1]
 
 
+
+
+# --- kernels -------------------------------------------------------------------------------------
+from vtkillum.core.photon.storage import Interactions  # noqa: E402
+
+
+@wp.kernel
+def photon_query_kernel(start: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32),
+                        path_hist: wp.array(dtype=wp.uint64), it: Interactions,
+                        query: wp.uint64, min_order: int, spatial_scale: wp.vec3,
+                        flags: wp.array(dtype=wp.int32), restart: wp.array(dtype=wp.int32),
+                        spatial: wp.array(dtype=wp.uint64), removed: wp.array(dtype=wp.int32)):
+    """Find each photon's first invalid interaction (section 4.3.1).
+
+    ``wp.tid()`` indexes photon paths. A path whose Historygram misses ``query`` is
+    valid. Otherwise walk back from its last interaction while the interaction's
+    Historygram meets the query: ``restart[p]`` is the last valid interaction (buffer
+    index; -1: none, retrace from the light) and ``flags[p] = 1``. Removed interactions
+    of order ``>= min_order`` set their position's bits in the spatial Historygram
+    (``spatial[a]``, 64 bins over ``[0, extent_a]``); ``removed[0]`` counts them all.
+    """
+    p = wp.tid()
+    flags[p] = 0
+    restart[p] = -1
+    if (path_hist[p] & query) == wp.uint64(0):
+        return
+    s0 = start[p]
+    j = s0 + count[p] - 1
+    while j >= s0:
+        if (it.hist[j] & query) == wp.uint64(0):
+            break
+        if it.order[j] >= min_order:
+            bx, by, bz = spatial_bits(it.pos[j], spatial_scale)
+            wp.atomic_or(spatial, 0, bx)
+            wp.atomic_or(spatial, 1, by)
+            wp.atomic_or(spatial, 2, bz)
+        j -= 1
+    wp.atomic_add(removed, 0, s0 + count[p] - 1 - j)
+    flags[p] = 1
+    restart[p] = j
+
+
+@wp.kernel
+def mark_added_kernel(photons: wp.array(dtype=wp.int32), kept: wp.array(dtype=wp.int32),
+                      start: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32),
+                      it: Interactions, min_order: int, spatial_scale: wp.vec3,
+                      spatial: wp.array(dtype=wp.uint64)):
+    """``wp.tid()`` indexes retraced photons: interactions past the ``kept[w]`` kept ones are
+    new; those of order ``>= min_order`` set their bits in the spatial Historygram."""
+    w = wp.tid()
+    p = photons[w]
+    for j in range(start[p] + kept[w], start[p] + count[p]):
+        if it.order[j] >= min_order:
+            bx, by, bz = spatial_bits(it.pos[j], spatial_scale)
+            wp.atomic_or(spatial, 0, bx)
+            wp.atomic_or(spatial, 1, by)
+            wp.atomic_or(spatial, 2, bz)
+
+
+@wp.kernel
+def kept_count_kernel(photons: wp.array(dtype=wp.int32), restart: wp.array(dtype=wp.int32),
+                      start: wp.array(dtype=wp.int32), kept: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` indexes photons to retrace: how many of their interactions stay."""
+    w = wp.tid()
+    j = restart[w]
+    kept[w] = 0
+    if j >= 0:
+        kept[w] = j - start[photons[w]] + 1
