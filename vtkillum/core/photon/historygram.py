@@ -165,7 +165,8 @@ def photon_query_kernel(start: wp.array(dtype=wp.int32), count: wp.array(dtype=w
         j -= 1
     wp.atomic_add(removed, 0, s0 + count[p] - 1 - j)
     flags[p] = 1
-    restart[p] = j
+    if j >= s0:
+        restart[p] = j
 
 
 @wp.kernel

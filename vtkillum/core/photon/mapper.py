@@ -378,6 +378,13 @@ class PhotonMapper:
                             (alpha_sum / done).astype(np.float32),
                             {"passes": done, "radius_last": radii[done - 1]})
 
+    def segments_numpy(self) -> dict:
+        """The stored segments as numpy arrays (``rad``, ``t``, ``hist``, ``state``), each
+        indexed ``pixel * V_n + i`` with ``pixel = row * width + col``."""
+        if self._seg is None:
+            return {}
+        return {name: a.numpy().copy() for name, a in self._seg.items()}
+
     @property
     def passes(self) -> int:
         """Passes averaged into the current image (0 before the first render)."""

@@ -275,13 +275,13 @@ class PhotonMap:
 
     # --- inspection ------------------------------------------------------------------------------
     def numpy(self) -> dict:
-        """All interaction fields and path tables as numpy arrays (tests, debugging)."""
+        """Copies of all interaction fields and path tables as numpy arrays (tests, debugging)."""
         n = self.total
         it = self.interactions
-        out = {name: getattr(it, name).numpy()[:n] for name in
+        out = {name: getattr(it, name).numpy()[:n].copy() for name in
                ("pos", "dir", "flux", "value", "hist", "rng", "order", "owner")}
-        out.update(start=self.start.numpy(), count=self.count.numpy(),
-                   path_hist=self.path_hist.numpy(), end=self.end.numpy())
+        out.update(start=self.start.numpy().copy(), count=self.count.numpy().copy(),
+                   path_hist=self.path_hist.numpy().copy(), end=self.end.numpy().copy())
         return out
 
 
