@@ -378,6 +378,34 @@ class PhotonMapper:
                             (alpha_sum / done).astype(np.float32),
                             {"passes": done, "radius_last": radii[done - 1]})
 
+    def fluence(self, volume, shape, passes: int = 1, progress=None) -> np.ndarray:
+        """Photon fluence ``φ`` on a grid of ``shape`` points covering the volume's box.
+
+        Pass 0 uses the kept photon map; passes 1 .. ``passes - 1`` trace independent maps
+        with the shrinking radii of :func:`radius_schedule` and are averaged in.
+        Returns (nx, ny, nz, 3) float32, the lights' irradiance units.
+        """
+        from vtkillum.core.photon.density import fluence_grid
+
+        if self.map is None:
+            raise ValueError("call update(volume, transfer_function, ...) before fluence()")
+        radii = radius_schedule(self.radius, int(passes), self.alpha)
+        total = fluence_grid(self.grid, self.extinction, shape, volume.extent,
+                             self.device).astype(np.float64)
+        for k in range(1, int(passes)):
+            if progress is not None:
+                progress(k / passes)
+            pm = PhotonMap(self.photons, self.device, stream_seed(self.seed, k, PHOTON_SALT),
+                           self.max_order, self.map.step, self.memory_limit_mb)
+            pm.trace(self.medium, self.emitters, volume.value_range)
+            grid = build_photon_grid(pm.interactions, pm.total, volume.extent, radii[k],
+                                     self.min_order, self.device)
+            del pm
+            me = mean_extinction(self.medium, volume, radii[k], self.device,
+                                 bins=bin_scale(volume.value_range))
+            total += fluence_grid(grid, me, shape, volume.extent, self.device)
+        return (total / int(passes)).astype(np.float32)
+
     def segments_numpy(self) -> dict:
         """The stored segments as numpy arrays (``rad``, ``t``, ``hist``, ``state``), each
         indexed ``pixel * V_n + i`` with ``pixel = row * width + col``."""
