@@ -14,6 +14,7 @@ from vtkillum.core.photon.historygram import (
     interval_mask,
     mask_bins,
     query_mask,
+    query_masks,
 )
 from vtkillum.core.photon.mapper import PhotonMapper
 from vtkillum.core.photon.tracing import photon_tables
@@ -71,6 +72,18 @@ def full(transfer_function, direct="exact"):
     return m, run(m, volume, transfer_function)[1]
 
 
+def masks(volume, old, new):
+    u = volume.mean_spacing()
+    qs, qc = query_masks(photon_tables(old, u, volume.value_range)[:2],
+                         photon_tables(new, u, volume.value_range)[:2], volume.value_range)
+    return np.uint64(qs), np.uint64(qc)
+
+
+def flagged(segs, qs, qc):
+    hit = ((segs["hist"] & qs) | (segs["chist"] & qc)) != 0
+    return int(np.count_nonzero(hit & (segs["state"] == 1)))
+
+
 def assert_same_map(a, b):
     da, db = a.map.numpy(), b.map.numpy()
     for key in da:
@@ -103,16 +116,14 @@ def test_incremental_equals_full_recompute(edit, direct):
     run(m, volume, tf())
     before = m.map.numpy()
     segs = m.segments_numpy()
-    u = volume.mean_spacing()
-    hq = query_mask(photon_tables(tf(), u, volume.value_range)[:2],
-                    photon_tables(EDITS[edit], u, volume.value_range)[:2], volume.value_range)
+    qs, qc = masks(volume, tf(), EDITS[edit])
     stats, image = run(m, volume, EDITS[edit])
-    # What the masks say: photons whose path Historygram meets the query are retraced.
-    expected = int(np.count_nonzero(before["path_hist"] & np.uint64(hq)))
+    # What the masks say: photons whose path Historygrams meet the queries are retraced.
+    expected = int(np.count_nonzero((before["path_hist"] & qs) | (before["path_chist"] & qc)))
     assert stats["mode"] == "incremental"
     assert stats["photons_retraced"] == expected > 0
     assert stats["photons_retraced"] < 0.9 * m.photons
-    by_data = int(np.count_nonzero((segs["hist"] & np.uint64(hq)) & (segs["state"] == 1)))
+    by_data = flagged(segs, qs, qc)
     info = m.last_render
     assert info["mode"] == "incremental"
     assert info["segments_recomputed"] >= by_data
@@ -133,11 +144,8 @@ def test_spatial_historygram_is_needed_for_shadows():
     volume, m = mapper("photons", spatial=False)
     run(m, volume, tf())
     segs = m.segments_numpy()
-    hq = query_mask(photon_tables(tf(), volume.mean_spacing(), volume.value_range)[:2],
-                    photon_tables(edit, volume.mean_spacing(), volume.value_range)[:2],
-                    volume.value_range)
     _, stale = run(m, volume, edit)
-    by_data = int(np.count_nonzero((segs["hist"] & np.uint64(hq)) & (segs["state"] == 1)))
+    by_data = flagged(segs, *masks(volume, tf(), edit))
     # Without the spatial Historygram exactly the data-flagged segments (plus those that
     # became visible) are recomputed ...
     assert m.last_render["segments_recomputed"] >= by_data
@@ -176,3 +184,23 @@ def test_without_historygrams_everything_is_recomputed():
     assert m.last_render["mode"] == "full"
     _, reference = full(EDITS["colour"])
     np.testing.assert_array_equal(image.radiance, reference.radiance)
+
+
+def test_colour_edit_keeps_photons_that_never_scattered_there():
+    """A colour-only edit with S_n = 1: no photon scattered, none is retraced (the colour
+    Historygram); only segments that scattered light in the edited material recompute."""
+    volume = scene_volume()
+    m = PhotonMapper("cpu", photons=6000, radius=2.0 * volume.mean_spacing(), max_order=1,
+                     segments=6, seed=5, direct="photons")
+    run(m, volume, tf())
+    segs = m.segments_numpy()
+    qs, qc = masks(volume, tf(), EDITS["colour"])
+    assert qs == 0 and qc != 0
+    stats, image = run(m, volume, EDITS["colour"])
+    assert stats["photons_retraced"] == 0
+    assert m.last_render["segments_recomputed"] == flagged(segs, qs, qc) > 0
+    assert m.last_render["segment_fraction"] < 0.3
+    reference = PhotonMapper("cpu", photons=6000, radius=2.0 * volume.mean_spacing(),
+                             max_order=1, segments=6, seed=5, direct="photons")
+    _, expected = run(reference, volume, EDITS["colour"])
+    np.testing.assert_array_equal(image.radiance, expected.radiance)

@@ -163,6 +163,6 @@ def test_order_limit_and_retrace_repeats_full_trace(device):
                        wp.array(restart2, dtype=wp.int32, device=device))
     assert stats["photons"] == len(photons)
     got = pm.numpy()
-    for key in ("pos", "dir", "flux", "value", "hist", "rng", "order", "owner", "start", "count",
-                "path_hist", "end"):
+    for key in ("pos", "dir", "flux", "value", "hist", "chist", "rng", "order", "owner", "start",
+                "count", "path_hist", "path_chist", "end"):
         np.testing.assert_array_equal(got[key], ref[key], err_msg=key)

@@ -64,7 +64,7 @@ class PhotonDensityFilter(IlluminationFilterBase):
     Notes
     -----
     Units: fluences in the lights' irradiance units (directional: irradiance as given;
-    point: intensity / world unit²). Memory: about 52 bytes per stored photon interaction
+    point: intensity / world unit²). Memory: about 68 bytes per stored photon interaction
     (a few per photon with high albedo); more photons than fit raise an error that says
     how many fit. Cost: the photon trace (``Photons`` × path length × steps per flight)
     plus one 27-cell gather per output point.

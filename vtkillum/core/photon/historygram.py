@@ -12,12 +12,18 @@ interaction, a view-ray segment) has used, stored as a 64-bit mask:
   inherits its ancestors' bits), segments along their samples (and, with exact direct
   light, along their shadow rays). Because the bins hold data values and not optical
   properties, the masks do not depend on the transfer function.
+* **Two masks per object.** The paper keeps one mask; here every object keeps the bins
+  whose **extinction** it used (``hist``: every sample of a march) apart from the bins
+  whose **colour** it used (``chist``: where it scattered -- a photon's roulette, a view
+  sample's ``σs``). A colour edit then leaves alone the photons that never scattered in
+  the edited material (with ``S_n = 1``: all of them) and the segments that only passed
+  through it transparently.
 * **Query mask** (eq. 10, Fig. 3). A transfer-function edit is turned into the bins
-  whose optical properties changed: :func:`query_mask` compares the σt and colour
+  whose optical properties changed (:func:`query_masks`: σt and colour apart): :func:`query_mask` compares the σt and colour
   tables the kernels interpolate before and after the edit and sets the bins of
   every data interval that an entry which changed influences (an entry at ``v_i``
   is interpolated for ``s`` in ``(v_{i-1}, v_{i+1})``). An object is invalid iff
-  ``H & H_q != 0``: the test is exact for the kernels' own lookups, never missing a
+  ``(hist & Q_σ) | (chist & Q_c) != 0``: the test is exact for the kernels' own lookups, never missing a
   change, so an incremental update equals a full recompute.
 * **Spatial Historygram** (section 4.3.2). One 64-bit mask per axis over the volume's
   extent: where photon interactions were removed or added, the bit of their
@@ -87,8 +93,9 @@ def interval_mask(a: float, b: float, value_range) -> int:
     return sum(1 << i for i in range(i0, i1 + 1))
 
 
-def query_mask(old_tables, new_tables, value_range) -> int:
-    """Query Historygram ``H_q`` of a transfer-function edit (eq. 10, Fig. 3).
+def query_masks(old_tables, new_tables, value_range) -> tuple[int, int]:
+    """Query Historygrams ``H_q`` of a transfer-function edit (eq. 10, Fig. 3), split by what
+    changed: ``(extinction bins, colour bins)``.
 
     Parameters
     ----------
@@ -101,24 +108,30 @@ def query_mask(old_tables, new_tables, value_range) -> int:
 
     Returns
     -------
-    int
-        The 64-bit mask (a Python int) of every bin whose optical properties changed;
-        0 when nothing did.
+    (int, int)
+        64-bit masks (Python ints) of the bins whose σt changed and of the bins whose
+        colour changed; ``(0, 0)`` when nothing did.
     """
     s0, c0 = (np.asarray(a) for a in old_tables)
     s1, c1 = (np.asarray(a) for a in new_tables)
     if s0.shape != s1.shape or c0.shape != c1.shape:
-        return ALL_BITS
-    changed = (s0 != s1) | np.any(c0 != c1, axis=-1)
-    if not changed.any():
-        return 0
+        return ALL_BITS, ALL_BITS
     lo, hi = (float(v) for v in value_range)
     n = s0.shape[0]
     v = np.linspace(lo, hi, n)
-    mask = 0
-    for i in np.flatnonzero(changed):
-        mask |= interval_mask(v[max(i - 1, 0)], v[min(i + 1, n - 1)], value_range)
-    return mask
+    masks = []
+    for changed in (s0 != s1, np.any(c0 != c1, axis=-1)):
+        mask = 0
+        for i in np.flatnonzero(changed):
+            mask |= interval_mask(v[max(i - 1, 0)], v[min(i + 1, n - 1)], value_range)
+        masks.append(mask)
+    return masks[0], masks[1]
+
+
+def query_mask(old_tables, new_tables, value_range) -> int:
+    """The single query Historygram of the paper: every bin whose σt or colour changed."""
+    sigma, color = query_masks(old_tables, new_tables, value_range)
+    return sigma | color
 
 
 def mask_bins(mask: int) -> list[int]:
@@ -134,15 +147,17 @@ from vtkillum.core.photon.storage import Interactions  # noqa: E402
 
 @wp.kernel
 def photon_query_kernel(start: wp.array(dtype=wp.int32), count: wp.array(dtype=wp.int32),
-                        path_hist: wp.array(dtype=wp.uint64), it: Interactions,
-                        query: wp.uint64, min_order: int, spatial_scale: wp.vec3,
+                        path_hist: wp.array(dtype=wp.uint64),
+                        path_chist: wp.array(dtype=wp.uint64), it: Interactions,
+                        query: wp.uint64, cquery: wp.uint64, min_order: int,
+                        spatial_scale: wp.vec3,
                         flags: wp.array(dtype=wp.int32), restart: wp.array(dtype=wp.int32),
                         spatial: wp.array(dtype=wp.uint64), removed: wp.array(dtype=wp.int32)):
     """Find each photon's first invalid interaction (section 4.3.1).
 
-    ``wp.tid()`` indexes photon paths. A path whose Historygram misses ``query`` is
-    valid. Otherwise walk back from its last interaction while the interaction's
-    Historygram meets the query: ``restart[p]`` is the last valid interaction (buffer
+    ``wp.tid()`` indexes photon paths. A path whose Historygrams miss the queries
+    (extinction bins ``query``, colour bins ``cquery``) is valid. Otherwise walk back
+    from its last interaction while the interaction's Historygrams meet them: ``restart[p]`` is the last valid interaction (buffer
     index; -1: none, retrace from the light) and ``flags[p] = 1``. Removed interactions
     of order ``>= min_order`` set their position's bits in the spatial Historygram
     (``spatial[a]``, 64 bins over ``[0, extent_a]``); ``removed[0]`` counts them all.
@@ -150,12 +165,12 @@ def photon_query_kernel(start: wp.array(dtype=wp.int32), count: wp.array(dtype=w
     p = wp.tid()
     flags[p] = 0
     restart[p] = -1
-    if (path_hist[p] & query) == wp.uint64(0):
+    if ((path_hist[p] & query) | (path_chist[p] & cquery)) == wp.uint64(0):
         return
     s0 = start[p]
     j = s0 + count[p] - 1
     while j >= s0:
-        if (it.hist[j] & query) == wp.uint64(0):
+        if ((it.hist[j] & query) | (it.chist[j] & cquery)) == wp.uint64(0):
             break
         if it.order[j] >= min_order:
             bx, by, bz = spatial_bits(it.pos[j], spatial_scale)

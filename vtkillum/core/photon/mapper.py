@@ -48,7 +48,7 @@ from vtkillum.core.photon.historygram import (
     kept_count_kernel,
     mark_added_kernel,
     photon_query_kernel,
-    query_mask,
+    query_masks,
 )
 from vtkillum.core.photon.segments import (
     ViewParams,
@@ -138,7 +138,7 @@ class PhotonMapper:
         self._light_key = None
         self._view = None  # (key, ViewParams, camera params, width, height)
         self._seg = None  # segment arrays
-        self._pending_query = 0
+        self._pending_query = (0, 0)  # (extinction bins, colour bins)
         self._pending_spatial = np.zeros(3, np.uint64)
         self._full_pending = True
         self._accum = None  # (radiance sum, alpha sum, passes)
@@ -180,11 +180,11 @@ class PhotonMapper:
             stats["ms"]["trace"] = trace["ms"]
             self._light_key = light_key
             self._full_pending = True
-            self._pending_query = ALL_BITS
+            self._pending_query = (ALL_BITS, ALL_BITS)
         else:
-            hq = query_mask(self.tables, tables, volume.value_range)
+            hq = query_masks(self.tables, tables, volume.value_range)
             self.medium, self.tables = medium, tables
-            if hq:
+            if hq[0] or hq[1]:
                 stats.update(self._incremental(volume, hq))
         if stats["mode"] != "unchanged":
             t_hash = time.perf_counter()
@@ -203,7 +203,7 @@ class PhotonMapper:
         self.last_update = stats
         return stats
 
-    def _incremental(self, volume, hq: int) -> dict:
+    def _incremental(self, volume, hq: tuple) -> dict:
         device = self.device
         pm = self.map
         t0 = time.perf_counter()
@@ -214,8 +214,9 @@ class PhotonMapper:
         removed = wp.zeros(1, dtype=wp.int32, device=device)
         scale = wp.vec3(*(BITS / np.asarray(volume.extent, np.float64)).astype(np.float32))
         wp.launch(photon_query_kernel, dim=n,
-                  inputs=[pm.start, pm.count, pm.path_hist, pm.interactions, wp.uint64(hq),
-                          self.min_order, scale, flags, restart, spatial, removed],
+                  inputs=[pm.start, pm.count, pm.path_hist, pm.path_chist, pm.interactions,
+                          wp.uint64(hq[0]), wp.uint64(hq[1]), self.min_order, scale, flags,
+                          restart, spatial, removed],
                   device=device)
         photons, restarts = select(flags, restart, device)
         n_work = int(photons.shape[0])
@@ -235,11 +236,13 @@ class PhotonMapper:
                               self.min_order, scale, spatial], device=device)
         wp.synchronize_device(device)
         t_end = time.perf_counter()
-        self._pending_query |= int(hq)
+        self._pending_query = (self._pending_query[0] | int(hq[0]),
+                               self._pending_query[1] | int(hq[1]))
         self._pending_spatial |= spatial.numpy()
         return {"mode": "incremental", "photons_retraced": n_work,
                 "photon_fraction": n_work / n, "interactions_removed": int(removed.numpy()[0]),
-                "interactions_added": int(added), "query_bins": bin(int(hq)).count("1"),
+                "interactions_added": int(added),
+                "query_bins": bin(int(hq[0]) | int(hq[1])).count("1"),
                 "ms": {"query": 1e3 * (t_trace - t0), "trace": 1e3 * (t_end - t_trace),
                        "hash": 0.0}}
 
@@ -267,18 +270,20 @@ class PhotonMapper:
             self._seg = {"rad": wp.zeros(n_seg, dtype=wp.vec3, device=device),
                          "t": wp.ones(n_seg, dtype=wp.float32, device=device),
                          "hist": wp.zeros(n_seg, dtype=wp.uint64, device=device),
+                         "chist": wp.zeros(n_seg, dtype=wp.uint64, device=device),
                          "state": wp.zeros(n_seg, dtype=wp.int32, device=device)}
             self._accum = None
             mode = "full"
-        elif self._pending_query or self._pending_spatial.any():
+        elif any(self._pending_query) or self._pending_spatial.any():
             _, vp, cam, _, _ = self._view
             queried = True
             flags = wp.empty(n_seg, dtype=wp.int32, device=device)
             scale = wp.vec3(*(BITS / np.asarray(volume.extent, np.float64)).astype(np.float32))
             spatial = wp.array(self._pending_spatial, dtype=wp.uint64, device=device)
             wp.launch(segment_query_kernel, dim=n_seg,
-                      inputs=[self.medium, cam, vp, self._seg["hist"], self._seg["state"],
-                              wp.uint64(self._pending_query), spatial,
+                      inputs=[self.medium, cam, vp, self._seg["hist"], self._seg["chist"],
+                              self._seg["state"], wp.uint64(self._pending_query[0]),
+                              wp.uint64(self._pending_query[1]), spatial,
                               int(self.spatial_historygram), scale, self.radius, flags],
                       device=device)
             work, _ = select(flags, flags, device)
@@ -286,8 +291,8 @@ class PhotonMapper:
             if recomputed:
                 wp.launch(recompute_kernel, dim=recomputed,
                           inputs=[self.medium, cam, self.lights, self.grid, self.extinction,
-                                  vp, work,
-                                  self._seg["rad"], self._seg["t"], self._seg["hist"]],
+                                  vp, work, self._seg["rad"], self._seg["t"], self._seg["hist"],
+                                  self._seg["chist"]],
                           device=device)
             mode = "incremental"
         else:
@@ -299,12 +304,12 @@ class PhotonMapper:
         computed = wp.zeros(1, dtype=wp.int32, device=device)
         wp.launch(composite_kernel, dim=(int(height), int(width)),
                   inputs=[self.medium, cam, self.lights, self.grid, self.extinction, vp,
-                          self._seg["rad"],
-                          self._seg["t"], self._seg["hist"], self._seg["state"], radiance,
+                          self._seg["rad"], self._seg["t"], self._seg["hist"],
+                          self._seg["chist"], self._seg["state"], radiance,
                           alpha, computed], device=device)
         wp.synchronize_device(device)
         t_end = time.perf_counter()
-        self._pending_query = 0
+        self._pending_query = (0, 0)
         self._pending_spatial[:] = 0
         self._full_pending = False
         n_computed = int(computed.numpy()[0])
@@ -360,6 +365,7 @@ class PhotonMapper:
             h, w = int(height), int(width)
             seg = [wp.zeros(h * w, dtype=wp.vec3, device=self.device),
                    wp.ones(h * w, dtype=wp.float32, device=self.device),
+                   wp.zeros(h * w, dtype=wp.uint64, device=self.device),
                    wp.zeros(h * w, dtype=wp.uint64, device=self.device),
                    wp.zeros(h * w, dtype=wp.int32, device=self.device)]
             radiance = wp.zeros((h, w), dtype=wp.vec3, device=self.device)

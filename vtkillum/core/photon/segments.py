@@ -17,9 +17,10 @@ photon estimate of eq. (8) (:func:`~vtkillum.core.photon.hashgrid.gather_radianc
 standing for the scattered light only) or 0 (mode "photons": the paper's setting), and
 ``L_photon`` from :func:`~vtkillum.core.photon.density.photon_radiance`.
 
-Historygram of a segment: the data bins of every sample it marched (transparent ones
-included: an edit can make them visible), of the kernel cubes behind ``σ̄t`` where the
-photon estimate was evaluated, and, with exact direct light, of every shadow-ray sample. The photon estimate depends on photons, whose changes are caught by
+Historygrams of a segment: extinction bins (``hist``) of every sample it marched
+(transparent ones included: an edit can make them visible), of the kernel cubes behind
+``σ̄t`` where the photon estimate was evaluated, and, with exact direct light, of every
+shadow-ray sample; colour bins (``chist``) of the samples where it scattered (σt > 0). The photon estimate depends on photons, whose changes are caught by
 the spatial Historygram (:mod:`~vtkillum.core.photon.historygram`).
 
 Occlusion: a segment whose prefix transmittance ``Π_{j<i} T_j`` has dropped below
@@ -125,19 +126,22 @@ def segment_samples(n: int, segments: int, i: int):
 @wp.func
 def compute_segment(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
                     me: MeanExtinction, vp: ViewParams, row: int, col: int, i: int):
-    """Radiance, transmittance and Historygram of segment ``i`` of pixel ``(row, col)``."""
+    """Radiance, transmittance and Historygrams (extinction, colour) of segment ``i`` of
+    pixel ``(row, col)``."""
     o, d, t0, xi, n = ray_setup(m, cam, vp, row, col)
     k0, k1 = segment_samples(n, vp.segments, i)
     state = wp.rand_init(vp.shadow_seed, (row * cam.width + col) * vp.segments + i)
     rad = wp.vec3(0.0)
     trans = float(1.0)
     hist = wp.uint64(0)
+    chist = wp.uint64(0)
     for k in range(k0, k1):
         p = o + (t0 + (float(k) + xi) * vp.step) * d
         s = sample_scalar(m.scalars, m.inv_spacing, p)
         hist = hist | data_bin(s, vp.bin_lo, vp.bin_scale)
         sig = lookup_sigma_t(m, s)
         if sig > 0.0:
+            chist = chist | data_bin(s, vp.bin_lo, vp.bin_scale)
             a = 1.0 - wp.exp(-sig * vp.step)
             light = photon_radiance(grid, me, p, -d, m.g)
             if grid.count > 0:
@@ -156,14 +160,15 @@ def compute_segment(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGr
             trans *= 1.0 - a
             if trans < vp.stop_t:
                 break
-    return rad, trans, hist
+    return rad, trans, hist, chist
 
 
 @wp.kernel
 def composite_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
                      me: MeanExtinction, vp: ViewParams, seg_rad: wp.array(dtype=wp.vec3),
                      seg_t: wp.array(dtype=wp.float32), seg_hist: wp.array(dtype=wp.uint64),
-                     seg_state: wp.array(dtype=wp.int32), radiance: wp.array2d(dtype=wp.vec3),
+                     seg_chist: wp.array(dtype=wp.uint64), seg_state: wp.array(dtype=wp.int32),
+                     radiance: wp.array2d(dtype=wp.vec3),
                      alpha: wp.array2d(dtype=wp.float32), computed: wp.array(dtype=wp.int32)):
     """Composite a pixel's segments front to back (eq. 4), computing the visible ones that
     are not stored yet and marking occluded ones as not computed.
@@ -182,10 +187,11 @@ def composite_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonG
             seg_state[idx] = NOT_COMPUTED
             continue
         if seg_state[idx] == NOT_COMPUTED:
-            r, t, h = compute_segment(m, cam, lights, grid, me, vp, row, col, i)
+            r, t, h, c = compute_segment(m, cam, lights, grid, me, vp, row, col, i)
             seg_rad[idx] = r
             seg_t[idx] = t
             seg_hist[idx] = h
+            seg_chist[idx] = c
             seg_state[idx] = COMPUTED
             wp.atomic_add(computed, 0, 1)
         total += prefix * seg_rad[idx]
@@ -196,14 +202,15 @@ def composite_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonG
 
 @wp.kernel
 def segment_query_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
-                         seg_hist: wp.array(dtype=wp.uint64), seg_state: wp.array(dtype=wp.int32),
-                         query: wp.uint64, spatial: wp.array(dtype=wp.uint64),
+                         seg_hist: wp.array(dtype=wp.uint64), seg_chist: wp.array(dtype=wp.uint64),
+                         seg_state: wp.array(dtype=wp.int32), query: wp.uint64,
+                         cquery: wp.uint64, spatial: wp.array(dtype=wp.uint64),
                          use_spatial: int, spatial_scale: wp.vec3, radius: float,
                          flags: wp.array(dtype=wp.int32)):
     """Flag the stored segments an edit invalidates.
 
     ``wp.tid()`` indexes segments (``pixel * V_n + i``). A computed segment is invalid when
-    its Historygram meets the query mask, or (``use_spatial``) when its bounding box grown
+    its Historygrams meet the query masks (extinction ``query``, colour ``cquery``), or (``use_spatial``) when its bounding box grown
     by the photon ``radius`` meets set bits of the spatial Historygram on all three axes
     (``spatial[a]``: 64 bins over ``[0, extent_a]``, ``spatial_scale = 64 / extent``).
     """
@@ -211,7 +218,7 @@ def segment_query_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
     flags[idx] = 0
     if seg_state[idx] != COMPUTED:
         return
-    if (seg_hist[idx] & query) != wp.uint64(0):
+    if ((seg_hist[idx] & query) | (seg_chist[idx] & cquery)) != wp.uint64(0):
         flags[idx] = 1
         return
     if use_spatial == 0:
@@ -241,7 +248,7 @@ def segment_query_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
 def recompute_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
                      me: MeanExtinction, vp: ViewParams, work: wp.array(dtype=wp.int32),
                      seg_rad: wp.array(dtype=wp.vec3), seg_t: wp.array(dtype=wp.float32),
-                     seg_hist: wp.array(dtype=wp.uint64)):
+                     seg_hist: wp.array(dtype=wp.uint64), seg_chist: wp.array(dtype=wp.uint64)):
     """``wp.tid()`` indexes the list of invalid segments (entries ``pixel * V_n + i``):
     recompute each one independently (the paper's load-balanced update)."""
     w = wp.tid()
@@ -250,7 +257,8 @@ def recompute_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonG
     i = idx - pix * vp.segments
     row = pix // cam.width
     col = pix - row * cam.width
-    r, t, h = compute_segment(m, cam, lights, grid, me, vp, row, col, i)
+    r, t, h, c = compute_segment(m, cam, lights, grid, me, vp, row, col, i)
     seg_rad[idx] = r
     seg_t[idx] = t
     seg_hist[idx] = h
+    seg_chist[idx] = c

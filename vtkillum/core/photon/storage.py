@@ -11,10 +11,10 @@ is light that has not scattered yet). ``start`` is the exclusive prefix sum of
 updated incrementally and one traced from scratch with the same seed are the same
 bytes.
 
-Per interaction (:class:`Interactions`, 52 bytes): position (local frame), incoming
-travel direction, incoming RGB flux, the data value that placed it (its σt weights
-the density estimate, its colour drives the roulette), the Historygram of
-everything the photon used up to here, the random-number state after placing it
+Per interaction (:class:`Interactions`, 68 bytes): position (local frame), incoming
+travel direction, incoming RGB flux, the data value that placed it (its colour drives
+the roulette), the Historygrams of everything the photon used up to here (extinction
+and colour bins), the random-number state after placing it
 (a retrace continues from here), the scattering order and the owning photon.
 
 A retrace (:func:`vtkillum.core.photon.tracing.retrace`) replaces the tail of some
@@ -35,9 +35,9 @@ from vtkillum.core.device import init_warp
 init_warp()
 
 #: Bytes per stored interaction (see :class:`Interactions`).
-INTERACTION_BYTES = 3 * 12 + 4 + 8 + 4 + 4 + 4
-#: Bytes per photon path: start, count, end reason (int32) and path Historygram (uint64).
-PATH_BYTES = 4 + 4 + 4 + 8
+INTERACTION_BYTES = 3 * 12 + 4 + 8 + 8 + 4 + 4 + 4
+#: Bytes per photon path: start, count, end reason (int32) and path Historygrams (uint64).
+PATH_BYTES = 4 + 4 + 4 + 8 + 8
 
 #: Why a photon path ended (``PhotonMap.end``).
 ESCAPED = wp.constant(0)
@@ -57,6 +57,7 @@ class Interactions:
     flux: wp.array(dtype=wp.vec3)
     value: wp.array(dtype=wp.float32)
     hist: wp.array(dtype=wp.uint64)
+    chist: wp.array(dtype=wp.uint64)
     rng: wp.array(dtype=wp.uint32)
     order: wp.array(dtype=wp.int32)
     owner: wp.array(dtype=wp.int32)
@@ -71,6 +72,7 @@ def allocate(n: int, device: str) -> Interactions:
     it.flux = wp.empty(n, dtype=wp.vec3, device=device)
     it.value = wp.empty(n, dtype=wp.float32, device=device)
     it.hist = wp.empty(n, dtype=wp.uint64, device=device)
+    it.chist = wp.empty(n, dtype=wp.uint64, device=device)
     it.rng = wp.empty(n, dtype=wp.uint32, device=device)
     it.order = wp.empty(n, dtype=wp.int32, device=device)
     it.owner = wp.empty(n, dtype=wp.int32, device=device)
@@ -171,6 +173,7 @@ def copy_interaction(src: Interactions, i: int, dst: Interactions, j: int):
     dst.flux[j] = src.flux[i]
     dst.value[j] = src.value[i]
     dst.hist[j] = src.hist[i]
+    dst.chist[j] = src.chist[i]
     dst.rng[j] = src.rng[i]
     dst.order[j] = src.order[i]
     dst.owner[j] = src.owner[i]

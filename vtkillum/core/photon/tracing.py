@@ -187,6 +187,7 @@ class PhotonMap:
         self.start = wp.zeros(n, dtype=wp.int32, device=device)
         self.count = wp.zeros(n, dtype=wp.int32, device=device)
         self.path_hist = wp.zeros(n, dtype=wp.uint64, device=device)
+        self.path_chist = wp.zeros(n, dtype=wp.uint64, device=device)
         self.end = wp.zeros(n, dtype=wp.int32, device=device)
         self.interactions: Interactions = allocate(1, device)
         self.total = 0
@@ -235,10 +236,12 @@ class PhotonMap:
                                         self.n_photons)
             work_count = wp.zeros(n_work, dtype=wp.int32, device=device)
             work_hist = wp.zeros(n_work, dtype=wp.uint64, device=device)
+            work_chist = wp.zeros(n_work, dtype=wp.uint64, device=device)
             work_end = wp.zeros(n_work, dtype=wp.int32, device=device)
             wp.launch(trace_kernel, dim=n_work,
                       inputs=[medium, emitters, params, photons, restart, self.interactions,
-                              scratch, work_count, work_hist, work_end], device=device)
+                              scratch, work_count, work_hist, work_chist, work_end],
+                      device=device)
             keep = wp.clone(self.count)
             new_count = wp.clone(self.count)
             wp.launch(new_counts_kernel, dim=n_work,
@@ -253,8 +256,9 @@ class PhotonMap:
             next_flag = wp.zeros(n_work, dtype=wp.int32, device=device)
             next_restart = wp.zeros(n_work, dtype=wp.int32, device=device)
             wp.launch(finish_paths_kernel, dim=n_work,
-                      inputs=[photons, work_hist, work_end, new_start, new_count,
-                              self.path_hist, self.end, next_flag, next_restart],
+                      inputs=[photons, work_hist, work_chist, work_end, new_start, new_count,
+                              self.path_hist, self.path_chist, self.end, next_flag,
+                              next_restart],
                       device=device)
             added += int(work_count.numpy().sum(dtype=np.int64))
             self.interactions, self.start, self.count, self.total = new, new_start, new_count, \
@@ -279,9 +283,10 @@ class PhotonMap:
         n = self.total
         it = self.interactions
         out = {name: getattr(it, name).numpy()[:n].copy() for name in
-               ("pos", "dir", "flux", "value", "hist", "rng", "order", "owner")}
+               ("pos", "dir", "flux", "value", "hist", "chist", "rng", "order", "owner")}
         out.update(start=self.start.numpy().copy(), count=self.count.numpy().copy(),
-                   path_hist=self.path_hist.numpy().copy(), end=self.end.numpy().copy())
+                   path_hist=self.path_hist.numpy().copy(),
+                   path_chist=self.path_chist.numpy().copy(), end=self.end.numpy().copy())
         return out
 
 
@@ -309,14 +314,15 @@ def _check_total(new_total: int, old_total: int, n_photons: int, device: str, li
 def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, work_photon: wp.array(dtype=wp.int32),
                  work_restart: wp.array(dtype=wp.int32), stored: Interactions,
                  scratch: Interactions, work_count: wp.array(dtype=wp.int32),
-                 work_hist: wp.array(dtype=wp.uint64), work_end: wp.array(dtype=wp.int32)):
+                 work_hist: wp.array(dtype=wp.uint64), work_chist: wp.array(dtype=wp.uint64),
+                 work_end: wp.array(dtype=wp.int32)):
     """Trace one photon path (or its tail) into scratch.
 
     ``wp.tid()`` indexes the work list: photon ``work_photon[w]`` restarts at stored
     interaction ``work_restart[w]`` (-1: emitted afresh) and writes up to ``tp.capacity``
     interactions to ``scratch[w * capacity ...]``. Positions in the local frame (world
     units), flux in the lights' power units. Writes the number written, the path's
-    Historygram at its end and why it ended (``OVERFLOW``: scratch full, to be continued
+    Historygrams at its end and why it ended (``OVERFLOW``: scratch full, to be continued
     from the last interaction written).
     """
     w = wp.tid()
@@ -328,6 +334,7 @@ def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, work_photon: wp.array
     d = wp.vec3(0.0, 0.0, 1.0)
     phi = wp.vec3(0.0)
     H = wp.uint64(0)
+    C = wp.uint64(0)
     order = int(0)
     s = float(0.0)
     state = wp.uint32(0)
@@ -341,6 +348,7 @@ def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, work_photon: wp.array
         phi = stored.flux[j]
         s = stored.value[j]
         H = stored.hist[j]
+        C = stored.chist[j]
         state = stored.rng[j]
         order = stored.order[j]
         scatter = 1
@@ -353,6 +361,7 @@ def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, work_photon: wp.array
             if order >= tp.max_vertices:
                 end = CAPPED
                 break
+            C = C | data_bin(s, tp.bin_lo, tp.bin_scale)
             a = m.albedo * lookup_color(m, s)
             q = wp.max(a[0], wp.max(a[1], a[2]))
             u, state = uniform(state)
@@ -398,6 +407,7 @@ def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, work_photon: wp.array
         scratch.flux[k] = phi
         scratch.value[k] = s
         scratch.hist[k] = H
+        scratch.chist[k] = C
         scratch.rng[k] = state
         scratch.order[k] = order
         scratch.owner[k] = p
@@ -407,6 +417,7 @@ def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, work_photon: wp.array
             break
     work_count[w] = n
     work_hist[w] = H
+    work_chist[w] = C
     work_end[w] = end
 
 
@@ -428,15 +439,17 @@ def new_counts_kernel(work_photon: wp.array(dtype=wp.int32), work_restart: wp.ar
 
 @wp.kernel
 def finish_paths_kernel(work_photon: wp.array(dtype=wp.int32), work_hist: wp.array(dtype=wp.uint64),
-                        work_end: wp.array(dtype=wp.int32), new_start: wp.array(dtype=wp.int32),
-                        new_count: wp.array(dtype=wp.int32), path_hist: wp.array(dtype=wp.uint64),
-                        end: wp.array(dtype=wp.int32), next_flag: wp.array(dtype=wp.int32),
-                        next_restart: wp.array(dtype=wp.int32)):
+                        work_chist: wp.array(dtype=wp.uint64), work_end: wp.array(dtype=wp.int32),
+                        new_start: wp.array(dtype=wp.int32), new_count: wp.array(dtype=wp.int32),
+                        path_hist: wp.array(dtype=wp.uint64),
+                        path_chist: wp.array(dtype=wp.uint64), end: wp.array(dtype=wp.int32),
+                        next_flag: wp.array(dtype=wp.int32), next_restart: wp.array(dtype=wp.int32)):
     """``wp.tid()`` indexes the work list: record how each path ended; paths whose scratch
     overflowed continue from their last interaction in the next round."""
     w = wp.tid()
     p = work_photon[w]
     path_hist[p] = work_hist[w]
+    path_chist[p] = work_chist[w]
     end[p] = work_end[w]
     if work_end[w] == OVERFLOW:
         next_flag[w] = 1
