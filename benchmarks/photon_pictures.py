@@ -20,7 +20,6 @@ import argparse
 import time
 from pathlib import Path
 
-import numpy as np
 from PIL import Image, ImageDraw
 
 from vtkillum.core.photon.mapper import PhotonMapper

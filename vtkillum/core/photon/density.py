@@ -132,7 +132,7 @@ def mean_sigma(me: MeanExtinction, x: wp.vec3):
 def kernel_bins(me: MeanExtinction, x: wp.vec3):
     """Data bins that ``σ̄t(x)`` depends on: the masks of the 8 grid points around ``x``."""
     a = me.mask
-    idx, f = trilinear_index(x, me.inv_spacing, wp.vec3i(a.shape[0], a.shape[1], a.shape[2]))
+    idx, _f = trilinear_index(x, me.inv_spacing, wp.vec3i(a.shape[0], a.shape[1], a.shape[2]))
     i = idx[0]
     j = idx[1]
     k = idx[2]

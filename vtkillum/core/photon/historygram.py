@@ -40,6 +40,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp
+from vtkillum.core.photon.storage import Interactions
 
 init_warp()
 
@@ -142,7 +143,6 @@ def mask_bins(mask: int) -> list[int]:
 
 
 # --- kernels -------------------------------------------------------------------------------------
-from vtkillum.core.photon.storage import Interactions  # noqa: E402
 
 
 @wp.kernel

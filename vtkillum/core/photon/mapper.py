@@ -188,12 +188,16 @@ class PhotonMapper:
                 stats.update(self._incremental(volume, hq))
         if stats["mode"] != "unchanged":
             t_hash = time.perf_counter()
-            self.grid = build_photon_grid(self.map.interactions, self.map.total, volume.extent,
-                                          self.radius, self.min_order, device)
-            self.extinction = mean_extinction(
-                self.medium, volume, self.radius, device,
-                None if stats["mode"] == "full" else self.extinction.mask,
-                bin_scale(volume.value_range))
+            # The hash only moves when photons did; σ̄t only when σt did.
+            if stats["mode"] == "full" or stats["photons_retraced"] > 0:
+                self.grid = build_photon_grid(self.map.interactions, self.map.total,
+                                              volume.extent, self.radius, self.min_order,
+                                              device)
+            if stats["mode"] == "full" or stats.get("sigma_changed", True):
+                self.extinction = mean_extinction(
+                    self.medium, volume, self.radius, device,
+                    None if stats["mode"] == "full" else self.extinction.mask,
+                    bin_scale(volume.value_range))
             wp.synchronize_device(device)
             stats["ms"]["hash"] = 1e3 * (time.perf_counter() - t_hash)
             self._accum = None
@@ -239,10 +243,10 @@ class PhotonMapper:
         self._pending_query = (self._pending_query[0] | int(hq[0]),
                                self._pending_query[1] | int(hq[1]))
         self._pending_spatial |= spatial.numpy()
-        return {"mode": "incremental", "photons_retraced": n_work,
+        return {"mode": "incremental", "photons_retraced": n_work, "sigma_changed": bool(hq[0]),
                 "photon_fraction": n_work / n, "interactions_removed": int(removed.numpy()[0]),
                 "interactions_added": int(added),
-                "query_bins": bin(int(hq[0]) | int(hq[1])).count("1"),
+                "query_bins": (int(hq[0]) | int(hq[1])).bit_count(),
                 "ms": {"query": 1e3 * (t_trace - t0), "trace": 1e3 * (t_end - t_trace),
                        "hash": 0.0}}
 
@@ -313,8 +317,7 @@ class PhotonMapper:
         self._pending_spatial[:] = 0
         self._full_pending = False
         n_computed = int(computed.numpy()[0])
-        states = self._seg["state"].numpy()
-        info = {"mode": mode, "segments": n_seg, "segments_stored": int(states.sum()),
+        info = {"mode": mode, "segments": n_seg,
                 "segments_recomputed": recomputed + n_computed,
                 "segment_fraction": (recomputed + n_computed) / max(n_seg, 1),
                 "segments_queried": queried,

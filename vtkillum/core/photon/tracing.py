@@ -47,7 +47,6 @@ from vtkillum.core.photon.historygram import bin_scale, data_bin
 from vtkillum.core.photon.storage import (
     ABSORBED,
     CAPPED,
-    END_NAMES,
     ESCAPED,
     ORDER_LIMIT,
     OVERFLOW,
@@ -199,8 +198,8 @@ class PhotonMap:
         self.count.zero_()
         self.start.zero_()
         self.total = 0
-        photons = wp.array(np.arange(self.n_photons, dtype=np.int32), dtype=wp.int32,
-                           device=self.device)
+        photons = wp.empty(self.n_photons, dtype=wp.int32, device=self.device)
+        wp.launch(iota_kernel, dim=self.n_photons, inputs=[photons], device=self.device)
         restart = wp.full(self.n_photons, -1, dtype=wp.int32, device=self.device)
         return self.retrace(medium, emitters, value_range, photons, restart)
 
@@ -216,7 +215,7 @@ class PhotonMap:
         device = self.device
         lo, scale = bin_scale(value_range)
         traced = int(photons.shape[0])
-        added = 0
+        counters = wp.zeros(2, dtype=wp.int32, device=device)  # added, capped
         rounds = 0
         slots = self.first_slots
         while photons.shape[0] > 0:
@@ -245,8 +244,8 @@ class PhotonMap:
             keep = wp.clone(self.count)
             new_count = wp.clone(self.count)
             wp.launch(new_counts_kernel, dim=n_work,
-                      inputs=[photons, restart, self.start, work_count, keep, new_count],
-                      device=device)
+                      inputs=[photons, restart, self.start, work_count, work_end, keep,
+                              new_count, counters], device=device)
             new_start = wp.empty(self.n_photons, dtype=wp.int32, device=device)
             new_total = exclusive_scan(new_count, new_start)
             _check_total(new_total, self.total, self.n_photons, device, self.memory_limit_mb)
@@ -260,7 +259,6 @@ class PhotonMap:
                               self.path_hist, self.path_chist, self.end, next_flag,
                               next_restart],
                       device=device)
-            added += int(work_count.numpy().sum(dtype=np.int64))
             self.interactions, self.start, self.count, self.total = new, new_start, new_count, \
                 new_total
             work_idx, restart = select(next_flag, next_restart, device)
@@ -270,10 +268,9 @@ class PhotonMap:
                 wp.launch(gather_int_kernel, dim=work_idx.shape[0],
                           inputs=[work_idx, finished, photons], device=device)
             rounds += 1
-        wp.synchronize_device(device)
-        ends = np.bincount(self.end.numpy(), minlength=len(END_NAMES))
-        self.stats = {"photons": traced, "interactions_added": int(added), "rounds": rounds,
-                      "capped": int(ends[CAPPED]), "total": self.total,
+        added, capped = (int(c) for c in counters.numpy())
+        self.stats = {"photons": traced, "interactions_added": added, "rounds": rounds,
+                      "capped": capped, "total": self.total,
                       "ms": 1e3 * (time.perf_counter() - t0)}
         return self.stats
 
@@ -424,9 +421,11 @@ def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, work_photon: wp.array
 @wp.kernel
 def new_counts_kernel(work_photon: wp.array(dtype=wp.int32), work_restart: wp.array(dtype=wp.int32),
                       start: wp.array(dtype=wp.int32), work_count: wp.array(dtype=wp.int32),
-                      keep: wp.array(dtype=wp.int32), new_count: wp.array(dtype=wp.int32)):
+                      work_end: wp.array(dtype=wp.int32), keep: wp.array(dtype=wp.int32),
+                      new_count: wp.array(dtype=wp.int32), counters: wp.array(dtype=wp.int32)):
     """``wp.tid()`` indexes the work list: the photon keeps its interactions up to the restart
-    and gains the ones just traced."""
+    and gains the ones just traced (counted in ``counters[0]``; capped paths in
+    ``counters[1]``)."""
     w = wp.tid()
     p = work_photon[w]
     j = work_restart[w]
@@ -435,6 +434,9 @@ def new_counts_kernel(work_photon: wp.array(dtype=wp.int32), work_restart: wp.ar
         kept = j - start[p] + 1
     keep[p] = kept
     new_count[p] = kept + work_count[w]
+    wp.atomic_add(counters, 0, work_count[w])
+    if work_end[w] == CAPPED:
+        wp.atomic_add(counters, 1, 1)
 
 
 @wp.kernel
@@ -454,6 +456,13 @@ def finish_paths_kernel(work_photon: wp.array(dtype=wp.int32), work_hist: wp.arr
     if work_end[w] == OVERFLOW:
         next_flag[w] = 1
         next_restart[w] = new_start[p] + new_count[p] - 1
+
+
+@wp.kernel
+def iota_kernel(out: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` indexes ``out``: ``out[i] = i``."""
+    i = wp.tid()
+    out[i] = i
 
 
 @wp.kernel
