@@ -122,3 +122,26 @@ def make_reference(spp: int = 16384) -> None:
 
 if __name__ == "__main__":
     make_reference()
+
+
+def test_progressive_passes_shrink_the_radius_and_average():
+    from vtkillum.core.photon.mapper import PhotonMapper, radius_schedule
+
+    radii = radius_schedule(1.0, 6, 2.0 / 3.0)
+    assert radii[0] == 1.0 and all(b < a for a, b in zip(radii, radii[1:]))
+    # r_{i+1}^3 = r_i^3 (i + alpha) / (i + 1)
+    np.testing.assert_allclose(radii[2] ** 3, radii[1] ** 3 * (2 + 2 / 3) / 3)
+    volume, scene = ball(3.0)
+    m = PhotonMapper("cpu", 3000, 2.0 * volume.mean_spacing(), segments=2)
+    m.update(volume, scene.transfer_function, scene.opacity_unit_distance, scene.albedo,
+             scene.anisotropy, scene.lights)
+    camera, step = scene.resolved_camera(volume), scene.resolved_step_size(volume)
+    first = m.render(volume, camera, 16, 16, step)
+    refined = m.refine(volume, camera, 16, 16, step, passes=3)
+    assert m.passes == 4 and refined.info["passes"] == 4
+    assert not np.array_equal(refined.radiance, first.radiance)
+    # Nothing changed: a render keeps the average; a budget of 0 s still adds one pass.
+    again = m.render(volume, camera, 16, 16, step)
+    np.testing.assert_array_equal(again.radiance, refined.radiance)
+    m.refine(volume, camera, 16, 16, step, passes=10, budget_s=0.0)
+    assert m.passes == 5

@@ -348,10 +348,11 @@ class PhotonMapper:
         if self._accum is None or self._view is None:
             raise ValueError("refine() continues the image of the last render(); render first")
         rad_sum, alpha_sum, done = self._accum
+        first = done
         start = time.perf_counter()
         radii = radius_schedule(self.radius, done + int(passes), self.alpha)
-        for k in range(done, done + int(passes)):
-            if budget_s is not None and k > done and time.perf_counter() - start > budget_s:
+        for k in range(first, first + int(passes)):
+            if budget_s is not None and k > first and time.perf_counter() - start > budget_s:
                 break
             pm = PhotonMap(self.photons, self.device, stream_seed(self.seed, k, PHOTON_SALT),
                            self.max_order, self.map.step, self.memory_limit_mb)
@@ -381,7 +382,7 @@ class PhotonMapper:
             alpha_sum = alpha_sum + alpha.numpy()
             done += 1
             if progress is not None:
-                progress((k + 1 - self._accum[2]) / max(int(passes), 1))
+                progress((k + 1 - first) / max(int(passes), 1))
         self._accum = (rad_sum, alpha_sum, done)
         return RenderResult((rad_sum / done).astype(np.float32),
                             (alpha_sum / done).astype(np.float32),
