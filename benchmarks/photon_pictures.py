@@ -7,7 +7,9 @@
 * ``photon_cornell_orders.png`` — single scattering (``S_n = 1``) next to unbounded
   multiple scattering, photons for all light as in the paper's Fig. 4(b, c), and the
   default (exact direct light + scattered photons).
-* ``photon_ct.png`` — the CT phantom: ``single`` next to ``photon`` (multiple scattering).
+* ``photon_ct.png`` — the CT phantom: ``single``, ``photon`` (multiple scattering), and
+  ``photon`` with the bone scattering as a specular surface (the optional BRDF of
+  :mod:`vtkillum.core.photon.material`).
 
 Usage::
 
@@ -56,6 +58,7 @@ def main(argv=None):
     parser.add_argument("--passes", type=int, default=2)
     parser.add_argument("--device", default=None)
     parser.add_argument("--out", default="docs/images")
+    parser.add_argument("--only", choices=["cornell", "ct"], default=None)
     args = parser.parse_args(argv)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -64,6 +67,13 @@ def main(argv=None):
 
     device = resolve_device(args.device)
 
+    if args.only != "ct":
+        cornell_pictures(args, out, s, device)
+    if args.only != "cornell":
+        ct_pictures(args, out, s, device)
+
+
+def cornell_pictures(args, out, s, device):
     # 1. Cornell box: sphere colour edit through the Historygrams.
     volume = cornell_sphere(args.size)
     scene = cornell_sphere_scene(volume)
@@ -99,14 +109,20 @@ def main(argv=None):
         tiles.append(tile(r, scene, label))
     strip(tiles, out / "photon_cornell_orders.png")
 
-    # 3. CT phantom.
+
+
+def ct_pictures(args, out, s, device):
+    # 3. CT phantom, the bone optionally a specular surface.
     ct = ct_phantom(args.size)
     ct_scene = default_scene("ct", ct)
     single = render(ct, ct_scene, "single", s, s, device)
     photon = render(ct, ct_scene, "photon", s, s, device, photons=args.photons,
                     passes=args.passes)
-    strip([tile(single, ct_scene, "single"), tile(photon, ct_scene, "photon")],
-          out / "photon_ct.png")
+    shiny = render(ct, ct_scene, "photon", s, s, device, photons=args.photons,
+                   passes=args.passes, surface_range=[0.8, 1.0], surface_diffuse=0.5,
+                   surface_specular=0.5, surface_shininess=30.0)
+    strip([tile(single, ct_scene, "single"), tile(photon, ct_scene, "photon"),
+           tile(shiny, ct_scene, "photon, specular bone")], out / "photon_ct.png")
     ratio = float(photon.radiance.sum() / max(single.radiance.sum(), 1e-12))
     print(f"ct: photon / single energy {ratio:.2f}")
 

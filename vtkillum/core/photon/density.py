@@ -44,6 +44,7 @@ import warp as wp
 from vtkillum.core.device import init_warp
 from vtkillum.core.photon.hashgrid import PhotonGrid, gather_flux, gather_phase_flux
 from vtkillum.core.photon.historygram import data_bin
+from vtkillum.core.photon.material import SurfaceParams
 from vtkillum.core.warp_common import (
     Medium,
     grid_point,
@@ -142,12 +143,13 @@ def kernel_bins(me: MeanExtinction, x: wp.vec3):
 
 
 @wp.func
-def photon_radiance(grid: PhotonGrid, me: MeanExtinction, x: wp.vec3, wo: wp.vec3, g: float):
+def photon_radiance(grid: PhotonGrid, me: MeanExtinction, x: wp.vec3, wo: wp.vec3, g: float,
+                    surface: int, n: wp.vec3, sp: SurfaceParams):
     """In-scattered radiance ``L_i(x, wo)`` from the photons (``wo``: towards the viewer)."""
     sbar = mean_sigma(me, x)
     if sbar <= 0.0:
         return wp.vec3(0.0)
-    return gather_phase_flux(grid, x, wo, g) / sbar
+    return gather_phase_flux(grid, x, wo, g, surface, n, sp) / sbar
 
 
 @wp.func

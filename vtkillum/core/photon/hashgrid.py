@@ -31,7 +31,7 @@ import warp as wp
 
 from vtkillum.core.device import init_warp
 from vtkillum.core.photon.storage import Interactions
-from vtkillum.core.warp_common import hg_phase
+from vtkillum.core.photon.material import SurfaceParams, scattering
 
 init_warp()
 
@@ -133,10 +133,12 @@ def cell_coord(grid: PhotonGrid, p: wp.vec3):
 
 
 @wp.func
-def gather_phase_flux(grid: PhotonGrid, x: wp.vec3, wo: wp.vec3, g: float):
-    """``Σ p(ω_p · wo) Φ_p`` over photons within the radius of ``x``, divided by the kernel
+def gather_phase_flux(grid: PhotonGrid, x: wp.vec3, wo: wp.vec3, g: float, surface: int,
+                      n: wp.vec3, sp: SurfaceParams):
+    """``Σ s(ω_p → wo) Φ_p`` over photons within the radius of ``x``, divided by the kernel
     volume (``wo``: unit direction towards the viewer; ``ω_p``: the photon's travel
-    direction): the density of phase-weighted flux, ``σt L_i`` of eq. (8)."""
+    direction; ``s`` the HG phase, or the BRDF lobe of a surface-like sample, see
+    :mod:`~vtkillum.core.photon.material`): ``σt L_i`` of eq. (8)."""
     acc = wp.vec3(0.0)
     if grid.count == 0:
         return acc
@@ -158,7 +160,7 @@ def gather_phase_flux(grid: PhotonGrid, x: wp.vec3, wo: wp.vec3, g: float):
                 for r in range(grid.cell_start[key], grid.cell_end[key]):
                     v = grid.pos[r] - x
                     if wp.dot(v, v) <= r2:
-                        acc += hg_phase(wp.dot(grid.dir[r], wo), g) * grid.power[r]
+                        acc += scattering(grid.dir[r], wo, g, surface, n, sp) * grid.power[r]
     return acc * grid.inv_volume
 
 

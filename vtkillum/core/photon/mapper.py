@@ -40,6 +40,7 @@ import warp as wp
 
 from vtkillum.core.photon.density import mean_extinction
 from vtkillum.core.photon.emission import make_emitters
+from vtkillum.core.photon.material import make_surface
 from vtkillum.core.photon.hashgrid import build_photon_grid
 from vtkillum.core.photon.historygram import (
     ALL_BITS,
@@ -107,12 +108,17 @@ class PhotonMapper:
         voxel spacing.
     memory_limit_mb : float, optional
         Cap on device memory for the photon map (default: what is free).
+    surface : dict, optional
+        ``surface_range``, ``surface_gradient``, ``surface_diffuse``, ``surface_specular``,
+        ``surface_shininess``: the optional BRDF of surface-like samples
+        (:mod:`~vtkillum.core.photon.material`); default off.
     """
 
     def __init__(self, device: str, photons: int, radius: float, max_order: int = 0,
                  segments: int = 8, seed: int = 0, historygrams: bool = True,
                  spatial_historygram: bool = True, direct: str = "exact", alpha: float = 2 / 3,
-                 photon_step: float | None = None, memory_limit_mb: float | None = None) -> None:
+                 photon_step: float | None = None, memory_limit_mb: float | None = None,
+                 surface: dict | None = None) -> None:
         check_config(photons, radius, max_order, segments, direct, alpha)
         self.device = device
         self.photons = int(photons)
@@ -126,6 +132,8 @@ class PhotonMapper:
         self.alpha = float(alpha)
         self.photon_step = photon_step
         self.memory_limit_mb = memory_limit_mb
+        self.surface_options = dict(surface or {})
+        self.surface = None
         self.min_order = 2 if direct == "exact" else 1
         self.map: PhotonMap | None = None
         self.grid = None
@@ -170,9 +178,10 @@ class PhotonMapper:
         if full:
             self._volume = volume
             self.lights = make_lights(lights, volume, device)
+            self.surface = make_surface(self.surface_options, volume)
             self.emitters, _ = make_emitters(lights, volume, self.photons, device)
             self.map = PhotonMap(self.photons, device, stream_seed(self.seed, 0, PHOTON_SALT),
-                                 self.max_order, step, self.memory_limit_mb)
+                                 self.max_order, step, self.memory_limit_mb, self.surface)
             self.medium, self.tables = medium, tables
             trace = self.map.trace(medium, self.emitters, volume.value_range)
             stats.update(mode="full", photons_retraced=self.photons, photon_fraction=1.0,
@@ -295,7 +304,7 @@ class PhotonMapper:
             if recomputed:
                 wp.launch(recompute_kernel, dim=recomputed,
                           inputs=[self.medium, cam, self.lights, self.grid, self.extinction,
-                                  vp, work, self._seg["rad"], self._seg["t"], self._seg["hist"],
+                                  self.surface, vp, work, self._seg["rad"], self._seg["t"], self._seg["hist"],
                                   self._seg["chist"]],
                           device=device)
             mode = "incremental"
@@ -307,7 +316,8 @@ class PhotonMapper:
         alpha = wp.zeros((int(height), int(width)), dtype=wp.float32, device=device)
         computed = wp.zeros(1, dtype=wp.int32, device=device)
         wp.launch(composite_kernel, dim=(int(height), int(width)),
-                  inputs=[self.medium, cam, self.lights, self.grid, self.extinction, vp,
+                  inputs=[self.medium, cam, self.lights, self.grid, self.extinction,
+                          self.surface, vp,
                           self._seg["rad"], self._seg["t"], self._seg["hist"],
                           self._seg["chist"], self._seg["state"], radiance,
                           alpha, computed], device=device)
@@ -355,7 +365,7 @@ class PhotonMapper:
             if budget_s is not None and k > first and time.perf_counter() - start > budget_s:
                 break
             pm = PhotonMap(self.photons, self.device, stream_seed(self.seed, k, PHOTON_SALT),
-                           self.max_order, self.map.step, self.memory_limit_mb)
+                           self.max_order, self.map.step, self.memory_limit_mb, self.surface)
             pm.trace(self.medium, self.emitters, volume.value_range)
             grid = build_photon_grid(pm.interactions, pm.total, volume.extent, radii[k],
                                      self.min_order, self.device)
@@ -375,7 +385,8 @@ class PhotonMapper:
             radiance = wp.zeros((h, w), dtype=wp.vec3, device=self.device)
             alpha = wp.zeros((h, w), dtype=wp.float32, device=self.device)
             wp.launch(composite_kernel, dim=(h, w),
-                      inputs=[self.medium, cam, self.lights, grid, me, vp, *seg, radiance, alpha,
+                      inputs=[self.medium, cam, self.lights, grid, me, self.surface, vp, *seg,
+                              radiance, alpha,
                               wp.zeros(1, dtype=wp.int32, device=self.device)],
                       device=self.device)
             rad_sum = rad_sum + radiance.numpy()
@@ -406,7 +417,7 @@ class PhotonMapper:
             if progress is not None:
                 progress(k / passes)
             pm = PhotonMap(self.photons, self.device, stream_seed(self.seed, k, PHOTON_SALT),
-                           self.max_order, self.map.step, self.memory_limit_mb)
+                           self.max_order, self.map.step, self.memory_limit_mb, self.surface)
             pm.trace(self.medium, self.emitters, volume.value_range)
             grid = build_photon_grid(pm.interactions, pm.total, volume.extent, radii[k],
                                      self.min_order, self.device)

@@ -26,6 +26,12 @@ section, see :data:`vtkillum.core.scene.METHOD_OPTIONS`; on the command line
                         scattered light; ``"photons"``: photons for all light (the paper)
 ``passes``              progressive passes averaged (1)
 ``alpha``               radius reduction per pass (2/3)
+``surface_range``       data values ``[lo, hi]`` that may scatter like a surface (a BRDF
+                        instead of the HG phase where the data gradient is steep;
+                        ``[0, 0]``: off, the default), with ``surface_gradient`` (0.02,
+                        relative to data range per voxel), ``surface_diffuse`` (0.6),
+                        ``surface_specular`` (0.4), ``surface_shininess`` (40); see
+                        :mod:`~vtkillum.core.photon.material`
 ``step_size``, ``jitter``, ``early_termination``  view-ray sampling (scene step, True, 0.999)
 ``photon_step``         ray-marching step of photon flights, world units (half a voxel)
 ``memory_limit_mb``     cap on the photon map's memory (default: what the device has free)
@@ -44,13 +50,14 @@ import numpy as np
 
 from vtkillum.core.device import resolve_device
 from vtkillum.core.photon.mapper import PhotonMapper, check_config
+from vtkillum.core.photon.material import SURFACE_DEFAULTS, make_surface, surface_key
 from vtkillum.core.raymarch import ray_options
 from vtkillum.core.render import RenderResult
 
 #: The scene section's fields and their defaults (mirrors ``METHOD_OPTIONS["photon"]``).
 PHOTON_DEFAULTS = {"photons": 200_000, "radius": 2.0, "max_order": 0, "segments": 8, "seed": 0,
                    "historygrams": True, "spatial_historygram": True, "direct": "exact",
-                   "passes": 1, "alpha": 2.0 / 3.0}
+                   "passes": 1, "alpha": 2.0 / 3.0, **SURFACE_DEFAULTS}
 EXTRA = {"step_size": None, "jitter": True, "early_termination": 0.999, "photon_step": None,
          "memory_limit_mb": None, "mapper": None}
 
@@ -66,7 +73,7 @@ def render_photon(volume, scene, width: int, height: int, device: str | None = N
         config = tuple((k, opts[k]) for k in ("photons", "radius", "max_order", "segments",
                                               "seed", "historygrams", "spatial_historygram",
                                               "direct", "alpha", "photon_step",
-                                              "memory_limit_mb"))
+                                              "memory_limit_mb")) + surface_key(opts)
         mapper = volume.derived("photon_mapper", (device, config),
                                 lambda: make_mapper(volume, device, opts))
     elif mapper.device != device:
@@ -103,7 +110,8 @@ def make_mapper(volume, device: str, opts: dict) -> PhotonMapper:
     return PhotonMapper(device, opts["photons"], opts["radius"] * volume.mean_spacing(),
                         opts["max_order"], opts["segments"], opts["seed"],
                         opts["historygrams"], opts["spatial_historygram"], opts["direct"],
-                        opts["alpha"], opts["photon_step"], opts["memory_limit_mb"])
+                        opts["alpha"], opts["photon_step"], opts["memory_limit_mb"],
+                        {k: opts[k] for k in SURFACE_DEFAULTS})
 
 
 def parse_options(options: dict, volume, scene) -> dict:
@@ -127,6 +135,7 @@ def parse_options(options: dict, volume, scene) -> dict:
     step = opts["photon_step"]
     if step is not None and not (np.isfinite(step) and step > 0):
         raise ValueError(f"photon_step must be a positive number of world units, got {step!r}")
+    make_surface(opts, volume)  # validates the surface options
     opts.update(ray_options(opts, volume, scene))
     for key in ("photons", "max_order", "segments", "passes"):
         opts[key] = int(opts[key])

@@ -38,12 +38,12 @@ from vtkillum.core.device import init_warp
 from vtkillum.core.photon.density import MeanExtinction, kernel_bins, photon_radiance
 from vtkillum.core.photon.hashgrid import PhotonGrid
 from vtkillum.core.photon.historygram import axis_bits, data_bin
+from vtkillum.core.photon.material import SurfaceParams, scattering, surface_normal
 from vtkillum.core.raymarch import pixel_ray, sample_count
 from vtkillum.core.warp_common import (
     CameraParams,
     Lights,
     Medium,
-    hg_phase,
     light_incidence,
     lookup_color,
     lookup_sigma_t,
@@ -125,7 +125,8 @@ def segment_samples(n: int, segments: int, i: int):
 
 @wp.func
 def compute_segment(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
-                    me: MeanExtinction, vp: ViewParams, row: int, col: int, i: int):
+                    me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, row: int, col: int,
+                    i: int):
     """Radiance, transmittance and Historygrams (extinction, colour) of segment ``i`` of
     pixel ``(row, col)``."""
     o, d, t0, xi, n = ray_setup(m, cam, vp, row, col)
@@ -143,7 +144,8 @@ def compute_segment(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGr
         if sig > 0.0:
             chist = chist | data_bin(s, vp.bin_lo, vp.bin_scale)
             a = 1.0 - wp.exp(-sig * vp.step)
-            light = photon_radiance(grid, me, p, -d, m.g)
+            surf, normal = surface_normal(m, sp, p, s)
+            light = photon_radiance(grid, me, p, -d, m.g, surf, normal, sp)
             if grid.count > 0:
                 hist = hist | kernel_bins(me, p)
             if vp.direct != 0:
@@ -155,7 +157,7 @@ def compute_segment(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGr
                     t_l, h_l = shadow_march(m, p, wl, dist, vp.step, sxi, vp.stop_t,
                                             vp.bin_lo, vp.bin_scale)
                     hist = hist | h_l
-                    light += (hg_phase(wp.dot(wl, d), m.g) * t_l) * e
+                    light += (scattering(-wl, -d, m.g, surf, normal, sp) * t_l) * e
             rad += (trans * a * m.albedo) * wp.cw_mul(lookup_color(m, s), light)
             trans *= 1.0 - a
             if trans < vp.stop_t:
@@ -165,7 +167,7 @@ def compute_segment(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGr
 
 @wp.kernel
 def composite_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
-                     me: MeanExtinction, vp: ViewParams, seg_rad: wp.array(dtype=wp.vec3),
+                     me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, seg_rad: wp.array(dtype=wp.vec3),
                      seg_t: wp.array(dtype=wp.float32), seg_hist: wp.array(dtype=wp.uint64),
                      seg_chist: wp.array(dtype=wp.uint64), seg_state: wp.array(dtype=wp.int32),
                      radiance: wp.array2d(dtype=wp.vec3),
@@ -187,7 +189,7 @@ def composite_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonG
             seg_state[idx] = NOT_COMPUTED
             continue
         if seg_state[idx] == NOT_COMPUTED:
-            r, t, h, c = compute_segment(m, cam, lights, grid, me, vp, row, col, i)
+            r, t, h, c = compute_segment(m, cam, lights, grid, me, sp, vp, row, col, i)
             seg_rad[idx] = r
             seg_t[idx] = t
             seg_hist[idx] = h
@@ -246,7 +248,7 @@ def segment_query_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
 
 @wp.kernel
 def recompute_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
-                     me: MeanExtinction, vp: ViewParams, work: wp.array(dtype=wp.int32),
+                     me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, work: wp.array(dtype=wp.int32),
                      seg_rad: wp.array(dtype=wp.vec3), seg_t: wp.array(dtype=wp.float32),
                      seg_hist: wp.array(dtype=wp.uint64), seg_chist: wp.array(dtype=wp.uint64)):
     """``wp.tid()`` indexes the list of invalid segments (entries ``pixel * V_n + i``):
@@ -257,7 +259,7 @@ def recompute_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonG
     i = idx - pix * vp.segments
     row = pix // cam.width
     col = pix - row * cam.width
-    r, t, h, c = compute_segment(m, cam, lights, grid, me, vp, row, col, i)
+    r, t, h, c = compute_segment(m, cam, lights, grid, me, sp, vp, row, col, i)
     seg_rad[idx] = r
     seg_t[idx] = t
     seg_hist[idx] = h

@@ -22,7 +22,8 @@ volume (local frame, world units):
    ``q = max_c Λ color_c(s)`` (``σs/σt`` for a grey medium) and then carries
    ``Φ Λ color(s) / q``, so that coloured media need no spectral sampling; otherwise it
    is absorbed.
-5. **Direction**: Henyey–Greenstein importance sampling of the new direction.
+5. **Direction**: Henyey–Greenstein importance sampling of the new direction (or the
+   optional BRDF of surface-like samples, :mod:`~vtkillum.core.photon.material`).
 
 Every random number of photon ``p`` comes from one PCG stream seeded by
 ``(seed, p)``, consumed in a fixed order; the state after each interaction is stored,
@@ -44,6 +45,12 @@ import warp as wp
 from vtkillum.core.device import init_warp
 from vtkillum.core.photon.emission import Emitters, emit_photon
 from vtkillum.core.photon.historygram import bin_scale, data_bin
+from vtkillum.core.photon.material import (
+    SurfaceParams,
+    no_surface,
+    sample_scattering,
+    surface_normal,
+)
 from vtkillum.core.photon.storage import (
     ABSORBED,
     CAPPED,
@@ -64,7 +71,6 @@ from vtkillum.core.warp_common import (
     lookup_sigma_t,
     make_medium,
     ray_box,
-    sample_hg,
     sample_scalar,
     uniform,
 )
@@ -150,6 +156,8 @@ class PhotonMap:
         Longest ray-marching step of the free-path sampling, world units.
     memory_limit_mb : float, optional
         Cap on the memory the map may use (default: what the device has free).
+    surface : SurfaceParams, optional
+        Surface-like materials (:mod:`~vtkillum.core.photon.material`); default off.
 
     Attributes
     ----------
@@ -169,7 +177,8 @@ class PhotonMap:
     """
 
     def __init__(self, n_photons: int, device: str, seed: int = 0, max_order: int = 0,
-                 step: float = 1.0, memory_limit_mb: float | None = None) -> None:
+                 step: float = 1.0, memory_limit_mb: float | None = None,
+                 surface: SurfaceParams | None = None) -> None:
         self.n_photons = int(n_photons)
         if self.n_photons < 1:
             raise ValueError(f"photons must be a positive number, got {n_photons!r}")
@@ -178,6 +187,7 @@ class PhotonMap:
         self.max_order = int(max_order)
         self.step = float(step)
         self.memory_limit_mb = memory_limit_mb
+        self.surface = no_surface() if surface is None else surface
         self.first_slots = (self.max_order if 0 < self.max_order <= FIRST_ROUND_SLOTS
                             else FIRST_ROUND_SLOTS)
         check_fits(self.n_photons, min(self.first_slots, 2), self.first_slots, device,
@@ -238,7 +248,8 @@ class PhotonMap:
             work_chist = wp.zeros(n_work, dtype=wp.uint64, device=device)
             work_end = wp.zeros(n_work, dtype=wp.int32, device=device)
             wp.launch(trace_kernel, dim=n_work,
-                      inputs=[medium, emitters, params, photons, restart, self.interactions,
+                      inputs=[medium, emitters, params, self.surface, photons, restart,
+                              self.interactions,
                               scratch, work_count, work_hist, work_chist, work_end],
                       device=device)
             keep = wp.clone(self.count)
@@ -308,7 +319,8 @@ def _check_total(new_total: int, old_total: int, n_photons: int, device: str, li
 
 # --- kernels -------------------------------------------------------------------------------------
 @wp.kernel
-def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, work_photon: wp.array(dtype=wp.int32),
+def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, sp: SurfaceParams,
+                 work_photon: wp.array(dtype=wp.int32),
                  work_restart: wp.array(dtype=wp.int32), stored: Interactions,
                  scratch: Interactions, work_count: wp.array(dtype=wp.int32),
                  work_hist: wp.array(dtype=wp.uint64), work_chist: wp.array(dtype=wp.uint64),
@@ -368,7 +380,10 @@ def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, work_photon: wp.array
             phi = wp.cw_mul(phi, a) / q
             u1, state = uniform(state)
             u2, state = uniform(state)
-            d = sample_hg(d, m.g, u1, u2)
+            surf, normal = surface_normal(m, sp, x, s)
+            d, weight = sample_scattering(d, m.g, surf, normal, sp, u1, u2)
+            if surf != 0:
+                phi = phi * weight
         scatter = 1
         box = ray_box(x, d, m.extent)
         t0 = wp.max(box[0], 0.0)
