@@ -52,6 +52,12 @@ METHOD_OPTIONS: dict[str, dict] = {
         "ambient_occlusion_strength": 0.25,  # its ambient fluence / sum of light irradiances
         "hardware_filtering": False,   # CUDA texture filtering of the grids (faster, ~1e-3 off)
     },
+    "photon": {  # photon mapping with Historygrams (Jönsson et al. 2012), core/photon/render.py
+        "photons": 200000, "radius": 2.0, "max_order": 0, "segments": 8, "seed": 0,
+        "historygrams": True, "spatial_historygram": True, "direct": "exact", "passes": 1,
+        "alpha": 0.6666666666666666, "surface_range": [0.0, 0.0], "surface_gradient": 0.02,
+        "surface_diffuse": 0.6, "surface_specular": 0.4, "surface_shininess": 40.0,
+    },
 }
 
 SHADING_DEFAULTS = {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0, "shininess": 32.0}
