@@ -226,3 +226,17 @@ def test_illumination_lights_must_match_the_given_lights():
     grid.illum.render("illumination", illumination=lit, lights=DirectionalLight((0, 0, -1)),
                       transfer_function=grey(1.0), opacity_unit_distance=1.0, width=8, height=8,
                       device="cpu")
+
+
+def test_photon_density_accessor_matches_the_filter_convention():
+    """grid.illum.photon_density gives an illumination image the renderer applies with the phase."""
+    grid = slab()
+    light = DirectionalLight((0, 0, -1))
+    out = grid.illum.photon_density(light, transfer_function=grey(2.0), opacity_unit_distance=1.0,
+                                    photons=2000, max_order=1, device="cpu")
+    t = as_ijk(out, "transmittance")
+    depth = (10 - np.arange(11)) * 0.1
+    np.testing.assert_allclose(t[3, 3, :], np.exp(-2.0 * depth), rtol=2e-3, atol=1e-5)
+    assert "scattered_fluence" in out.point_data
+    with pytest.raises(ValueError, match="photons must be a positive integer"):
+        grid.illum.photon_density(light, transfer_function=grey(2.0), photons=0, device="cpu")

@@ -49,6 +49,7 @@ from vtkillum.filters.ambient_extinction import AmbientExtinctionFilter
 from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLightFilter
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
+from vtkillum.filters.photon_density import PhotonDensityFilter
 from vtkillum.filters.rgba_output import DEFAULT_EXPOSURE, with_rgba_output
 from vtkillum.io.convert import (
     transfer_function_from_vtk,
@@ -368,6 +369,37 @@ def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity=
                 lights=lights, rgba=rgba, exposure=exposure)
 
 
+def photon_density(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
+                   clim=None, n_colors=256, flip_scalars=False, transfer_function=None,
+                   opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, photons=200_000,
+                   radius=2.0, max_order=0, seed=0, passes=1, historygrams=True,
+                   direct_light="exact", output_scale=1.0, device=None, rgba=False,
+                   exposure=DEFAULT_EXPOSURE):
+    """Jönsson et al.'s photon density light volume (:class:`PhotonDensityFilter`).
+
+    ``photons`` per pass, ``radius`` in voxels, ``max_order`` the maximum scattering
+    order S_n (0: unbounded, Russian roulette), ``passes`` of progressive photon mapping,
+    ``direct_light`` ``"exact"`` (per-light transmittance, photons only for scattered
+    light) or ``"photons"`` (the paper's all-photon estimate); other parameters as in
+    :func:`transmittance`.
+
+    Returns
+    -------
+    pyvista.ImageData
+        ``fluence`` (active), ``transmittance`` (one component per light) and
+        ``scattered_fluence`` on the light grid, its lights as field data (see
+        :func:`convection_diffusion`).
+    """
+    optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
+                     transfer_function, opacity_unit_distance)
+    return _run(PhotonDensityFilter, grid, scalars, optics,
+                {"Albedo": albedo, "Anisotropy": anisotropy, "Photons": photons,
+                 "Radius": radius, "MaxOrder": max_order, "Seed": seed, "Passes": passes,
+                 "Historygrams": historygrams, "DirectLight": direct_light,
+                 "OutputScale": output_scale, "Device": device},
+                lights=lights, rgba=rgba, exposure=exposure)
+
+
 def ambient_extinction(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
                        clim=None, n_colors=256, flip_scalars=False, transfer_function=None,
                        opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, radius=4.0,
@@ -572,6 +604,9 @@ class IllumAccessor:
 
     def convection_diffusion(self, *args, **kwargs):
         return convection_diffusion(self._grid, *args, **kwargs)
+
+    def photon_density(self, *args, **kwargs):
+        return photon_density(self._grid, *args, **kwargs)
 
     def ambient_extinction(self, *args, **kwargs):
         return ambient_extinction(self._grid, *args, **kwargs)
