@@ -82,6 +82,7 @@ from vtkillum.core.warp_common import (
     CameraParams,
     Lights,
     Medium,
+    hg_phase,
     inside_box,
     light_incidence,
     view_normal,
@@ -97,6 +98,9 @@ TILE_H = wp.constant(TILE[1])
 #: Longest delay line (in samples) for reusing ``σt`` at ``x_o``; longer radii sample it.
 DELAY = 64
 DelayLine = wp.types.vector(length=DELAY, dtype=wp.float32)
+#: Estimators of the gather (see the module docstring).
+GATHER_MODES = {"centred": 0, "paper": 1}
+CENTRED = wp.constant(0)
 
 
 def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, camera: CameraParams,
@@ -104,7 +108,7 @@ def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, cam
            seed: int = 0, early_termination: float = 0.999, specular: float = 0.0,
            shininess: float = 32.0, grad_eps: float = 0.0, ambient_occlusion: float = 0.0,
            device: str | None = None, progress=None, occupied=None, spacing=None,
-           textures: AmbientTextures | None = None):
+           textures: AmbientTextures | None = None, mode: str = "centred"):
     """Render one image by ambient ray casting.
 
     Parameters
@@ -120,7 +124,10 @@ def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, cam
     camera : CameraParams
         Camera in the local frame; gives the image size.
     table : ndarray (n_theta, n_sigma) or wp.array2d(float32)
-        ``L̃o`` at the scene's ``g`` over θ in [0, π] × ``r σ̃t`` in [0, sigma_max].
+        At the scene's ``g`` over θ in [0, π] × ``r σ̃t`` in [0, sigma_max]: the scattered
+        part ``M`` of the table (``mode="centred"``,
+        :meth:`~vtkillum.core.ambient.table.PreintegrationTable.scattered_slice`) or ``L̃o``
+        itself (``mode="paper"``, :meth:`~vtkillum.core.ambient.table.PreintegrationTable.g_slice`).
     sigma_max : float
         Optical radius of the table's last column.
     radius : float
@@ -152,6 +159,9 @@ def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, cam
         Sample scalars, ``σ̃t`` and the cache from these textures (hardware filtering,
         CUDA only; :attr:`AmbientState.textures <vtkillum.core.ambient.cache.AmbientState>`)
         instead of ``medium.scalars``, ``sigma_tilde`` and ``cache.data``.
+    mode : {"centred", "paper"}
+        The estimator (see the module docstring): ``"centred"`` (default) or the paper's
+        Algorithm 1 as published (``"paper"``).
 
     Returns
     -------
@@ -163,7 +173,7 @@ def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, cam
     radiance, alpha, samples = gather_device(
         medium, sigma_tilde, cache, lights, camera, table, sigma_max, radius, step, jitter, seed,
         early_termination, specular, shininess, grad_eps, ambient_occlusion, device, progress,
-        occupied, spacing, textures)
+        occupied, spacing, textures, mode)
     height, width = radiance.shape
     rad = radiance.numpy().astype(np.float32).reshape(height, width, 3)
     return rad, alpha.numpy().astype(np.float32), float(samples.numpy().mean())
@@ -174,12 +184,15 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
                   jitter: bool = True, seed: int = 0, early_termination: float = 0.999,
                   specular: float = 0.0, shininess: float = 32.0, grad_eps: float = 0.0,
                   ambient_occlusion: float = 0.0, device: str | None = None, progress=None,
-                  occupied=None, spacing=None, textures: AmbientTextures | None = None):
+                  occupied=None, spacing=None, textures: AmbientTextures | None = None,
+                  mode: str = "centred"):
     """:func:`gather` without the download: warp arrays radiance (H, W) vec3, alpha, samples.
 
     The device is synchronised before returning (for timing the kernel alone).
     """
     device = resolve_device(device)
+    if mode not in GATHER_MODES:
+        raise ValueError(f"gather mode must be one of {sorted(GATHER_MODES)}, got {mode!r}")
     if occupied is None:  # one block covering everything, marked occupied: no skipping
         occupied = wp.ones((1, 1, 1), dtype=wp.int32, device=device)
         block = np.full(3, 1.0e30)
@@ -198,7 +211,8 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
             raise ValueError("gather: hardware-filtered textures need a CUDA device; on the CPU "
                              "pass textures=None (the exact software path)")
         kernel = ambient_gather_texture
-        table = textures.table if textures.table is not None else texture_from(table)
+        given = textures.scattered if mode == "centred" else textures.table
+        table = given if given is not None else texture_from(table)
         optics = textures.optics if textures.optics is not None else optics_texture(medium)
         # textures.scalars holds σ̃t too (sigma_tilde=0 selects that overload)
         sources = [textures.scalars, 0, textures.radiance, optics]
@@ -207,7 +221,8 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
               float(step), int(bool(jitter)), int(seed), float(early_termination),
               float(specular), float(shininess), float(grad_eps), float(ambient_occlusion),
               occupied, wp.vec3(*block.astype(np.float32)),
-              wp.vec3(*(1.0 / block).astype(np.float32)), delay_samples(radius, step)]
+              wp.vec3(*(1.0 / block).astype(np.float32)), delay_samples(radius, step),
+              GATHER_MODES[mode]]
     width, height = int(camera.width), int(camera.height)
     # every pixel is written: no need to clear
     radiance = wp.empty((height, width), dtype=wp.vec3, device=device)
@@ -269,6 +284,22 @@ def sigma_t_from(m: Medium, scalars: Any, optics: Any, p: wp.vec3):
     if not inside_box(p, m.extent):
         return 0.0
     return fetch_optics(optics, m, fetch_data(scalars, m.inv_spacing, p)[0])[3]
+
+
+@wp.func
+def segment_transmittance(m: Medium, scalars: Any, optics: Any, p: wp.vec3, w: wp.vec3,
+                          length: float, step: float, xi: float):
+    """Transmittance of the real medium from ``p`` along unit ``w`` over ``length`` (world
+    units): equal segments no longer than ``step``, each sampled at fraction ``xi`` (0.5: the
+    midpoint rule); ``σt`` as :func:`sigma_t_from` (0 outside the volume)."""
+    if length <= 0.0:
+        return 1.0
+    n = int(wp.ceil(length / step))
+    h = length / float(n)
+    tau = float(0.0)
+    for q in range(n):
+        tau += sigma_t_from(m, scalars, optics, p + ((float(q) + xi) * h) * w)
+    return wp.exp(-tau * h)
 
 
 @wp.func
@@ -340,6 +371,7 @@ def ambient_gather_kernel(
     block: wp.vec3,
     inv_block: wp.vec3,
     delay: int,
+    mode: int,
     row0: int,
     row_end: int,
     tiles_x: int,
@@ -382,14 +414,17 @@ def ambient_gather_kernel(
             xi = wp.randf(state)
         n = sample_count(t0, t1, step, xi)
         stop_t = 1.0 - stop_alpha
+        # The paper attenuates from x_o = x' + r ω, r closer to the camera; the centred
+        # estimator from x' itself.
+        shift = wp.where(mode == CENTRED, 0.0, radius)
         t_matter = float(-1.0e30)  # position of the last sample with sigma_t > 0
         recent = DelayLine()  # sigma_t of sample k at [k % DELAY] (0: leapt over or none yet)
         k = int(0)
         while k < n:
             t = t0 + (float(k) + xi) * step
             p = o + t * d
-            if t - radius > t_matter:
-                # x_o has left all matter behind: leap over a surely empty block
+            if t - shift > t_matter:
+                # (x_o has) left all matter behind: leap over a surely empty block
                 bi = wp.clamp(int(wp.floor(p[0] * inv_block[0])), 0, occupied.shape[0] - 1)
                 bj = wp.clamp(int(wp.floor(p[1] * inv_block[1])), 0, occupied.shape[1] - 1)
                 bk = wp.clamp(int(wp.floor(p[2] * inv_block[2])), 0, occupied.shape[2] - 1)
@@ -419,31 +454,54 @@ def ambient_gather_kernel(
                 for li in range(lights.count):
                     to_light, dist, e = light_incidence(lights, li, p)
                     # cos θ_j = ω · ω_j with ω = -d (to the camera), ω_j = -to_light (travel).
-                    lobe = lookup_table(table, table_size, wp.dot(d, to_light), tau_amb,
-                                        sigma_max)
+                    cos_theta = wp.dot(d, to_light)
+                    lobe = lookup_table(table, table_size, cos_theta, tau_amb, sigma_max)
+                    spec = float(0.0)
                     if specular > 0.0 and wp.length_sq(normal) > 0.0:
                         h = wp.normalize(to_light - d)
-                        lobe += specular * wp.pow(wp.max(wp.dot(normal, h), 0.0), shininess) / (
+                        spec = specular * wp.pow(wp.max(wp.dot(normal, h), 0.0), shininess) / (
                             4.0 * wp.pi)
-                    # at x_j = x' - r ω_j
-                    ld = fetch_radiance(radiance_src, cache, lights, li, radius,
-                                        p + radius * to_light)
-                    light += lobe * ld
+                    if mode == CENTRED:
+                        # x_j = x' + r ω_l (not past a point light): the light entering the
+                        # sphere; the unscattered part reaches x' through the real medium.
+                        seg = wp.min(radius, dist)
+                        seg_xi = float(0.5)
+                        if jitter != 0:
+                            seg_xi = wp.randf(state)
+                        ld = fetch_radiance(radiance_src, cache, lights, li, radius,
+                                            p + seg * to_light)
+                        direct = segment_transmittance(m, scalars, optics, p, to_light, seg,
+                                                       step, seg_xi)
+                        light += ((hg_phase(cos_theta, m.g) + spec) * direct + lobe) * ld
+                    else:
+                        # at x_j = x' - r ω_j
+                        ld = fetch_radiance(radiance_src, cache, lights, li, radius,
+                                            p + radius * to_light)
+                        light += (lobe + spec) * ld
                     e_sum += e
                 if ambient_occlusion > 0.0:
                     light += (ambient_occlusion * wp.exp(-tau_amb) / (4.0 * wp.pi)) * e_sum
-                colour += (trans_out * step * m.albedo * sig) * wp.cw_mul(col, light)
+                if mode == CENTRED:
+                    # the step's own attenuation integrated exactly, as the ray caster does
+                    colour += (trans * (1.0 - wp.exp(-sig * step)) * m.albedo) * wp.cw_mul(
+                        col, light)
+                else:
+                    colour += (trans_out * step * m.albedo * sig) * wp.cw_mul(col, light)
             trans *= wp.exp(-sig * step)
-            t_out = t - radius  # x_o = x' + r ω lies r closer to the camera
-            if delay > 0:
-                sig_out = recent[(k - delay + DELAY) % DELAY]  # sample k - delay, at x_o
-                recent[k % DELAY] = sig
-                if t_out > 0.0:
-                    trans_out *= wp.exp(-sig_out * step)
-            elif t_out > 0.0:
-                trans_out *= wp.exp(-sigma_t_from(m, scalars, optics, o + t_out * d) * step)
-            if trans_out < stop_t:
-                break
+            if mode == CENTRED:
+                if trans < stop_t:
+                    break
+            else:
+                t_out = t - radius  # x_o = x' + r ω lies r closer to the camera
+                if delay > 0:
+                    sig_out = recent[(k - delay + DELAY) % DELAY]  # sample k - delay, at x_o
+                    recent[k % DELAY] = sig
+                    if t_out > 0.0:
+                        trans_out *= wp.exp(-sig_out * step)
+                elif t_out > 0.0:
+                    trans_out *= wp.exp(-sigma_t_from(m, scalars, optics, o + t_out * d) * step)
+                if trans_out < stop_t:
+                    break
             k += 1
     radiance[row, c] = colour
     alpha[row, c] = 1.0 - trans

@@ -43,7 +43,7 @@ import time
 import numpy as np
 
 from vtkillum.core.ambient.cache import AmbientScatteringCache
-from vtkillum.core.ambient.gather import gather
+from vtkillum.core.ambient.gather import GATHER_MODES, gather
 from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import gradient_threshold
 from vtkillum.core.raymarch import RAY_OPTIONS as MARCH_OPTIONS
@@ -52,7 +52,8 @@ from vtkillum.core.render import RenderResult
 from vtkillum.core.warp_common import make_camera
 
 AMBIENT_KEYS = ("radius", "radius_units", "radiance_cache_scale", "specular",
-                "ambient_occlusion", "ambient_occlusion_strength", "hardware_filtering")
+                "ambient_occlusion", "ambient_occlusion_strength", "hardware_filtering",
+                "gather")
 RAY_OPTIONS = {**MARCH_OPTIONS, "cache": None, "table": None}
 
 _DEFAULT_CACHES: dict[tuple, AmbientScatteringCache] = {}
@@ -95,12 +96,13 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
     cam = make_camera(scene.resolved_camera(volume), volume, int(width), int(height))
     grad_eps = gradient_threshold(volume)
     t_gather = time.perf_counter()
+    table = state.scattered_slice if opts["gather"] == "centred" else state.table_slice
     radiance, alpha, mean_samples = gather(
         state.medium, state.sigma_tilde, state.radiance.grid, state.lights, cam,
-        state.table_slice, state.table.sigma_max, state.radius, opts["step_size"],
+        table, state.table.sigma_max, state.radius, opts["step_size"],
         opts["jitter"], opts["seed"], opts["early_termination"], opts["specular"],
         float(scene.shading["shininess"]), grad_eps, opts["ambient_occlusion"], device, progress,
-        state.occupied, volume.spacing, state.textures)
+        state.occupied, volume.spacing, state.textures, opts["gather"])
     t_end = time.perf_counter()
     if progress is not None:
         progress(1.0)
@@ -112,6 +114,7 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
         "table_shape": state.table.shape,
         "table_albedo": state.table.albedo,
         "radiance_cache_shape": state.radiance.shape,
+        "gather": opts["gather"],
         "recomputed": list(state.recomputed),
         "hardware_filtering": state.textures is not None,
         "timings_ms": {"sat": state.timings["sat_ms"],
@@ -155,7 +158,7 @@ def parse_options(options: dict, volume, scene) -> dict:
     for key, default in (("radius", 4.0), ("radius_units", "voxels"),
                          ("radiance_cache_scale", 0.5), ("specular", 0.0),
                          ("ambient_occlusion", False), ("ambient_occlusion_strength", 0.25),
-                         ("hardware_filtering", False)):
+                         ("hardware_filtering", False), ("gather", "centred")):
         opts.setdefault(key, default)
     opts.update(ray_options(opts, volume, scene))
     spec = opts["specular"]
@@ -174,6 +177,9 @@ def parse_options(options: dict, volume, scene) -> dict:
         raise ValueError("ambient_scattering.hardware_filtering must be true or false, got "
                          f"{opts['hardware_filtering']!r}")
     opts["hardware_filtering"] = bool(opts["hardware_filtering"])
+    if opts["gather"] not in GATHER_MODES:
+        raise ValueError(f"ambient_scattering.gather must be one of {sorted(GATHER_MODES)}, "
+                         f"got {opts['gather']!r}")
     opts["specular"] = float(spec)
     scale = opts["radiance_cache_scale"]
     if isinstance(scale, bool) or not (isinstance(scale, (int, float, np.floating))

@@ -128,7 +128,7 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
                    sigma_max: float, radius: float, scale: float = 0.5,
                    device: str | None = None, shape=None,
                    out: RadianceCache | None = None,
-                   sigma_tilde_texture=None) -> RadianceCache:
+                   sigma_tilde_texture=None, substeps: int | None = None) -> RadianceCache:
     """Distribute every light by tube marching and cache the result.
 
     Parameters
@@ -164,6 +164,10 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
         the march samples it by hardware filtering and the result also comes as an RGBA
         texture (:attr:`RadianceCache.texture`). CUDA only; see
         :mod:`~vtkillum.core.ambient.textures` for the accuracy.
+    substeps : int, optional
+        Samples of ``σ̃t`` per step of ``2r`` whose mean enters ``T̃`` (see the module
+        docstring); default :func:`default_substeps` (no longer than the smallest data
+        spacing). 1 is the paper's single sample per step.
 
     Returns
     -------
@@ -187,6 +191,10 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
     if not isinstance(transmittance, wp.array):
         transmittance = wp.array(np.asarray(transmittance, dtype=np.float32), dtype=wp.float32,
                                  device=device)
+    if substeps is None:
+        substeps = default_substeps(radius, data_spacing)
+    if isinstance(substeps, bool) or int(substeps) != substeps or substeps < 1:
+        raise ValueError(f"tube-march substeps must be an integer >= 1, got {substeps!r}")
     data_shape = (lights.count,) + shape
     hardware = sigma_tilde_texture is not None
     kept = out.staging if (out is not None and hardware) else (
@@ -213,8 +221,8 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
         kernel = tube_march_texture if hardware else tube_march_software
         wp.launch(kernel, dim=threads,
                   inputs=[sigma_tilde_texture if hardware else sigma_tilde, inv_data, lights,
-                          transmittance, float(lookup_scale), radius, spacing, wp.vec3i(*shape),
-                          wp.vec3i(*bricks), grid.extent, target],
+                          transmittance, float(lookup_scale), radius, int(substeps), spacing,
+                          wp.vec3i(*shape), wp.vec3i(*bricks), grid.extent, target],
                   device=device)
     if not hardware:
         return RadianceCache(grid, shape)
@@ -224,7 +232,25 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
     return RadianceCache(grid, shape, texture, target, lights, radius)
 
 
+def default_substeps(radius: float, data_spacing) -> int:
+    """Samples of ``σ̃t`` per tube step ``2r``: spaced no further apart than the smallest data
+    spacing (so that a shell thinner than ``r`` cannot fall between them), at least 1."""
+    return max(1, int(np.ceil(2.0 * float(radius) / float(np.min(data_spacing)) - 1e-9)))
+
+
 # --- device functions -----------------------------------------------------------------------------
+@wp.func
+def step_extinction(sigma_tilde: Any, inv_data_spacing: wp.vec3, start: wp.vec3, travel: wp.vec3,
+                    length: float, substeps: int):
+    """Mean ``σ̃t`` over the segment ``start + u travel``, ``u`` in ``[0, length]``: the midpoint
+    rule with ``substeps`` samples."""
+    acc = float(0.0)
+    h = length / float(substeps)
+    for s in range(substeps):
+        acc += fetch_scalar(sigma_tilde, inv_data_spacing, start + ((float(s) + 0.5) * h) * travel)
+    return acc / float(substeps)
+
+
 @wp.func
 def sample_radiance(grid: RadianceGrid, light: int, p: wp.vec3):
     """Trilinear sample of light ``light``'s cache at local position ``p`` (clamped to the box).
@@ -275,7 +301,8 @@ def store_radiance(out: wp.array4d(dtype=wp.vec4h), li: int, i: int, j: int,  # 
 @wp.kernel
 def tube_march_kernel(sigma_tilde: Any, inv_data_spacing: wp.vec3,
                       lights: Lights, transmittance: wp.array(dtype=wp.float32),
-                      lookup_scale: float, radius: float, spacing: wp.vec3, shape: wp.vec3i,
+                      lookup_scale: float, radius: float, substeps: int, spacing: wp.vec3,
+                      shape: wp.vec3i,
                       bricks: wp.vec3i, extent: wp.vec3, out: Any):
     """March one light's front to one cache point (eqs. 15–17).
 
@@ -317,16 +344,16 @@ def tube_march_kernel(sigma_tilde: Any, inv_data_spacing: wp.vec3,
     last = float(transmittance.shape[0] - 1)
     front = float(1.0)
     for n in range(n_full):
-        centre = entry + (float(2 * n + 1) * radius) * travel
-        st = fetch_scalar(sigma_tilde, inv_data_spacing, centre)
+        st = step_extinction(sigma_tilde, inv_data_spacing, entry + (float(2 * n) * radius) * travel,
+                             travel, step, substeps)
         front *= table_lerp(transmittance, wp.clamp(st * lookup_scale, 0.0, last))
         if front < NEGLIGIBLE:
             front = 0.0
             break
     beyond = front
     if eta > 0.0 and front > 0.0:
-        centre = entry + (float(2 * n_full + 1) * radius) * travel
-        st = fetch_scalar(sigma_tilde, inv_data_spacing, centre)
+        st = step_extinction(sigma_tilde, inv_data_spacing,
+                             entry + (float(2 * n_full) * radius) * travel, travel, step, substeps)
         beyond = front * table_lerp(transmittance, wp.clamp(st * lookup_scale, 0.0, last))
     store_radiance(out, li, i, j, k, ((1.0 - eta) * front + eta * beyond) * e,
                    radiance_unit(lights, li, radius))
