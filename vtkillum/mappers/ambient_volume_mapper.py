@@ -2,16 +2,22 @@
 
 :class:`AmbientScatteringVolume` is a ``vtkMultiVolume`` (so ``renderer.AddVolume(v)``
 and pyvista's ``plotter.add_actor(v)`` take it) whose
-``vtkOpenGLGPUVolumeRayCastMapper`` runs the ambient ray casting of Algorithm 1
-(eqs. 18–21) per pixel, the same per-sample formula as the warp gather
-(:mod:`vtkillum.core.ambient.gather`)::
+``vtkOpenGLGPUVolumeRayCastMapper`` runs the ambient ray casting per pixel, the same
+per-sample formulas as the warp gather (:mod:`vtkillum.core.ambient.gather`), for both of
+its estimators: the centred one (default)::
+
+    J̃ += T(x') (1 - exp(-σt Δ)) Λ color(x') ⊙ Σ_j [p(θ_j) T_j + M(θ_j, r σ̃t(x'), g)] L̃d,j(x_j)
+
+with ``x_j = x' + min(r, d_j) (-ω_j)``, ``T_j`` the transmittance of the data from
+``x_j`` to ``x'`` (a short shadow ray, midpoints of steps no longer than the sample
+distance) and ``M`` the table's scattered part; and the paper's Algorithm 1
+(``gather="paper"``)::
 
     J̃ += T(x_o) · Δ · Λ σt(x') color(x') ⊙ Σ_j L̃o(θ_j, r σ̃t(x'), g) L̃d,j(x' - r ω_j)
 
 with ``T(x_o)`` the transmittance to the camera from the sphere's exit point
-``x_o = x' + r ω`` (the attenuation inside the sphere is in the table), plus the
-optional specular lobe and SAT ambient-occlusion terms. Alpha is ``1 - T`` along the
-whole ray. The preprocessing runs in warp through an
+``x_o = x' + r ω``; plus the optional specular lobe and SAT ambient-occlusion terms.
+Alpha is ``1 - T`` along the whole ray. The preprocessing runs in warp through an
 :class:`~vtkillum.core.ambient.cache.AmbientScatteringCache`, so each edit recomputes
 only the stages it invalidates (the paper's Table 1): data or transfer function →
 SAT, ``σ̃t`` and radiance cache; radius → ``σ̃t`` and radiance cache; ``g``, albedo
@@ -27,9 +33,10 @@ every texture coordinate itself from the sample's position in the volume's local
 ====  =====================================  ==========================================
 port  image                                  contents
 ====  =====================================  ==========================================
-0     ``n_θ × n_σ × 2``, 1 component         ``L̃o(θ, r σ̃t)`` at the scene's ``g`` (both
-                                             slices equal), fetched texel by texel and
-                                             interpolated bilinearly as the gather does
+0     ``n_θ × n_σ × 2``, 1 component         ``M(θ, r σ̃t)`` (centred) or ``L̃o`` (paper)
+                                             at the scene's ``g`` (both slices equal),
+                                             fetched texel by texel and interpolated
+                                             bilinearly as the gather does
 1     data grid, 1 component                 the rendered scalar (float32)
 2     data grid, 1 component                 ambient extinction ``σ̃t`` (1/world units)
 3     radiance-cache grid, 4 components      ``L̃d,j / rgb_j`` for lights j = 0..3
@@ -425,7 +432,7 @@ class AmbientScatteringVolume(vtkMultiVolume):
     **options
         Override the scene's ``ambient_scattering`` section: ``radius``,
         ``radius_units``, ``radiance_cache_scale``, ``specular``, ``ambient_occlusion``,
-        ``ambient_occlusion_strength``; and ``early_termination`` (0.999),
+        ``ambient_occlusion_strength``, ``gather``; and ``early_termination`` (0.999),
         ``step_size`` (world units) and ``table`` (a
         :class:`~vtkillum.core.ambient.table.PreintegrationTable`), as for
         ``render(..., method="ambient-scattering")``.

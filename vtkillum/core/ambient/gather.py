@@ -1,43 +1,73 @@
 """Ambient ray casting (Ament et al. 2013, section 4.2.3, Algorithm 1, eqs. 18–21).
 
-One primary ray per pixel marches through the volume; at every sample ``x'``
+One primary ray per pixel marches through the volume. Two estimators share the kernel
+(``mode``); both use the tube-marched radiance cache ``L̃d,j``, the ambient extinction
+``σ̃t`` and the preintegration table at the scene's ``g``, with ``ω`` the direction
+towards the camera, ``ω_j`` light ``j``'s travel direction at ``x'``,
+``θ_j = arccos(ω · ω_j)``, ``τ = r σ̃t(x')`` and ``σs = Λ · color · σt`` (DESIGN.md); there
+is no emission term, and the returned alpha is ``1 - T`` along the whole primary ray.
 
-    J̃ += T(x_o, x_c) · σs(x') ⊙ L̃(x', ω, r) · Δt                       (eq. 20)
-    L̃(x', ω, r) = Σ_j L̃d,j(x_j) · L̃o(θ_j, r σ̃t(x'), g)                 (eq. 21)
+``"centred"`` (default)
+    The in-scattered radiance at the sphere's *centre* ``x'``, attenuated to the camera
+    from ``x'`` like every other method::
 
-with ``ω`` the direction towards the camera, ``ω_j`` light ``j``'s travel
-direction at ``x'``, ``θ_j = arccos(ω · ω_j)``, ``x_j = x' - r ω_j`` the point
-where the light enters the sphere around ``x'``, ``L̃d,j`` the tube-marched
-radiance cache and ``L̃o`` the preintegration table at the scene's ``g``. The
-transmittance to the camera is taken from ``x_o = x' + r ω``, the sphere's exit
-point towards the viewer (Algorithm 1 lines 5 and 20–22: the attenuation inside
-the sphere is already in the table). ``σs = Λ · color · σt`` (DESIGN.md), there
-is no emission term (Algorithm 1 "without emission"), and the returned alpha is
-``1 - T`` along the whole primary ray (not shifted).
+        J̃ += T(x', x_c) (1 - exp(-σt Δt)) Λ color ⊙ L̃(x', ω)
+        L̃(x', ω) = Σ_j L̃d,j(x_j) [p(θ_j) T_j(x_j, x') + M(θ_j, τ, g)]
+
+    with ``x_j = x' + min(r, d_j) (-ω_j)`` where light ``j`` enters the sphere (not past a
+    point light at distance ``d_j``), ``T_j`` the transmittance of the real medium from
+    ``x_j`` to ``x'`` (a short shadow ray of ``r``, sampled at the step ``Δt``; midpoint,
+    or a random offset per sample with jitter) and ``M = L̃o - U`` the table's *scattered*
+    part (:attr:`~vtkillum.core.ambient.table.PreintegrationTable.scattered`): ``U``, the
+    part of ``L̃o`` that crossed the sphere without an interaction, is the light of eq.
+    11's boundary scattered at the far side and carried back across the whole sphere;
+    its place is taken by the exact unscattered light at the centre, ``p · T_j``. In
+    optically thin regions (``M → 0``) this is exact single scattering. ``M`` is used as
+    in-scattered radiance at the centre: in a thick homogeneous medium the image is then
+    ``Λ M``, the table's exit radiance from a sphere whose boundary light carried its
+    own factor ``Λ`` (eq. 11 leaves it out).
+``"paper"``
+    Algorithm 1 as published::
+
+        J̃ += T(x_o, x_c) · σs(x') ⊙ L̃(x', ω, r) · Δt                       (eq. 20)
+        L̃(x', ω, r) = Σ_j L̃d,j(x_j) · L̃o(θ_j, r σ̃t(x'), g)                 (eq. 21)
+
+    with ``x_j = x' - r ω_j`` and the transmittance taken from ``x_o = x' + r ω``, the
+    sphere's exit point towards the viewer (lines 5 and 20–22: "the attenuation inside
+    the sphere is already in the table"). ``L̃o`` is the radiance *leaving* a sphere,
+    already integrated over its diameter, and the gather integrates it again as a source
+    density while the first ``r`` of matter along each ray is not attenuated at all: in
+    an optically thick medium the image is ``(1 + r σt) Λ L̃o``, so it grows linearly with
+    ``r`` (2-7 times the path tracer's energy on thick clouds for ``r = 2-8`` voxels), and
+    on shells thinner than ``r`` the pixel follows the optical depth of the interpolated
+    shell instead of saturating, which draws the voxel grid's terraces as rings and
+    bands (``builtin:ct:96``). Its unscattered term also darkens back-scattered light by
+    ``exp(-2 τ |cos θ|)``. Kept to reproduce the paper; see ``docs/ambient_scattering.md``
+    for the comparison with the path tracer.
 
 Sampling follows the project's ray caster: samples at ``t0 + (k + ξ) Δt`` inside
 the box with a per-pixel jitter ``ξ`` (or ``ξ = 0``), early termination once the
-(shifted) opacity exceeds ``early_termination``, and empty samples (``σt = 0``)
-skip the table and cache look-ups (section 6: "the extra texture access can be
-avoided in empty regions"). Blocks of the volume that are surely empty
-(:mod:`~vtkillum.core.ambient.empty_space`) are leapt over once the shifted
-point ``x_o`` has left all matter seen so far behind, which changes no pixel.
+opacity (``"paper"``: the shifted opacity) exceeds ``early_termination``, and empty
+samples (``σt = 0``) skip the table and cache look-ups (section 6: "the extra texture
+access can be avoided in empty regions"). Blocks of the volume that are surely empty
+(:mod:`~vtkillum.core.ambient.empty_space`) are leapt over (``"paper"``: once the shifted
+point ``x_o`` has left all matter seen so far behind), which changes no pixel.
 
 Speed without changing the result
 ---------------------------------
 * Each warp of 32 threads shades a tile of :data:`TILE` pixels (4 wide, 8 high) rather
   than 32 pixels of one row: its rays stay together through the volume, share cache
   lines and end at similar depths.
-* When the radius is a whole number ``m`` of steps (as with the defaults in voxels),
-  ``x_o`` of sample ``k`` *is* sample ``k - m``, so its ``σt`` is taken from a delay line
+* ``"paper"``: when the radius is a whole number ``m`` of steps (as with the defaults in
+  voxels), ``x_o`` of sample ``k`` *is* sample ``k - m``, so its ``σt`` is taken from a delay line
   of the last :data:`DELAY` samples instead of a second trilinear look-up (samples leapt
   over as empty, or before the box, count as 0, as the look-up would give).
 
 Hardware filtering (optional, CUDA)
 -----------------------------------
 With ``textures`` (:class:`~vtkillum.core.ambient.textures.AmbientTextures`) the data
-scalars, ``σ̃t``, the (half-precision) radiance cache, the table slice ``L̃o`` and the
-transfer function's colour/``σt`` tables (one RGBA 1D texture) are sampled by the GPU's texture units (one fetch per sample instead of eight, or four, loads;
+scalars, ``σ̃t``, the (half-precision) radiance cache, the table slice (``M`` or ``L̃o``) and
+the transfer function's colour/``σt`` tables (one RGBA 1D texture) are sampled by the GPU's texture units (one fetch per sample instead of eight, or four, loads;
 see :mod:`~vtkillum.core.ambient.textures` for the accuracy: within 2e-3 of the maximum on
 average). The gradient of the optional specular term is
 still taken from the scalar array. Without ``textures`` (and always on the CPU) every
@@ -46,8 +76,9 @@ sample is the exact software trilinear interpolation.
 Optional terms, as in the paper's comparisons (Figs. 6d, 6e)
 ------------------------------------------------------------
 * Specular highlights: ``ks · max(n·h, 0)^shininess / (4π)`` is added to each
-  light's ``L̃o`` (a Phong lobe on top of the scattering lobe, driven by the same
-  distributed light ``L̃d,j(x_j)``), with ``n`` the normalised central-difference
+  light's phase function (``"centred"``: attenuated like the unscattered light,
+  ``p · T_j``) or to its ``L̃o`` (``"paper"``), driven by the same distributed light
+  ``L̃d,j(x_j)``, with ``n`` the normalised central-difference
   gradient flipped towards the viewer and ``h`` the half vector; no highlight
   where the gradient vanishes.
 * SAT-based ambient occlusion: an ambient light of fluence
@@ -387,7 +418,8 @@ def ambient_gather_kernel(
     ``step`` and ``radius`` in world units, ``σ`` in 1/world units; ``occupied`` flags the
     blocks of size ``block`` (world units, ``inv_block`` its reciprocal) that may hold
     matter (:mod:`~vtkillum.core.ambient.empty_space`); ``delay`` is
-    :func:`delay_samples` (-1: sample ``σt`` at ``x_o``). Writes the gathered radiance
+    :func:`delay_samples` (-1: sample ``σt`` at ``x_o``; ``"paper"`` only); ``mode`` is
+    :data:`GATHER_MODES`' value of the estimator. Writes the gathered radiance
     ``J̃`` and ``alpha = 1 - T`` at ``[row, col]``. Generic: ``scalars``, ``sigma_tilde``,
     ``radiance_src``, ``optics`` and ``table`` are ``m.scalars``, the σ̃t array,
     ``cache.data``, ``m.sigma_table`` and the table slice array
@@ -462,7 +494,7 @@ def ambient_gather_kernel(
                         spec = specular * wp.pow(wp.max(wp.dot(normal, h), 0.0), shininess) / (
                             4.0 * wp.pi)
                     if mode == CENTRED:
-                        # x_j = x' + r ω_l (not past a point light): the light entering the
+                        # x_j = x' - r ω_j (not past a point light): the light entering the
                         # sphere; the unscattered part reaches x' through the real medium.
                         seg = wp.min(radius, dist)
                         seg_xi = float(0.5)

@@ -54,6 +54,17 @@ decreases with ``σ̃t``, grows with ``g``, and for ``Λ = 0`` equals ``e^(-2σ�
 so for absorbing media tube marching with step ``2r`` is exactly Beer–Lambert. :mod:`~vtkillum.core.ambient.tube_march`
 uses it in place of ``L̃o(0, ·)`` in eq. 16.
 
+Scattered part (for the centred gather)
+---------------------------------------
+Paths that cross the sphere without an interaction contribute the analytic
+``U(θ, σ̃t, g) = p(cos θ; g) exp(-(2 + max(0, -2 cos θ)) σ̃t)`` (:func:`unscattered`):
+light of the boundary condition, scattered at the far side, carried back across the whole
+sphere. :attr:`PreintegrationTable.scattered` is ``M = L̃o - U`` (clipped at 0 where
+Monte-Carlo noise makes it negative; ``M = 0`` at ``σ̃t = 0``): the light that scattered
+inside the sphere. The centred gather of :mod:`~vtkillum.core.ambient.gather` uses ``M``
+and computes the unscattered light at the sphere's centre itself. Nothing is stored:
+``M`` is derived from ``L̃o`` when a table is loaded.
+
 Storage
 -------
 ``.npz`` files hold the axes, the albedo, the sample count, the seed and
