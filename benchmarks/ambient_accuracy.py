@@ -73,7 +73,7 @@ def grid(n):
 
 
 def box(n):
-    return dict(spacing=(2 / (n - 1),) * 3, origin=(-1, -1, -1))
+    return {"spacing": (2 / (n - 1),) * 3, "origin": (-1, -1, -1)}
 
 
 def cloud(n, seed=3):
