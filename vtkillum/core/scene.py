@@ -51,6 +51,7 @@ METHOD_OPTIONS: dict[str, dict] = {
         "ambient_occlusion": False,    # add the SAT-based ambient-occlusion term
         "ambient_occlusion_strength": 0.25,  # its ambient fluence / sum of light irradiances
         "hardware_filtering": False,   # CUDA texture filtering of the grids (faster, ~1e-3 off)
+        "gather": "centred",           # "centred" or the paper's Algorithm 1 ("paper")
     },
     "photon": {  # photon mapping with Historygrams (Jönsson et al. 2012), core/photon/render.py
         "photons": 200000, "radius": 2.0, "max_order": 0, "segments": 8, "seed": 0,
