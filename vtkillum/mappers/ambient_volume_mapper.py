@@ -105,7 +105,7 @@ from vtkillum.core.ambient.cache import AmbientScatteringCache
 from vtkillum.core.ambient.render import parse_options
 from vtkillum.core.ambient.table import PreintegrationTable, load_table
 from vtkillum.core.illumination import gradient_threshold
-from vtkillum.core.lights import DIRECTIONAL, pack_lights
+from vtkillum.core.lights import DIRECTIONAL, pack_lights, resolved_radius
 from vtkillum.core.resample import scaled_shape
 from vtkillum.core.scene import Scene
 from vtkillum.io.convert import add_point_array, image_like, volume_from_image_data
@@ -252,11 +252,12 @@ void il_incidence(int j, vec3 p, out vec3 toLight, out float dist, out vec3 irra
   }
   else
   {
+    // Point lights are small spheres: I / max(d, r)^2 (vtkillum.core.lights).
     vec3 d = v - p;
-    float d2 = max(dot(d, d), 1.0e-12);
-    dist = sqrt(d2);
+    dist = max(length(d), 1.0e-20);
     toLight = d / dist;
-    irradiance = rgb / d2;
+    float r = max(dist, il_lightRadius[j]);
+    irradiance = rgb / (r * r);
   }
 }
 
@@ -783,6 +784,9 @@ class AmbientScatteringInputs(VTKPythonAlgorithmBase):
         u.SetUniformi("il_numLights", len(kinds))
         u.SetUniform1fv("il_lights", 4 * MAX_LIGHTS, packed.reshape(-1).tolist())
         u.SetUniform1fv("il_lightRGB", 3 * MAX_LIGHTS, colours.reshape(-1).tolist())
+        radii = np.zeros(MAX_LIGHTS, dtype=np.float64)
+        radii[: len(kinds)] = [resolved_radius(light, volume) for light in lights]
+        u.SetUniform1fv("il_lightRadius", MAX_LIGHTS, radii.tolist())
 
 
 # --- host helpers ------------------------------------------------------------------------------
