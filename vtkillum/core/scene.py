@@ -206,6 +206,11 @@ def load_scene(path) -> Scene:
         raise ValueError(f"{path}: {err}") from err
 
 
+def scene_json(scene: Scene) -> str:
+    """``scene`` as the JSON text :func:`save_scene` writes."""
+    return json.dumps(scene.to_dict(), indent=2)
+
+
 def save_scene(scene: Scene, path) -> None:
     """Write ``scene`` as JSON (round-trips through :func:`load_scene`)."""
-    Path(path).write_text(json.dumps(scene.to_dict(), indent=2))
+    Path(path).write_text(scene_json(scene))
