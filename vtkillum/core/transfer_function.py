@@ -40,6 +40,8 @@ class TransferFunction:
     colors: np.ndarray = field(default=None)
 
     def __post_init__(self) -> None:
+        for name in ("scalars", "opacity", "colors"):
+            _check_numeric(getattr(self, name), name)
         s = np.asarray(self.scalars, dtype=np.float64).reshape(-1)
         a = np.asarray(self.opacity, dtype=np.float64).reshape(-1)
         if s.size == 0:
@@ -156,6 +158,20 @@ class TransferFunction:
     def ramp(cls, lo: float, hi: float, max_opacity: float = 0.5, color=(1.0, 1.0, 1.0)):
         """Linear opacity ramp from 0 at ``lo`` to ``max_opacity`` at ``hi``, uniform colour."""
         return cls([lo, hi], [0.0, max_opacity], [color, color])
+
+
+def _check_numeric(values, name: str) -> None:
+    """Refuse strings, booleans and other non-numbers (numpy would turn "0.5" into 0.5)."""
+    if values is None:
+        return
+    try:
+        kind = np.asarray(values).dtype.kind
+    except ValueError:  # ragged nested lists
+        kind = "O"
+    if kind not in "iuf":
+        text = repr(values)
+        text = text if len(text) <= 80 else text[:77] + "..."
+        raise ValueError(f"transfer_function.{name} must hold numbers, got {text}")
 
 
 def check_unit_distance(u: float) -> float:
