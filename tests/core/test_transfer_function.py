@@ -53,3 +53,20 @@ def test_bad_transfer_functions(kw, msg):
 def test_bad_unit_distance():
     with pytest.raises(ValueError, match="opacity_unit_distance"):
         TransferFunction([0, 1], [0, 1]).sigma_t(0.5, 0.0)
+
+
+@pytest.mark.parametrize("field,value", [
+    ("scalars", ["0.0", 1.0]),
+    ("opacity", [0.0, "0.5"]),
+    ("colors", [[1, 1, 1], [1, "0.5", 1]]),
+    ("scalars", [False, True]),
+    ("opacity", [0.0, None]),
+])
+def test_strings_and_other_non_numbers_are_refused(field, value):
+    """Issue 15 row 10: numpy turned "0.5" into 0.5, while the scene refused "albedo": "0.5"."""
+    d = {"scalars": [0.0, 1.0], "opacity": [0.0, 0.5], "colors": [[1, 1, 1], [1, 1, 1]]}
+    d[field] = value
+    with pytest.raises(ValueError, match=rf"transfer_function\.{field} must hold numbers"):
+        TransferFunction.from_dict(d)
+    with pytest.raises(ValueError, match=rf"transfer_function\.{field} must hold numbers"):
+        TransferFunction(**d)
