@@ -70,3 +70,28 @@ def test_strings_and_other_non_numbers_are_refused(field, value):
         TransferFunction.from_dict(d)
     with pytest.raises(ValueError, match=rf"transfer_function\.{field} must hold numbers"):
         TransferFunction(**d)
+
+
+@pytest.mark.parametrize("far", [1e30, 1e38, 1e308])
+def test_control_points_far_outside_the_data_keep_the_table_finite_and_sharp(far):
+    """Issue 15 row 3: points at ±1e308 gave NaN table entries (linspace over an infinite
+    range) and far points made the table too coarse to see the function over the data."""
+    from vtkillum.core.transfer_function import TABLE_SIZE
+
+    tf = TransferFunction([-far, 0.0, 0.5, 1.0, far], [0.0, 0.0, 0.9, 0.0, 0.0])
+    sigma, color, lo, hi = tf.lookup_tables(1.0, value_range=(0.0, 1.0))
+    assert np.all(np.isfinite(sigma)) and np.all(np.isfinite(color))
+    assert np.isfinite(np.float32(lo)) and np.isfinite(np.float32(hi)) and lo < hi
+    assert np.isfinite(np.float32(hi) - np.float32(lo))
+    v = np.linspace(lo, hi, TABLE_SIZE)
+    peak = int(np.argmin(np.abs(v - 0.5)))
+    assert sigma[peak] == pytest.approx(-np.log(1 - 0.9), rel=1e-2)  # the peak is resolved
+    assert sigma[np.argmin(np.abs(v - 0.0))] == pytest.approx(0.0, abs=1e-2)
+
+
+def test_table_range_is_unchanged_for_control_points_near_the_data():
+    tf = TransferFunction([0.0, 1.0], [0.0, 0.5])
+    assert tf.lookup_tables(1.0, value_range=(0.2, 0.7))[2:] == (0.0, 1.0)
+    assert tf.lookup_tables(1.0, value_range=(-3.0, 0.5))[2:] == (-3.0, 1.0)
+    # a constant volume: the data value and the control points
+    assert tf.lookup_tables(1.0, value_range=(0.5, 0.5))[2:] == (0.0, 1.0)

@@ -19,6 +19,10 @@ MAX_ALPHA = 1.0 - 1e-6
 #: Number of entries of the lookup tables handed to the kernels.
 TABLE_SIZE = 4096
 
+#: Bound of the tables' range: half the largest float32 (the kernels' precision), so that
+#: even ``hi - lo`` is finite in float32.
+TABLE_RANGE_MAX = float(np.finfo(np.float32).max) / 2.0
+
 
 @dataclass
 class TransferFunction:
@@ -100,7 +104,11 @@ class TransferFunction:
         unit_distance : float
             Opacity unit distance ``u`` in world units.
         value_range : (float, float), optional
-            Data range the table must cover; the control-point range is always included.
+            Data range the table must cover (the kernels look up nothing else). The table
+            spans the control points too, but at most one data-range width beyond the data
+            on either side: control points far outside the data (say at ±1e30) would
+            otherwise make the entries too coarse to resolve the function over the data,
+            or overflow float32 (the kernels' precision).
         size : int
             Number of entries.
 
@@ -111,13 +119,17 @@ class TransferFunction:
         color : ndarray (size, 3) float32
             Colour per entry.
         lo, hi : float
-            Data values of the first and last entries.
+            Data values of the first and last entries (finite in float32, ``lo < hi``).
         """
         lo, hi = self.domain()
         if value_range is not None:
-            lo, hi = min(lo, float(value_range[0])), max(hi, float(value_range[1]))
+            vlo, vhi = float(value_range[0]), float(value_range[1])
+            lo, hi = min(lo, vlo), max(hi, vhi)
+            width = vhi - vlo if vhi > vlo else max(1.0, abs(vlo))
+            lo, hi = max(lo, vlo - width), min(hi, vhi + width)
+        lo, hi = max(lo, -TABLE_RANGE_MAX), min(hi, TABLE_RANGE_MAX)
         if hi <= lo:
-            hi = lo + 1.0
+            hi = lo + max(1.0, abs(lo) * 1e-6)
         # Sample alpha (not sigma_t) linearly, as VTK's opacity table does, then convert.
         v = np.linspace(lo, hi, size)
         return (
