@@ -95,3 +95,18 @@ def test_table_range_is_unchanged_for_control_points_near_the_data():
     assert tf.lookup_tables(1.0, value_range=(-3.0, 0.5))[2:] == (-3.0, 1.0)
     # a constant volume: the data value and the control points
     assert tf.lookup_tables(1.0, value_range=(0.5, 0.5))[2:] == (0.0, 1.0)
+
+
+def test_interpolation_between_control_points_at_the_float64_limits():
+    """Points at ±1e308: np.interp's slopes overflowed to 0 and held the left value."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no overflow warnings either
+        tf = TransferFunction([-1e308, 1e308], [0.1, 0.9], [[0, 0, 0], [1, 1, 1]])
+        assert tf.alpha(0.0) == pytest.approx(0.5)
+        assert tf.alpha([-1e308, 5e307, 1e308]) == pytest.approx([0.1, 0.7, 0.9])
+        np.testing.assert_allclose(tf.color(0.0), [0.5, 0.5, 0.5])
+        sigma, _, lo, hi = tf.lookup_tables(1.0, value_range=(-1.0, 1.0))
+    assert lo == -3.0 and hi == 3.0
+    np.testing.assert_allclose(sigma, -np.log(0.5), rtol=1e-5)

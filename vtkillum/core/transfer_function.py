@@ -57,7 +57,9 @@ class TransferFunction:
             )
         if not (np.all(np.isfinite(s)) and np.all(np.isfinite(a))):
             raise ValueError("transfer_function: control points and opacities must be finite")
-        if np.any(np.diff(s) <= 0):
+        with np.errstate(over="ignore"):  # points at ±1e308: the gap overflows, still > 0
+            increasing = np.all(np.diff(s) > 0)
+        if not increasing:
             raise ValueError(
                 "transfer_function.scalars: control points must be strictly increasing "
                 f"(got {s.tolist()}); sort them together with their opacities and colours"
@@ -79,12 +81,12 @@ class TransferFunction:
     # --- evaluation -----------------------------------------------------------------
     def alpha(self, values) -> np.ndarray:
         """Opacity at ``values`` (piecewise linear, constant outside the control points)."""
-        return np.interp(np.asarray(values, dtype=np.float64), self.scalars, self.opacity)
+        return _interp(np.asarray(values, dtype=np.float64), self.scalars, self.opacity)
 
     def color(self, values) -> np.ndarray:
         """RGB colour at ``values``, shape ``values.shape + (3,)``."""
         v = np.asarray(values, dtype=np.float64)
-        return np.stack([np.interp(v, self.scalars, self.colors[:, c]) for c in range(3)], -1)
+        return np.stack([_interp(v, self.scalars, self.colors[:, c]) for c in range(3)], -1)
 
     def sigma_t(self, values, unit_distance: float) -> np.ndarray:
         """Extinction coefficient ``-ln(1 - alpha) / u`` in 1/world units."""
@@ -170,6 +172,20 @@ class TransferFunction:
     def ramp(cls, lo: float, hi: float, max_opacity: float = 0.5, color=(1.0, 1.0, 1.0)):
         """Linear opacity ramp from 0 at ``lo`` to ``max_opacity`` at ``hi``, uniform colour."""
         return cls([lo, hi], [0.0, max_opacity], [color, color])
+
+
+def _interp(x, xp, fp):
+    """``np.interp``, also for control points whose gaps overflow float64 (e.g. ±1e308).
+
+    There ``np.interp``'s slopes are 0 (a finite step over an infinite gap), which would
+    hold each segment at its left value; the points are then scaled by a power of two
+    (exactly) into [-2, 2] first.
+    """
+    with np.errstate(over="ignore", invalid="ignore"):
+        if np.all(np.isfinite(np.diff(xp))):
+            return np.interp(x, xp, fp)
+    scale = 2.0 ** min(np.ceil(np.log2(np.max(np.abs(xp)))), 1023.0)  # 2**1024 overflows
+    return np.interp(np.asarray(x, dtype=np.float64) / scale, np.asarray(xp) / scale, fp)
 
 
 def _check_numeric(values, name: str) -> None:
