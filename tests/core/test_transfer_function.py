@@ -110,3 +110,24 @@ def test_interpolation_between_control_points_at_the_float64_limits():
         sigma, _, lo, hi = tf.lookup_tables(1.0, value_range=(-1.0, 1.0))
     assert lo == -3.0 and hi == 3.0
     np.testing.assert_allclose(sigma, -np.log(0.5), rtol=1e-5)
+
+
+def test_far_control_points_do_not_push_values_out_of_their_range():
+    """Found by the property test: np.interp's denormal slope across a 1e308 gap turned
+    colours 0.0229 -> 0 into -2e-7 (negative radiance in every method)."""
+    tf = TransferFunction([-1e308, -1.0, -0.82], [0.05, 0.05, 0.0],
+                          [[1e-5, 0.0229, 0.56], [0.0204, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    sigma, color, lo, hi = tf.lookup_tables(1.0, value_range=(-1.0, -1.0))
+    assert color.min() >= 0.0 and sigma.min() >= 0.0
+    assert 0.0 <= tf.color(-2.0)[1] < 1e-300  # 1e-308 of the way from 0.0229 to 0
+    assert tf.color(-5e307)[1] == pytest.approx(0.0229 / 2, rel=1e-12)
+
+
+def test_tables_of_ordinary_functions_match_np_interp():
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        s = np.sort(rng.normal(size=rng.integers(2, 7))) * rng.choice([1e-3, 1.0, 1e3])
+        tf = TransferFunction(s, rng.random(s.size), rng.random((s.size, 3)))
+        x = rng.normal(size=500) * 2 * np.abs(s).max()
+        np.testing.assert_allclose(tf.alpha(x), np.interp(x, s, tf.opacity), rtol=1e-12,
+                                   atol=1e-15)

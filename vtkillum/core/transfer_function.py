@@ -175,17 +175,25 @@ class TransferFunction:
 
 
 def _interp(x, xp, fp):
-    """``np.interp``, also for control points whose gaps overflow float64 (e.g. ±1e308).
+    """Piecewise-linear interpolation, constant outside ``xp`` (as ``np.interp``), robust at
+    the float64 limits.
 
-    There ``np.interp``'s slopes are 0 (a finite step over an infinite gap), which would
-    hold each segment at its left value; the points are then scaled by a power of two
-    (exactly) into [-2, 2] first.
+    Each value is the convex combination ``(1 - t) f_j + t f_(j+1)`` with
+    ``t = (x - x_j) / (x_(j+1) - x_j)`` computed on halved values (exact, and no overflow for
+    control points at ±1e308). ``np.interp`` uses slopes instead: across a gap of 1e308 the
+    slope is a denormal with few significant bits, which moved values outside the range of
+    their control points (negative colours from non-negative ones) or, when the gap
+    overflowed, held each segment at its left value. Results stay within ``[min fp, max fp]``.
     """
-    with np.errstate(over="ignore", invalid="ignore"):
-        if np.all(np.isfinite(np.diff(xp))):
-            return np.interp(x, xp, fp)
-    scale = 2.0 ** min(np.ceil(np.log2(np.max(np.abs(xp)))), 1023.0)  # 2**1024 overflows
-    return np.interp(np.asarray(x, dtype=np.float64) / scale, np.asarray(xp) / scale, fp)
+    x = np.asarray(x, dtype=np.float64)
+    xp = np.asarray(xp, dtype=np.float64)
+    fp = np.asarray(fp, dtype=np.float64)
+    if xp.size == 1:
+        return np.full(x.shape, fp[0])
+    j = np.clip(np.searchsorted(xp, x, side="right") - 1, 0, xp.size - 2)
+    lo, hi = 0.5 * xp[j], 0.5 * xp[j + 1]
+    t = np.clip((0.5 * x - lo) / (hi - lo), 0.0, 1.0)
+    return np.clip((1.0 - t) * fp[j] + t * fp[j + 1], fp.min(), fp.max())
 
 
 def _check_numeric(values, name: str) -> None:
