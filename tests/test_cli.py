@@ -433,3 +433,10 @@ def test_errors_in_a_scene_s_sections_name_the_file(tmp_path, capsys, section, f
     status, _, err = run(capsys, "render", "builtin:plume:12", "--scene", scene, "-m", method,
                          "--size", 8, 8, "-o", tmp_path / "a.png", "--device", "cpu")
     assert_user_error(status, err, "mine.json", fragment)
+
+
+def test_radiance_and_alpha_must_be_different_files(tmp_path, capsys, no_render):
+    (tmp_path / "r.npy").write_text("old")
+    (tmp_path / "r.alpha.npy").symlink_to(tmp_path / "r.npy")
+    status, _, err = run(capsys, "render", "builtin:plume:12", "-o", tmp_path / "r.npy")
+    assert_user_error(status, err, "same file")

@@ -359,6 +359,9 @@ def check_output(path, allowed) -> list[Path]:
     for n, target in enumerate(files):
         role = "output" if n == 0 else f"alpha file {str(target)!r} of output"
         _check_target(target, f"{role} {str(path)!r}" if n else f"output {str(path)!r}")
+    if len({os.path.realpath(f) for f in files}) < len(files):  # e.g. a link between them
+        raise UserError(f"output {str(path)!r}: the radiance and alpha files "
+                        f"{', '.join(map(str, files))} are the same file")
     return files
 
 
