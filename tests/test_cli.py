@@ -440,3 +440,18 @@ def test_radiance_and_alpha_must_be_different_files(tmp_path, capsys, no_render)
     (tmp_path / "r.alpha.npy").symlink_to(tmp_path / "r.npy")
     status, _, err = run(capsys, "render", "builtin:plume:12", "-o", tmp_path / "r.npy")
     assert_user_error(status, err, "same file")
+
+
+def test_auto_exposure_of_the_composite_in_bands():
+    from vtkillum.core.render import RenderResult
+    from vtkillum.core.tonemap import auto_exposure
+
+    rng = np.random.default_rng(1)
+    result = RenderResult(rng.random((700, 500, 3), dtype=np.float32) * 3,
+                          rng.random((700, 500), dtype=np.float32))
+    background = (0.2, 0.5, 0.1)
+    expected = 1.0 / np.percentile(result.composite(background).max(-1), 99.5)
+    got = auto_exposure(result.radiance, alpha=result.alpha, background=background)
+    assert got == pytest.approx(expected, rel=1e-6)
+    result.radiance[0, 0] = np.nan  # ignored, not a NaN exposure
+    assert np.isfinite(auto_exposure(result.radiance, alpha=result.alpha))
