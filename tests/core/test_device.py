@@ -57,6 +57,12 @@ def test_available_memory_reports_the_address_space_limit():
     host, gpu = available_memory("cpu")
     assert gpu is None and (host is None or host > 0)
     code = ("from vtkillum.core.device import _host_available as h; print(h())")
+    import os
+    from pathlib import Path
+
+    root = str(Path(__file__).resolve().parents[2])
+    env = dict(os.environ, PYTHONPATH=root + os.pathsep + os.environ.get("PYTHONPATH", ""),
+               CUDA_VISIBLE_DEVICES="")
     out = subprocess.run(["bash", "-c", f"ulimit -v 3000000; exec {sys.executable} -c '{code}'"],
-                         capture_output=True, text=True, timeout=60)
+                         capture_output=True, text=True, timeout=60, env=env)
     assert 0 < int(out.stdout.split()[-1]) < 3000000 * 1024
