@@ -8,10 +8,10 @@ and wide, parallel) and every rendering method but ``illumination`` (which needs
 illumination volume; ``transmittance`` and ``convection-diffusion`` exercise it), on
 8×8 images on the CPU. Derandomized, so CI runs the same examples every time.
 
-Cases that fail in code whose fix is under way elsewhere are pinned as strict xfails
-in :func:`test_known_non_finite_cases` below, and kept out of the random search by
-:data:`KNOWN_LIMITS`; when a fix lands the xfail turns into a failure (strict), which
-says to widen the search.
+The extreme cases of issue 15 row 3 (magnitudes at the accepted limit, the farthest
+accepted point light, a huge light on a grid point) are explicit tests below; the
+random search stays within :data:`KNOWN_LIMITS`, where a tiny random voxel spacing
+cannot push ``I / r**2`` past float32.
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ METHODS_UNDER_TEST = sorted(m for m in METHODS if m != "illumination")
 
 #: Bounds of the random search where other code is being fixed (see the xfails below).
 KNOWN_LIMITS = {
-    "max_light_magnitude": 1e20,  # I / d² overflows float32 for more (rows 1, 3)
-    "max_point_light_distance": 1e6,  # 1e20 away: NaN in ambient-scattering (row 3)
+    "max_light_magnitude": 1e20,  # I / r² with r half a (random, tiny) voxel stays finite
+    "max_point_light_distance": 1e6,  # in diagonals; 1e15 world units: explicit tests below
 }
 
 EXAMPLES = 200
@@ -228,7 +228,7 @@ def test_every_accepted_scene_renders_finite_non_negative_images(case):
     assert_finite_non_negative(render_case(case))
 
 
-# --- known non-finite cases, in code being fixed elsewhere (strict: a fix turns them red) -------
+# --- the extreme cases of issue 15 row 3 -------------------------------------------------------
 def _blob(n: int = 13) -> Volume:
     x = np.linspace(-1, 1, n)
     field = 0.92 * np.exp(-3 * (x[:, None, None] ** 2 + x[None, :, None] ** 2
@@ -236,39 +236,34 @@ def _blob(n: int = 13) -> Volume:
     return Volume(field.astype(np.float32))
 
 
-_ROW3_HUGE = ("issue 15 row 3: a light magnitude of 1e40 overflows float32 in the kernels "
-              "(lights are packed as float32 in lights.py/warp_common.py); not bounded yet")
-_ROW3_FAR = ("issue 15 row 3: a point light 1e20 away gives NaN in the ambient tube march "
-             "(core/ambient/tube_march.py, float32 positions of the light and its entry point)")
-_AMBIENT_ON_GRID = ("issue 15 rows 1/3 in core/ambient/tube_march.py: tube_march_kernel takes "
-                    "I / max(d², 1e-12) from light_incidence (inf for I > 3e26 at a cache grid "
-                    "point) and then scales it by d² / max(d², r²): inf * 0 = NaN; it should "
-                    "compute I / max(d², r²) directly")
+def test_lights_beyond_float32_are_refused():
+    """Before: a magnitude of 1e40 rendered inf/NaN in single, path, transmittance and
+    ambient-scattering; a point light 1e20 away NaN in ambient-scattering. Now the light
+    itself is refused, with the limit in the message (vtkillum.core.lights)."""
+    with pytest.raises(ValueError, match="overflow"):
+        DirectionalLight((1, -1, -1), (1e40, 1e40, 1e40))
+    with pytest.raises(ValueError, match="overflow"):
+        PointLight((1.0, 6.0, 6.0), (1e40, 1e40, 1e40))
+    with pytest.raises(ValueError, match="directional light"):
+        PointLight((1e20, 6.0, 6.0), (1.0, 1.0, 1.0))
 
-KNOWN_NON_FINITE = [
-    *(pytest.param(m, [DirectionalLight((1, -1, -1), (1e40, 1e40, 1e40))],
-                   marks=pytest.mark.xfail(strict=True, reason=_ROW3_HUGE),
-                   id=f"directional-E1e40-{m}")
-      for m in ("single", "path", "transmittance", "ambient-scattering",
-                "convection-diffusion")),
-    *(pytest.param(m, [PointLight((1e20, 6.0, 6.0), (1e40, 1e40, 1e40))],
-                   marks=pytest.mark.xfail(strict=True, reason=_ROW3_HUGE),
-                   id=f"point-I1e40-1e20-away-{m}")
-      for m in ("single", "transmittance", "convection-diffusion")),
-    pytest.param("ambient-scattering", [PointLight((1e20, 6.0, 6.0), (1.0, 1.0, 1.0))],
-                 marks=pytest.mark.xfail(strict=True, reason=_ROW3_FAR),
-                 id="point-I1-1e20-away-ambient-scattering"),
-    *(pytest.param("ambient-scattering", [PointLight(p, (1e28, 1e28, 1e28))],
-                   marks=pytest.mark.xfail(strict=True, reason=_AMBIENT_ON_GRID),
-                   id=f"point-I1e28-on-cache-point-{i}-ambient-scattering")
-      for i, p in enumerate([(0.0, 0.0, 0.0), (6.0, 6.0, 6.0)])),
+
+EXTREMES = [
+    *(pytest.param(m, [DirectionalLight((1, -1, -1), (1e30, 1e30, 1e30))],
+                   id=f"directional-E1e30-{m}") for m in METHODS_UNDER_TEST),
+    *(pytest.param(m, [PointLight((1e15, 6.0, 6.0), (1.0, 1.0, 1.0))],
+                   id=f"point-1e15-away-{m}") for m in METHODS_UNDER_TEST),
+    # Before: NaN in the ambient tube march (inf * 0 next to a light on a cache point).
+    *(pytest.param(m, [PointLight(p, (1e28, 1e28, 1e28))], id=f"point-I1e28-on-grid-{i}-{m}")
+      for i, p in enumerate([(0.0, 0.0, 0.0), (6.0, 6.0, 6.0)])
+      for m in ("ambient-scattering", "transmittance", "single")),
 ]
 
 
-@pytest.mark.parametrize("method,lights", KNOWN_NON_FINITE)
-def test_known_non_finite_cases(method, lights):
-    """Accepted scenes that render NaN/inf today (or fail inside a method), outside the
-    random search's :data:`KNOWN_LIMITS`; each must render finite, non-negative images."""
+@pytest.mark.parametrize("method,lights", EXTREMES)
+def test_extreme_accepted_lights_render_finite_images(method, lights):
+    """The largest accepted lights, the farthest point light and a huge light on a grid point
+    give finite, non-negative images in every method."""
     scene = Scene(transfer_function=TransferFunction([0.0, 1.0], [0.0, 0.8]), lights=lights)
     options = {"spp": 2} if method == "path" else {}
     assert_finite_non_negative(render(_blob(), scene, method, WIDTH, HEIGHT, "cpu", **options))

@@ -314,7 +314,7 @@ class PathTracer:
                 f"{MAX_PATH_VERTICES} scattering vertices (albedo near 1 in a closed medium); "
                 "their light beyond it is missing", RuntimeWarning, stacklevel=2)
         if self.passes >= 2:
-            info["radiance_variance"] = self.radiance_variance.astype(np.float32)
+            info["radiance_variance"] = self.radiance_variance  # float64: squares of huge lights
         return RenderResult(self.radiance, self.alpha, info)
 
 
