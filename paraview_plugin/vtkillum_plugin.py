@@ -402,6 +402,15 @@ def CacheStatistics(source) -> dict:
     return dict(zip(("hits", "misses", "entries", "megabytes"), values))
 
 
+# Link filters and displays in this session and hook its render views (links.py, display.py).
+try:
+    from vtkillum_paraview import links as _links
+except ImportError:  # no server manager here (a pvserver): nothing to link
+    _links = None
+if _links is not None:
+    _links.install()
+
+
 __all__ = [
     "AmbientExtinction",
     "CacheStatistics",

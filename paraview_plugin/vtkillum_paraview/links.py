@@ -164,25 +164,37 @@ class FilterLink(_Link):
         super().__init__(proxy)
         self._pxm_ref = vtkWeakReference()
         self._pxm_ref.Set(pxm)
-        if self.scalars()[0] is None:
-            self._default_scalars()
+        self._default_scalars()
         self.link_transfer_functions()
 
     def _default_scalars(self) -> None:
-        """Give Scalars its default (the input's active array) now, as the GUI does when the
-        input is up to date: the first execution then already has the right colour map."""
+        """Make Scalars name an array of the input (its active point scalars by default).
+
+        Done now, as the GUI does when the input is up to date, so that the first
+        execution already has the right colour map. ParaView 5.11 may default the
+        property to an array coloured by elsewhere that the input does not have.
+        """
         proxy = self.proxy
         source = _input_proxy(proxy)
         if source is None or not hasattr(source, "UpdatePipeline"):
             return
-        source.UpdatePipeline()
-        prop = proxy.GetProperty("SelectInputScalars")
-        if prop is None:
+        name, _ = self.scalars()
+        arrays = self.input_arrays()
+        if name and name in arrays:
             return
-        domain = prop.GetDomain("array_list")
-        if domain is not None:
-            domain.Update(None)  # the input's arrays, now that it is up to date
-        if prop.ResetToDomainDefaults(False):
+        if not arrays:
+            source.UpdatePipeline()
+            arrays = self.input_arrays()
+        if name and name in arrays:
+            return
+        points = source.GetDataInformation(0).GetPointDataInformation()
+        active = points.GetAttributeInformation(0)  # vtkDataSetAttributes::SCALARS
+        choice = active.GetName() if active is not None else None
+        if not choice and points.GetNumberOfArrays():
+            choice = points.GetArrayInformation(0).GetName()
+        if choice:
+            helper = vtkSMPropertyHelper(proxy, "SelectInputScalars")
+            helper.SetInputArrayToProcess(0, choice)
             proxy.UpdateVTKObjects()
 
     # --- what the filter illuminates ------------------------------------------------------------
@@ -275,6 +287,7 @@ class DisplayLink(_Link):
     def __init__(self, proxy, filter_link: FilterLink) -> None:
         super().__init__(proxy)
         self.filter = filter_link
+        self._coloured_yet = False
         self.follow()
 
     def colour_array(self) -> tuple[str | None, str]:
@@ -292,16 +305,24 @@ class DisplayLink(_Link):
         if proxy is None or self.filter.proxy is None:
             return
         name, association = self.colour_array()
-        scalars, _ = self.filter.scalars()
+        scalars, scalars_association = self.filter.scalars()
+        if name and not self._coloured_yet:
+            # ParaView's first choice of array: the illuminated one (ParaView 5.11 sometimes
+            # picks another output array); later choices are the user's.
+            self._coloured_yet = True
+            if scalars and name != scalars and name not in self.filter.input_arrays():
+                self.colour_by(scalars, scalars_association)
+                return
         if name and name != scalars and name in self.filter.input_arrays():
             self.filter.set_scalars(name, association)
             scalars = name
-        if name and name == scalars:
+        if name and name == scalars:  # (a display of another array, e.g. the baked RGBA, is
+            # left alone: its colour map and unit distance are not the filter's)
             lut = vtkSMPropertyHelper(proxy, "LookupTable").GetAsProxy()
             opacity = vtkSMPropertyHelper(proxy, "ScalarOpacityFunction").GetAsProxy()
             if lut is not None:
                 self.filter.link_transfer_functions(lut, opacity)
-        self._follow_unit_distance()
+            self._follow_unit_distance()
 
     def _follow_unit_distance(self) -> None:
         proxy, fproxy = self.proxy, self.filter.proxy
@@ -318,7 +339,9 @@ class DisplayLink(_Link):
 
     def set_unit_distance(self, value: float) -> None:
         proxy = self.proxy
-        if proxy is not None and proxy.GetProperty("ScalarOpacityUnitDistance") is not None:
+        if proxy is None or self.colour_array()[0] != self.filter.scalars()[0]:
+            return
+        if proxy.GetProperty("ScalarOpacityUnitDistance") is not None:
             vtkSMPropertyHelper(proxy, "ScalarOpacityUnitDistance").Set(value)
             proxy.UpdateVTKObjects()
 
