@@ -310,7 +310,8 @@ class DisplayLink(_Link):
             # ParaView's first choice of array: the illuminated one (ParaView 5.11 sometimes
             # picks another output array); later choices are the user's.
             self._coloured_yet = True
-            if scalars and name != scalars and name not in self.filter.input_arrays():
+            if scalars and name != scalars and name != "illuminated_rgba" and \
+                    name not in self.filter.input_arrays():
                 self.colour_by(scalars, scalars_association)
                 return
         if name and name != scalars and name in self.filter.input_arrays():
@@ -325,11 +326,18 @@ class DisplayLink(_Link):
             self._follow_unit_distance()
 
     def _follow_unit_distance(self) -> None:
+        """The display's unit distance and the filter's stay equal. The first time, a value
+        set on the filter goes to the display; afterwards the display's edits go to the filter."""
         proxy, fproxy = self.proxy, self.filter.proxy
         if proxy.GetProperty("ScalarOpacityUnitDistance") is None:
             return
         shown = float(vtkSMPropertyHelper(proxy, "ScalarOpacityUnitDistance").GetAsDouble())
         own = float(vtkSMPropertyHelper(fproxy, "ScalarOpacityUnitDistance").GetAsDouble())
+        if not getattr(self, "_unit_linked", False):
+            self._unit_linked = True
+            if own > 0 and abs(own - shown) > 1e-9 * own:
+                self.set_unit_distance(own)
+                return
         default = _approximate_cell_length(fproxy)
         resolved = own if own > 0 else default
         if shown > 0 and abs(shown - resolved) > 1e-9 * max(shown, 1.0):

@@ -82,6 +82,7 @@ def configure(proxy, colors=COLORS) -> None:
     # Explicit: ParaView 5.11 may default the array to the one last coloured by elsewhere.
     proxy.Scalars = ["POINTS", "density"]
     lut = simple.GetColorTransferFunction("density")
+    lut.AutomaticRescaleRangeMode = "Never"  # exactly these points, not fitted to the data
     lut.RGBPoints = colors
     opacity = simple.GetOpacityTransferFunction("density")
     opacity.Points = OPACITY
