@@ -164,7 +164,8 @@ LIGHTS = """
 
 CACHE_STATISTICS = """
 <DoubleVectorProperty name="CacheStatistics" command="GetCacheStatisticsVector"
-                      information_only="1" number_of_elements="4" default_values="0 0 0 0">
+                      information_only="1" number_of_elements="4" default_values="0 0 0 0"
+                      panel_visibility="advanced">
   <SimpleDoubleInformationHelper />
   <Documentation>Time-step cache: hits, misses, entries, megabytes.</Documentation>
 </DoubleVectorProperty>"""

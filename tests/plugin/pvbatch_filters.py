@@ -148,6 +148,8 @@ for label, (name, cls) in sorted(entries.items()):
     record["screenshots"] = shots
     record["cache"] = proxy.GetClientSideObject().GetCacheStatistics().as_dict()
     record["cache_property"] = list(plugin.CacheStatistics(proxy).values())
+    proxy.UpdatePropertyInformation()
+    record["cache_attribute"] = list(proxy.CacheStatistics)  # a pvpython attribute too
     summary["filters"][label] = record
     simple.Delete(view)
 
