@@ -164,7 +164,8 @@ LIGHTS = """
 
 CACHE_STATISTICS = """
 <DoubleVectorProperty name="CacheStatistics" command="GetCacheStatisticsVector"
-                      information_only="1" number_of_elements="4" default_values="0 0 0 0">
+                      information_only="1" number_of_elements="4" default_values="0 0 0 0"
+                      panel_visibility="advanced">
   <SimpleDoubleInformationHelper />
   <Documentation>Time-step cache: hits, misses, entries, megabytes.</Documentation>
 </DoubleVectorProperty>"""
@@ -400,6 +401,15 @@ def CacheStatistics(source) -> dict:
     source.UpdatePropertyInformation()
     values = list(source.GetProperty("CacheStatistics"))
     return dict(zip(("hits", "misses", "entries", "megabytes"), values))
+
+
+# Link filters and displays in this session and hook its render views (links.py, display.py).
+try:
+    from vtkillum_paraview import links as _links
+except ImportError:  # no server manager here (a pvserver): nothing to link
+    _links = None
+if _links is not None:
+    _links.install()
 
 
 __all__ = [

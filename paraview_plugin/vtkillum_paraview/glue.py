@@ -226,6 +226,8 @@ class ParaViewGlue:
         if self._light_error is not None:
             raise ValueError(self._light_error)
         name, association = self._selected_array(image)
+        if name is None and image.GetPointData().GetScalars() is not None:
+            name = image.GetPointData().GetScalars().GetName()  # the default: active scalars
         array = None
         if name is not None:
             data = image.GetCellData() if association == "cells" else image.GetPointData()

@@ -82,6 +82,7 @@ def configure(proxy, colors=COLORS) -> None:
     # Explicit: ParaView 5.11 may default the array to the one last coloured by elsewhere.
     proxy.Scalars = ["POINTS", "density"]
     lut = simple.GetColorTransferFunction("density")
+    lut.AutomaticRescaleRangeMode = "Never"  # exactly these points, not fitted to the data
     lut.RGBPoints = colors
     opacity = simple.GetOpacityTransferFunction("density")
     opacity.Points = OPACITY
@@ -147,6 +148,8 @@ for label, (name, cls) in sorted(entries.items()):
     record["screenshots"] = shots
     record["cache"] = proxy.GetClientSideObject().GetCacheStatistics().as_dict()
     record["cache_property"] = list(plugin.CacheStatistics(proxy).values())
+    proxy.UpdatePropertyInformation()
+    record["cache_attribute"] = list(proxy.CacheStatistics)  # a pvpython attribute too
     summary["filters"][label] = record
     simple.Delete(view)
 

@@ -138,6 +138,7 @@ def test_cache_statistics_information_property(run):
         cache = record["cache"]
         assert (hits, misses, entries) == (cache["hits"], cache["misses"], cache["entries"]), label
         assert megabytes == pytest.approx(cache["bytes"] / 2**20), label
+        assert record["cache_attribute"] == record["cache_property"], label
 
 
 def test_shim_environment_exposes_only_warp_and_vtkillum(tmp_path):
