@@ -52,6 +52,12 @@ METHOD_OPTIONS: dict[str, dict] = {
         "ambient_occlusion_strength": 0.25,  # its ambient fluence / sum of light irradiances
         "hardware_filtering": False,   # CUDA texture filtering of the grids (faster, ~1e-3 off)
     },
+    "refraction": {                    # Magnus & Bruckner 2017, see core/refraction/render.py
+        "sample_distance": 1.0, "softness": 0.0, "direction_blur": 0.5,
+        "intensity_correction": True, "max_concentration": 100.0, "specular": 1.0,
+        "roughness": 0.3, "light_buffer_scale": 1.0, "environment": "",
+        "early_termination": 0.999, "seed": 0,
+    },
 }
 
 SHADING_DEFAULTS = {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0, "shininess": 32.0}

@@ -9,4 +9,12 @@ plane by plane, through planes parallel to the image plane (numpy + warp only):
   ``∇η`` by central differences.
 * :mod:`~vtkillum.core.refraction.preintegration` — pre-integrated opacity, medium
   colour and particle colour between planes.
+* :mod:`~vtkillum.core.refraction.sweep` — the interleaved plane sweep of Algorithm 1:
+  light propagation by backward integration with the intensity law and the
+  elliptical blur (section 4.2), view rays by forward integration with diffuse and
+  Cook–Torrance shading and eq. 14's compositing (section 4.3).
+* :mod:`~vtkillum.core.refraction.environment` — the mip-mapped environment map seen
+  along the final ray directions (section 4.4).
+
+:mod:`~vtkillum.core.refraction.render` is the ``"refraction"`` render method.
 """
