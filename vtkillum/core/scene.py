@@ -53,7 +53,7 @@ METHOD_OPTIONS: dict[str, dict] = {
         "hardware_filtering": False,   # CUDA texture filtering of the grids (faster, ~1e-3 off)
     },
     "refraction": {                    # Magnus & Bruckner 2017, see core/refraction/render.py
-        "sample_distance": 1.0, "softness": 0.0, "direction_blur": 0.5,
+        "sample_distance": 1.0, "softness": 0.0, "direction_blur": 1.0,
         "intensity_correction": True, "max_concentration": 100.0, "specular": 1.0,
         "roughness": 0.3, "light_buffer_scale": 1.0, "environment": "",
         "early_termination": 0.999, "seed": 0,

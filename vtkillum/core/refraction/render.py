@@ -17,7 +17,7 @@ once registered in :data:`vtkillum.core.scene.METHOD_OPTIONS`):
 ``step_size``            plane spacing in world units (overrides ``sample_distance``)
 ``softness``             soft light: tan of the light's angular radius, the per-plane
                          blur of the light buffer (0: hard shadows)
-``direction_blur``       the same kernel on the light directions (0.5; paper: reduces the
+``direction_blur``       the same kernel on the light directions (1; paper: reduces the
                          backward mapping's bias at refracting boundaries)
 ``intensity_correction`` caustics from the intensity law (eqs. 11–13); True
 ``max_concentration``    largest intensity gain of the intensity law (100): bounds the
@@ -69,7 +69,7 @@ from vtkillum.core.render import RenderResult
 REFRACTION_OPTIONS = {
     "sample_distance": 1.0,
     "softness": 0.0,
-    "direction_blur": 0.5,
+    "direction_blur": 1.0,
     "intensity_correction": True,
     "max_concentration": 100.0,
     "specular": 1.0,
