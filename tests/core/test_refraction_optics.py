@@ -83,3 +83,25 @@ def test_preintegration_tables_cover_both_domains():
     np.testing.assert_allclose(t["extinction"][:, 1], np.log(2.0), rtol=1e-6)
     np.testing.assert_allclose(t["extinction"][:, 2:], 0.0)
     assert t["eta_outside"] == pytest.approx(optics.eta_at(0.5))  # median over the faces
+
+
+def test_scene_file_carries_the_optics(tmp_path):
+    """The scene file's transfer_function holds refractive_index / medium_color; they round-trip
+    and reach the refraction method; without them the scene has no optics (η ≡ 1, m white)."""
+    from vtkillum.core.scene import Scene, load_scene, save_scene
+
+    d = {"transfer_function": {"scalars": [0.0, 1.0], "opacity": [0.0, 0.1],
+                               "refractive_index": [1.0, 1.4],
+                               "medium_color": [[1, 1, 1], [0.8, 0.9, 1.0]]}}
+    scene = Scene.from_dict(d)
+    assert scene.optics.eta_at(1.0) == pytest.approx(1.4)
+    save_scene(scene, tmp_path / "s.json")
+    again = load_scene(tmp_path / "s.json")
+    assert again.optics.key() == scene.optics.key()
+    assert again.transfer_function.to_dict() == scene.transfer_function.to_dict()
+    assert Scene.from_dict({"transfer_function": {"scalars": [0], "opacity": [0]}}).optics is None
+    with pytest.raises(ValueError, match="refractive_index"):
+        Scene.from_dict({"transfer_function": {"scalars": [0, 1], "opacity": [0, 0],
+                                               "refractive_index": [1.0, 0.0]}})
+    with pytest.raises(ValueError, match="RefractiveOptics"):
+        Scene(optics="glass")

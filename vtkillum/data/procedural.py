@@ -619,6 +619,7 @@ def glass_preset(volume: Volume, preset: str = "beer"):
     Returns
     -------
     scene : Scene
+        Its ``optics`` are set as well.
     optics : vtkillum.core.refraction.optics.RefractiveOptics
     """
     from vtkillum.core.refraction.optics import RefractiveOptics
@@ -656,4 +657,5 @@ def glass_preset(volume: Volume, preset: str = "beer"):
     scene = Scene(transfer_function=tf, opacity_unit_distance=0.1, albedo=0.9, anisotropy=0.0,
                   lights=[DirectionalLight((-0.35, 0.55, -0.75), (3.0, 2.95, 2.85))],
                   camera=camera, background=(0.0, 0.0, 0.0))
+    scene.optics = optics
     return scene, optics

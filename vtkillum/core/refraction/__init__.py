@@ -9,10 +9,13 @@ plane by plane, through planes parallel to the image plane (numpy + warp only):
   ``∇η`` by central differences.
 * :mod:`~vtkillum.core.refraction.preintegration` — pre-integrated opacity, medium
   colour and particle colour between planes.
-* :mod:`~vtkillum.core.refraction.sweep` — the interleaved plane sweep of Algorithm 1:
-  light propagation by backward integration with the intensity law and the
-  elliptical blur (section 4.2), view rays by forward integration with diffuse and
-  Cook–Torrance shading and eq. 14's compositing (section 4.3).
+* :mod:`~vtkillum.core.refraction.planes` — the planes, the light grid sheared along
+  the light, the per-frame record.
+* :mod:`~vtkillum.core.refraction.light_propagation` — section 4.2: backward
+  integration of the light buffer, the intensity law (caustics), the elliptical blur.
+* :mod:`~vtkillum.core.refraction.view_rays` — section 4.3: forward integration of the
+  view rays, diffuse and Cook–Torrance shading, eq. 14's compositing.
+* :mod:`~vtkillum.core.refraction.sweep` — Algorithm 1: buffers and one launch per plane.
 * :mod:`~vtkillum.core.refraction.environment` — the mip-mapped environment map seen
   along the final ray directions (section 4.4).
 

@@ -54,15 +54,14 @@ from vtkillum.core.lights import DIRECTIONAL
 from vtkillum.core.refraction.environment import make_environment
 from vtkillum.core.refraction.optics import RefractiveOptics
 from vtkillum.core.refraction.preintegration import make_refractive_medium
-from vtkillum.core.refraction.sweep import (
+from vtkillum.core.refraction.planes import (
     MAX_LIGHT_ANGLE,
-    SweepBuffers,
     SweepParams,
     light_angle,
     make_params,
     sweep_geometry,
-    sweep_launches,
 )
+from vtkillum.core.refraction.sweep import SweepBuffers, sweep_launches
 from vtkillum.core.render import RenderResult
 
 #: Method options and their defaults (also the scene file's ``refraction`` section).
