@@ -222,6 +222,7 @@ class RefractionRenderer:
         self._environment_key = None
         self._params = wp.zeros(1, dtype=SweepParams, device=device)
         self._graphs: dict = {}
+        self._graph_error = None  # why graph capture failed on this device, if it did
 
     def render(self, volume, scene, width: int, height: int, progress=None,
                **options) -> RenderResult:
@@ -293,6 +294,7 @@ class RefractionRenderer:
             "eta_outside": float(medium.eta_outside),
             "launches": launches,
             "graph": self._use_graph(opts),
+            "graph_error": self._graph_error,
             "composite_background": opts["composite_background"],
             "setup_s": t_setup - t_start,
             "sweep_s": t_sweep - t_setup,
@@ -307,7 +309,7 @@ class RefractionRenderer:
     # --- internals ---------------------------------------------------------------------------
     def _use_graph(self, opts) -> bool:
         return bool(opts["graph"]) and self.device.startswith("cuda") \
-            and opts["record_light"] is None
+            and opts["record_light"] is None and self._graph_error is None
 
     def _run(self, medium, environment, planes, width, height, opts, after) -> int:
         args = (medium, self._params, self.buffers, environment, planes, width, height,
@@ -320,8 +322,12 @@ class RefractionRenderer:
         if graph is None:
             if len(self._graphs) > 16:
                 self._graphs.clear()
-            with wp.ScopedCapture(device=self.device) as capture:
-                sweep_launches(*args)
+            try:
+                with wp.ScopedCapture(device=self.device) as capture:
+                    sweep_launches(*args)
+            except Exception as err:  # a driver without graph capture: launch plane by plane
+                self._graph_error = f"{type(err).__name__}: {err}"
+                return sweep_launches(*args, after_plane=after)
             graph = self._graphs[key] = capture.graph
         wp.capture_launch(graph)
         return planes + 3
