@@ -119,8 +119,8 @@ def photon_tables(transfer_function, unit_distance: float, value_range, size: in
     lo, hi : float
     """
     lo, hi = (float(v) for v in value_range)
-    if hi <= lo:
-        hi = lo + 1.0
+    if not hi - lo > 0:  # constant data; lo + 1 == lo for |lo| > 2**53
+        hi = lo + max(1.0, abs(lo) * 1e-6)
     v = np.linspace(lo, hi, size)
     return (transfer_function.sigma_t(v, unit_distance).astype(np.float32),
             transfer_function.color(v).astype(np.float32), lo, hi)
