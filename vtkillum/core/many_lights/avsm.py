@@ -7,12 +7,17 @@ is ``(0, 1)`` and beyond the last node the curve stays at ``t_m``.
 
 Construction (one thread per texel): the ray from the VL through the texel centre is
 marched to the box exit with the midpoint rule on equal steps no longer than ``step``
-(unscaled medium); every step end is *inserted* as a node, and whenever there are more
-than ``m`` nodes the interior node whose removal changes the area under the curve least
-(the triangle it forms with its neighbours) is *removed* — Salvi et al.'s adaptive
-compression, applied as the samples stream in front to back. Where the transmittance
-does not change (empty space) the last node is moved instead of inserting a new one. The
-march stops once the transmittance falls below ``stop_t``.
+(unscaled medium). A step end where the marched curve stops being straight — it leaves
+the sleeve of half-width :data:`SLEEVE` around the line from the last node through the
+samples since — is *inserted* as a node (the previous sample becomes the node), and
+whenever there are more than ``m`` nodes the interior node whose removal changes the
+area under the curve least (the triangle it forms with its neighbours) is *removed*:
+Salvi et al.'s adaptive insertion and compression, fed front to back. Without the
+sleeve every step would be a node, each new node would form a tiny triangle with its
+close predecessor, and the greedy removal would erase the corners of a curve (a slab's
+entry and exit); with it, empty space and straight pieces cost no node. The march stops
+once the transmittance falls below ``stop_t``. Nodes hold the marched values, so a map
+is exact at its stored depths.
 
 Lookup at a point ``x`` for the VL at ``x_j``: the direction ``x - x_j`` picks a face and
 continuous texel coordinates, the depth is ``|x - x_j|``; each texel's curve is evaluated
@@ -27,8 +32,8 @@ Faces: ``+x, -x, +y, -y, +z, -z``; on the face of major axis ``a`` the texel
 coordinates follow axes ``(a + 1) % 3`` (columns) and ``(a + 2) % 3`` (rows).
 
 Simplifications against the paper: bilinear filtering does not cross cube faces (the
-coordinates are clamped to the face), and nodes are inserted in depth order along one
-march per texel rather than as rasterised fragments.
+coordinates are clamped to the face), and nodes come from one march per texel (thinned
+by the sleeve) rather than from rasterised fragments.
 """
 
 from __future__ import annotations
@@ -47,6 +52,8 @@ _NodeVec = wp.types.vector(length=MAX_NODES + 1, dtype=wp.float32)
 FILTERS = {"point": 0, "trilinear": 1}
 #: Default transmittance below which construction stops (before any scale exponent).
 STOP_TRANSMITTANCE = 1.0e-4
+#: Half-width of the sleeve that decides where the marched curve bends (transmittance).
+SLEEVE = wp.constant(1.0e-3)
 
 
 @wp.struct
@@ -278,6 +285,36 @@ def avsm_transmittance(sm: ShadowMaps, slot: int, origin: wp.vec3, x: wp.vec3):
     return wp.lerp(wp.lerp(t00, t01, fx), wp.lerp(t10, t11, fx), fy)
 
 
+@wp.func
+def insert_node(D: _NodeVec, T: _NodeVec, n: int, count: int, depth: float, trans: float):
+    """Append node ``(depth, trans)`` behind ``n`` nodes; if that makes ``count + 1``,
+    remove the interior node whose triangle with its neighbours has the smallest area
+    (Salvi et al. 2010; the implicit node (0, 1) is the left neighbour of node 0, the
+    last node is never removed). Returns the new ``(D, T, n)`` (warp passes vectors by
+    value)."""
+    D[n] = depth
+    T[n] = trans
+    n += 1
+    if n > count:
+        best = int(0)
+        best_area = float(1.0e30)
+        for j in range(n - 1):
+            dl = float(0.0)
+            tl = float(1.0)
+            if j > 0:
+                dl = D[j - 1]
+                tl = T[j - 1]
+            area = wp.abs((D[j] - dl) * (T[j + 1] - tl) - (D[j + 1] - dl) * (T[j] - tl))
+            if area < best_area:
+                best_area = area
+                best = j
+        for j in range(best, n - 1):
+            D[j] = D[j + 1]
+            T[j] = T[j + 1]
+        n -= 1
+    return D, T, n
+
+
 # --- kernel -------------------------------------------------------------------------------------
 @wp.kernel
 def build_kernel(m: Medium, positions: wp.array(dtype=wp.vec3),
@@ -301,41 +338,37 @@ def build_kernel(m: Medium, positions: wp.array(dtype=wp.vec3),
         steps = int(wp.ceil(length / step))
         h = length / float(steps)
         tau = float(0.0)
+        # Sleeve of the line from the last inserted node (anchor) through the samples since.
+        anchor_d = float(0.0)
+        anchor_t = float(1.0)
+        lo = float(-1.0e30)
+        hi = float(1.0e30)
+        prev_d = float(0.0)
+        prev_t = float(1.0)
         for k in range(steps):
             tau += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing,
                                                    x0 + ((float(k) + 0.5) * h) * d)) * h
             tk = wp.exp(-tau)
             dk = float(k + 1) * h
-            prev_t = float(1.0)
-            if n >= 2:
-                prev_t = T[n - 2]
-            if n >= 1 and tk == T[n - 1] and T[n - 1] == prev_t:
-                D[n - 1] = dk  # flat: move the last node
+            span = dk - anchor_d
+            new_lo = wp.max(lo, (tk - SLEEVE - anchor_t) / span)
+            new_hi = wp.min(hi, (tk + SLEEVE - anchor_t) / span)
+            if new_lo > new_hi and k > 0:
+                # The previous sample ends a straight piece: it becomes a node.
+                D, T, n = insert_node(D, T, n, count, prev_d, prev_t)
+                anchor_d = prev_d
+                anchor_t = prev_t
+                span = dk - anchor_d
+                lo = (tk - SLEEVE - anchor_t) / span
+                hi = (tk + SLEEVE - anchor_t) / span
             else:
-                D[n] = dk
-                T[n] = tk
-                n += 1
-                if n > count:
-                    # Remove the interior node (0 .. n - 2) whose triangle with its neighbours
-                    # is smallest; the implicit node (0, 1) is the left neighbour of node 0.
-                    best = int(0)
-                    best_area = float(1.0e30)
-                    for j in range(n - 1):
-                        dl = float(0.0)
-                        tl = float(1.0)
-                        if j > 0:
-                            dl = D[j - 1]
-                            tl = T[j - 1]
-                        area = wp.abs((D[j] - dl) * (T[j + 1] - tl) - (D[j + 1] - dl) * (T[j] - tl))
-                        if area < best_area:
-                            best_area = area
-                            best = j
-                    for j in range(best, n - 1):
-                        D[j] = D[j + 1]
-                        T[j] = T[j + 1]
-                    n -= 1
+                lo = new_lo
+                hi = new_hi
+            prev_d = dk
+            prev_t = tk
             if tk < stop_t:
                 break
+        D, T, n = insert_node(D, T, n, count, prev_d, prev_t)
     slot = slots[b]
     texel = ((slot * 6 + face) * R + row) * R + col
     last_d = float(0.0)
