@@ -190,8 +190,12 @@ class VirtualLightSet:
             take = hit + 1 if done else k
             if math.isfinite(vls_left):
                 within = int(np.searchsorted(np.cumsum(counts[:take]), vls_left, side="right"))
-                if max(within, 1) < take:
-                    take, done = max(within, 1), False
+                if stats["paths"] == 0:
+                    within = max(within, 1)  # progress: at least one path per call
+                if within < take:
+                    take, done = within, False
+                if take == 0:
+                    break
             if a + take >= path_cap and not done:
                 done = True
                 self.path_limit_reached = True
