@@ -10,6 +10,7 @@ from vtkillum.filters.ambient_extinction import AmbientExtinctionFilter
 from vtkillum.filters.base import IlluminationFilterBase, IlluminationParameters
 from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLightFilter
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
+from vtkillum.filters.many_lights import ManyLightsFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
 
 __all__ = [
@@ -18,5 +19,6 @@ __all__ = [
     "IlluminationFilterBase",
     "IlluminationParameters",
     "LightTransmittanceFilter",
+    "ManyLightsFilter",
     "OpticalPropertiesFilter",
 ]
