@@ -7,14 +7,16 @@ A VL at vertex ``x_k`` of a light path carries the estimate
 of the light arriving there (the paper's ``L_i^k`` in the volume measure), built up
 vertex by vertex:
 
-    k = 1:   beta_1 = E_l(x_1) T(x_1 -> light)                 / p_1
-    k > 1:   beta_k = beta_{k-1} sigma_s(x_{k-1}) f_HG(w_{k-1}, w_k) T(x_{k-1}, x_k) / t_k^2 / p_k
+    k = 1:   beta_1 = E_l(x_1) T(x_1 -> light)                    / p_1
+    k > 1:   beta_k = beta_{k-1} sigma_s(x_{k-1}) f_HG(w_{k-1}, w_k) T(x_{k-1}, x_k) / p_k
 
 with ``E_l`` the light's irradiance at ``x_1`` (``I / max(d, r)^2`` for point lights),
-``w_k`` the direction of the segment arriving at ``x_k``, ``t_k`` its length and
-``p_k`` the density with which the walk sampled ``x_k`` given ``x_{k-1}`` (volume
-measure: the walk's geometric density times the distance density
-``sigma_t(x_k) T(x_{k-1}, x_k)``, *frozen* when the vertex was created). The VL then
+``w_k`` the direction of the segment arriving at ``x_k`` and ``p_k`` the density with
+which the walk sampled ``x_k`` given ``x_{k-1}``: the walk's geometric density times the
+distance density ``sigma_t(x_k) T(x_{k-1}, x_k)``, *frozen* when the vertex was created
+(volume measure for the first vertex, whose light may move; for later vertices the
+``1 / t_k^2`` of the volume measure is left out of integrand and density alike, as the
+vertices never move). The VL then
 shines like a point light of intensity
 
     I_k(w) = beta_k sigma_s(x_k) f_HG(w_k . w)
@@ -97,20 +99,21 @@ def freeze_densities(medium: Medium, scale_a: float, scale_b: float, positions, 
 
 
 def evaluate(medium: Medium, scale: float, lights: Lights, path_offset, path_count, path_light,
-             positions, tau, pdf, n_paths: int, power, direction, extinction,
+             positions, incident, tau, pdf, n_paths: int, power, direction, extinction,
              device: str) -> None:
     """Re-evaluate every VL's ``power`` and incident ``direction`` along its path (eq. 6).
 
     ``medium`` is unscaled, ``scale`` the global density scale ``S``; ``power`` is divided
-    by ``n_paths``, the number of paths (one thread each). ``extinction`` receives the
+    by ``n_paths``, the number of paths (one thread each). ``incident``: the stored
+    directions of the walk (all but the first vertex's are used). ``extinction`` receives the
     scaled ``sigma_t`` at each VL (for radii in mean free paths).
     """
     if int(n_paths) <= 0:
         return
     wp.launch(contribution_kernel, dim=int(n_paths),
               inputs=[medium, float(scale), lights, path_offset, path_count, path_light,
-                      positions, tau, pdf, 1.0 / max(int(n_paths), 1), power, direction,
-                      extinction],
+                      positions, incident, tau, pdf, 1.0 / max(int(n_paths), 1), power,
+                      direction, extinction],
               device=device)
 
 
@@ -179,7 +182,8 @@ def contribution_kernel(m: Medium, scale: float, lights: Lights,
                         path_offset: wp.array(dtype=wp.int32),
                         path_count: wp.array(dtype=wp.int32),
                         path_light: wp.array(dtype=wp.int32),
-                        positions: wp.array(dtype=wp.vec3), tau: wp.array(dtype=wp.float32),
+                        positions: wp.array(dtype=wp.vec3), incident: wp.array(dtype=wp.vec3),
+                        tau: wp.array(dtype=wp.float32),
                         pdf: wp.array(dtype=wp.float32), inv_paths: float,
                         power: wp.array(dtype=wp.vec3), direction: wp.array(dtype=wp.vec3),
                         extinction: wp.array(dtype=wp.float32)):
@@ -195,7 +199,6 @@ def contribution_kernel(m: Medium, scale: float, lights: Lights,
     off = path_offset[p]
     li = path_light[p]
     carry = wp.vec3(0.0)  # beta_{k-1} sigma_s(x_{k-1})
-    x_prev = wp.vec3(0.0)
     w_prev = wp.vec3(0.0)
     for k in range(path_count[p]):
         i = off + k
@@ -208,10 +211,8 @@ def contribution_kernel(m: Medium, scale: float, lights: Lights,
             w = -wl
             f = T * e
         else:
-            v = x - x_prev
-            t = wp.length(v)
-            w = v / wp.max(t, 1.0e-30)
-            f = (hg_phase(wp.dot(w_prev, w), m.g) * T / wp.max(t * t, 1.0e-30)) * carry
+            w = incident[i]
+            f = (hg_phase(wp.dot(w_prev, w), m.g) * T) * carry
         beta = wp.vec3(0.0)
         if pdf[i] > 0.0:
             beta = f / pdf[i]
@@ -221,5 +222,4 @@ def contribution_kernel(m: Medium, scale: float, lights: Lights,
         power[i] = carry * inv_paths
         direction[i] = w
         extinction[i] = sig
-        x_prev = x
         w_prev = w

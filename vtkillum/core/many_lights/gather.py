@@ -138,6 +138,17 @@ def render_image(medium: Medium, cam: CameraParams, lights: Lights, vls: Virtual
     multiple = wp.zeros((height, width), dtype=wp.vec3, device=device)
     alpha = wp.zeros((height, width), dtype=wp.float32, device=device)
     samples = wp.zeros((height, width), dtype=wp.int32, device=device)
+    gather_device(medium, cam, lights, vls, maps, params, single, multiple, alpha, samples,
+                  device, progress)
+    return (single.numpy().reshape(height, width, 3), multiple.numpy().reshape(height, width, 3),
+            alpha.numpy(), float(samples.numpy().mean()))
+
+
+def gather_device(medium: Medium, cam: CameraParams, lights: Lights, vls: VirtualLights,
+                  maps: ShadowMaps, params: GatherParams, single, multiple, alpha, samples,
+                  device: str, progress=None) -> None:
+    """:func:`render_image` into device arrays ``(H, W)`` (no download; synchronised)."""
+    height, width = single.shape
     band = BAND_PIXELS["cpu" if device == "cpu" else "cuda"]
     rows = max(1, min(height, band // max(width, 1)))
     bands = (height + rows - 1) // rows
@@ -149,8 +160,6 @@ def render_image(medium: Medium, cam: CameraParams, lights: Lights, vls: Virtual
             wp.synchronize_device(device)
             progress((n + 1) / bands)
     wp.synchronize_device(device)
-    return (single.numpy().reshape(height, width, 3), multiple.numpy().reshape(height, width, 3),
-            alpha.numpy(), float(samples.numpy().mean()))
 
 
 def scattered_fluence(medium: Medium, vls: VirtualLights, maps: ShadowMaps, params: GatherParams,

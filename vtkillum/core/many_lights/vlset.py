@@ -97,6 +97,7 @@ class VirtualLightSet:
         self.path_created = np.zeros(0, np.int64)
         self.position = np.zeros((0, 3), np.float32)
         self.geom = np.zeros(0, np.float32)
+        self.incident = np.zeros((0, 3), np.float32)
         self.tau = np.zeros(0, np.float32)
         self.pdf = np.zeros(0, np.float32)
         self.slot = np.zeros(0, np.int32)
@@ -212,8 +213,8 @@ class VirtualLightSet:
         """Re-evaluate every VL's contribution (eq. 6) on the device."""
         d = self.dev
         evaluate(medium, scale, lights, d["path_offset"], d["path_count"], d["path_light"],
-                 d["position"], d["tau"], d["pdf"], self.n_paths, d["power"], d["direction"],
-                 d["extinction"], self.device)
+                 d["position"], d["incident"], d["tau"], d["pdf"], self.n_paths, d["power"],
+                 d["direction"], d["extinction"], self.device)
 
     def remarch(self, env: Environment, only_first_segment: bool = False) -> None:
         """March the optical depths of all stored segments again (after a ``sigma_t`` edit,
@@ -250,10 +251,11 @@ class VirtualLightSet:
         hi = int(offsets[min(b, old_p)])
         new_total = int(counts.sum())
         new_offsets = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int32)
-        pos_dev, geom_dev = write_vertices(env.walk, np.arange(a, b, dtype=np.int32),
-                                           new_offsets, new_total)
+        pos_dev, geom_dev, dir_dev = write_vertices(env.walk, np.arange(a, b, dtype=np.int32),
+                                                    new_offsets, new_total)
         new_pos = pos_dev.numpy()[:new_total].reshape(-1, 3)
         new_geom = geom_dev.numpy()[:new_total]
+        new_dir = dir_dev.numpy()[:new_total].reshape(-1, 3)
 
         # AVSM slots: keep the map of a VL that did not move, when its medium is unchanged.
         new_slot = np.full(new_total, -1, np.int32)
@@ -285,6 +287,7 @@ class VirtualLightSet:
         ptail = slice(min(b, old_p), None) if not done else slice(0, 0)
         self.position = np.concatenate([self.position[:lo], new_pos, self.position[tail]])
         self.geom = np.concatenate([self.geom[:lo], new_geom, self.geom[tail]])
+        self.incident = np.concatenate([self.incident[:lo], new_dir, self.incident[tail]])
         self.tau = np.concatenate([self.tau[:lo], np.zeros(new_total, np.float32), self.tau[tail]])
         self.pdf = np.concatenate([self.pdf[:lo], np.zeros(new_total, np.float32), self.pdf[tail]])
         self.slot = np.concatenate([self.slot[:lo], new_slot, self.slot[tail]])
@@ -333,6 +336,7 @@ class VirtualLightSet:
         self.dev = {
             "position": arr(self.position, wp.vec3),
             "geom": arr(self.geom, wp.float32),
+            "incident": arr(self.incident, wp.vec3),
             "tau": arr(self.tau, wp.float32),
             "pdf": arr(self.pdf, wp.float32),
             "slot": arr(self.slot, wp.int32),

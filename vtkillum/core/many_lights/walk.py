@@ -16,7 +16,8 @@ Sampling, step by step (local frame, world units)
    Directional lights start on a rectangle bounding that projection, outside the box,
    with uniform density ``1 / A_l``; point lights emit uniformly in direction
    (``1 / (4 pi)``). Geometric density of the first vertex: ``P_l / A_l``
-   (directional) or ``P_l / (4 pi t^2)`` (point, ``t`` its distance from the light).
+   (directional) or ``P_l / (4 pi t^2)`` (point, ``t`` its distance from the light),
+   in the volume measure, because a light may move after the walk.
 2. **Distance** along the ray, inside the box:
 
    * ``"ray-marching"`` (Algorithm 1): an optical-depth target ``-ln(1 - u)`` is
@@ -40,7 +41,11 @@ Sampling, step by step (local frame, world units)
 4. **Direction**: Henyey–Greenstein importance sampling with the scene's ``g``
    (density ``p_HG``), or uniform (``1 / (4 pi)``; section 5.2's "isotropic as the mean
    phase function" for interactive ``g`` edits). Geometric density of the next
-   vertex: ``q * p(w) / t^2``.
+   vertex: ``q * p(w)`` in the measure ``dw dt``. Stored vertices never move, so the
+   ``1 / t^2`` of the volume measure cancels between the integrand and the density of
+   every later vertex; leaving it out of both keeps a collision a float32 rounding away
+   from its predecessor (delta tracking draws arbitrarily short flights) from turning
+   into ``0 / 0``. The direction each segment was sampled with is stored too.
 
 Random numbers: path ``p`` of a VL set draws from the PCG stream
 ``rand_init(seed, p)``, so a path can be traced twice (once to count its vertices,
@@ -172,7 +177,8 @@ def count_vertices(setup: WalkSetup, first: int, n: int):
     dummy_geom = wp.zeros(1, dtype=wp.float32, device=dev)
     wp.launch(walk_kernel, dim=n,
               inputs=[setup.medium_a, setup.medium_b, setup.sources, setup.lights, setup.params,
-                      int(first), 0, counts, counts, path_light, dummy_pos, dummy_geom, capped],
+                      int(first), 0, counts, counts, path_light, dummy_pos, dummy_geom,
+                      dummy_pos, capped],
               device=dev)
     return counts.numpy(), path_light.numpy(), int(capped.numpy()[0])
 
@@ -195,21 +201,25 @@ def write_vertices(setup: WalkSetup, paths: np.ndarray, offsets: np.ndarray, tot
         Vertex positions (local frame).
     geom : wp.array(float32) (total,)
         Geometric sampling density of each vertex (see the module docstring).
+    incident : wp.array(vec3) (total,)
+        Unit travel direction of the segment that arrived at each vertex.
     """
     dev = setup.device
     positions = wp.zeros(max(int(total), 1), dtype=wp.vec3, device=dev)
     geom = wp.zeros(max(int(total), 1), dtype=wp.float32, device=dev)
+    incident = wp.zeros(max(int(total), 1), dtype=wp.vec3, device=dev)
     n = len(paths)
     if n == 0 or total == 0:
-        return positions, geom
+        return positions, geom, incident
     path_ids = wp.array(np.asarray(paths, np.int32), dtype=wp.int32, device=dev)
     offs = wp.array(np.asarray(offsets, np.int32), dtype=wp.int32, device=dev)
     path_light = wp.zeros(n, dtype=wp.int32, device=dev)
     capped = wp.zeros(1, dtype=wp.int32, device=dev)
     wp.launch(walk_kernel, dim=n,
               inputs=[setup.medium_a, setup.medium_b, setup.sources, setup.lights, setup.params,
-                      0, 1, path_ids, offs, path_light, positions, geom, capped], device=dev)
-    return positions, geom
+                      0, 1, path_ids, offs, path_light, positions, geom, incident, capped],
+              device=dev)
+    return positions, geom, incident
 
 
 def make_sources(lights, volume, device: str | None = None) -> tuple[Sources, np.ndarray]:
@@ -362,15 +372,15 @@ def walk_kernel(ma: Medium, mb: Medium, src: Sources, lights: Lights, prm: WalkP
                 first: int, write: int, paths: wp.array(dtype=wp.int32),
                 offsets: wp.array(dtype=wp.int32), path_light: wp.array(dtype=wp.int32),
                 out_pos: wp.array(dtype=wp.vec3), out_geom: wp.array(dtype=wp.float32),
-                capped: wp.array(dtype=wp.int32)):
+                out_dir: wp.array(dtype=wp.vec3), capped: wp.array(dtype=wp.int32)):
     """Trace one light path.
 
     ``wp.tid()`` indexes the launched paths. Counting (``write == 0``): path
     ``first + tid``, its vertex count goes to ``offsets[tid]`` (the ``paths`` argument
     is unused). Writing (``write == 1``): path ``paths[tid]``, its vertices go to
-    ``out_pos``/``out_geom`` from ``offsets[tid]`` on. Positions in the local frame (world
-    units); ``out_geom`` is the geometric density (1/world units³ with the distance
-    density, see the module docstring). ``path_light[tid]`` gets the light index;
+    ``out_pos``/``out_geom``/``out_dir`` from ``offsets[tid]`` on. Positions in the local
+    frame (world units); ``out_geom`` is the geometric density (see the module
+    docstring); ``out_dir`` the unit direction the vertex was reached along. ``path_light[tid]`` gets the light index;
     ``capped[0]`` counts walks cut by ``max_vertices``.
     """
     i = wp.tid()
@@ -430,11 +440,12 @@ def walk_kernel(ma: Medium, mb: Medium, src: Sources, lights: Lights, prm: WalkP
                 break
             x = o + t * w
             g_v = geom
-            if n > 0 or point != 0:
+            if n == 0 and point != 0:
                 g_v = geom / wp.max(t * t, 1.0e-30)
             if write != 0:
                 out_pos[offsets[i] + n] = x
                 out_geom[offsets[i] + n] = g_v
+                out_dir[offsets[i] + n] = w
             n += 1
             col = lookup_color(ma, sample_scalar(ma.scalars, ma.inv_spacing, x))
             rho = rho * ma.albedo * wp.max(col[0], wp.max(col[1], col[2]))
