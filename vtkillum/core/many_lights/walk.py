@@ -380,8 +380,9 @@ def walk_kernel(ma: Medium, mb: Medium, src: Sources, lights: Lights, prm: WalkP
     is unused). Writing (``write == 1``): path ``paths[tid]``, its vertices go to
     ``out_pos``/``out_geom``/``out_dir`` from ``offsets[tid]`` on. Positions in the local
     frame (world units); ``out_geom`` is the geometric density (see the module
-    docstring); ``out_dir`` the unit direction the vertex was reached along. ``path_light[tid]`` gets the light index;
-    ``capped[0]`` counts walks cut by ``max_vertices``.
+    docstring); ``out_dir`` the unit direction the vertex was reached along.
+    ``path_light[tid]`` gets the light index; ``capped[0]`` counts walks cut by
+    ``max_vertices``.
     """
     i = wp.tid()
     p = first + i
