@@ -189,9 +189,9 @@ def contribution_kernel(m: Medium, scale: float, lights: Lights,
                         extinction: wp.array(dtype=wp.float32)):
     """Walk one stored light path and write its VLs' power and incident direction.
 
-    ``wp.tid()`` indexes paths. ``power[i] = beta_i sigma_s(x_i) / P`` (RGB, the lights'
-    power units per world unit... times 1/sr through the phase function: a point
-    light's intensity is ``power * f_HG``); ``direction[i]`` is the unit travel direction
+    ``wp.tid()`` indexes paths. ``power[i] = beta_i sigma_s(x_i) / P`` (RGB; the VL's
+    radiant intensity towards ``w`` is ``power * f_HG(direction . w)``, so ``power`` has
+    the units of the lights' power); ``direction[i]`` is the unit travel direction
     of the light arriving at VL ``i``; ``extinction[i]`` its ``S sigma_t`` (1/world units).
     See the module docstring.
     """

@@ -180,7 +180,7 @@ class VirtualLightSet:
             a = self.frontier
             have = int(self.path_count[:a].sum())
             need = self.target - have
-            rate = have / a if a > 0 else (self.n_vls / self.n_paths if self.n_paths else 0.0)
+            rate = have / a if a > 0 else (self.n_vls / self.n_paths if self.n_paths else 0.5)
             guess = math.ceil(need / max(rate, 1e-3) * 1.1) + 8 if need > 0 else 1
             k = int(min(paths_left, guess, path_cap - a, 1 << 22))
             counts, lights, capped = count_vertices(env.walk, a, k)
