@@ -31,6 +31,7 @@ METHODS: dict[str, str] = {
     "convection-diffusion": "vtkillum.core.convection_diffusion:render_convection_diffusion",
     "photon": "vtkillum.core.photon.render:render_photon",
     "refraction": "vtkillum.core.refraction.render:render_refraction",
+    "many-lights": "vtkillum.core.many_lights.render:render_many_lights",
 }
 
 

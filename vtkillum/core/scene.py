@@ -66,6 +66,14 @@ METHOD_OPTIONS: dict[str, dict] = {
         "roughness": 0.3, "light_buffer_scale": 1.0, "environment": "",
         "early_termination": 0.999, "seed": 0,
     },
+    "many_lights": {                   # see vtkillum.core.many_lights.render
+        "count": 256, "sets": 1, "max_sets": 64, "virtual_lights": "spherical",
+        "vsl_radius": 2.0, "vsl_radius_mfp": 0.5, "radius_exponent": 1.0 / 3.0,
+        "transmittance": "avsm", "avsm_resolution": 48, "avsm_nodes": 8,
+        "avsm_lookup": "trilinear", "distance_sampling": "delta-tracking", "phase_sampling": "hg",
+        "view_samples": 8, "update_fraction": 0.1, "update_budget": 0,
+        "scale_range": [1.0, 1.0], "density_scale": 1.0, "seed": 0,
+    },
 }
 
 SHADING_DEFAULTS = {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0, "shininess": 32.0}
