@@ -481,3 +481,66 @@ def test_ctrl_c_in_a_filter_raises_keyboard_interrupt_from_execute():
     assert "interrupted (KeyboardInterrupt)" in out
     assert "pipeline update failed" not in err
     assert waited < 3.0, waited
+
+
+# --- photon tracing: flights marched in steps of photon_step -----------------------------------------
+def test_photon_step_is_capped_naming_the_smallest_step():
+    start = time.perf_counter()
+    with pytest.raises(ValueError, match=r"photon_step 1e-09 needs \d+ samples per photon flight "
+                                         r".* use at least 1\.82e-05 world units"):
+        render(small_blob(), Scene(transfer_function=TF), "photon", 4, 4, device="cpu",
+               photon_step=1e-9, photons=100)
+    assert time.perf_counter() - start < 10
+
+
+def test_chunked_photon_tracing_gives_the_same_image(monkeypatch):
+    from vtkillum.core.photon import tracing
+
+    volume, scene = small_blob(), Scene(transfer_function=TF)
+    options = {"photons": 500, "max_order": 3, "device": "cpu"}
+    whole = render(volume, scene, "photon", 6, 5, **options)
+    flight = int(np.ceil(np.linalg.norm(volume.extent) / 0.5))
+    monkeypatch.setitem(tracing.TRACE_CHUNK_SAMPLES, "cpu", 7 * tracing.FLIGHTS_PER_PHOTON * flight)
+    launches = []
+    launch = tracing.wp.launch
+
+    def counting_launch(kernel, *args, **kwargs):
+        launches.append(kernel is tracing.trace_kernel)
+        return launch(kernel, *args, **kwargs)
+
+    monkeypatch.setattr(tracing.wp, "launch", counting_launch)
+    chunked = render(small_blob(), scene, "photon", 6, 5, **options)  # a new map
+    assert sum(launches) >= 500 // 7
+    np.testing.assert_array_equal(chunked.radiance, whole.radiance)
+    np.testing.assert_array_equal(chunked.alpha, whole.alpha)
+    assert whole.radiance.max() > 0
+
+
+PHOTON_CHILD = textwrap.dedent("""
+    import sys
+    import numpy as np
+    from vtkillum.core.render import render
+    from vtkillum.core.scene import Scene
+    from vtkillum.core.transfer_function import TransferFunction
+    from vtkillum.core.volume import Volume
+
+    x = np.linspace(-1, 1, 12)
+    v = Volume(np.exp(-3 * (x[:, None, None] ** 2 + x[None, :, None] ** 2
+                            + x[None, None, :] ** 2)))
+    scene = Scene(transfer_function=TransferFunction([0.0, 1.0], [0.0, 0.5]))
+    render(v, scene, "photon", 2, 2, device="cpu", photons=100)  # compile
+    print("ready", flush=True)
+    try:
+        # 95000 samples per flight for 200000 photons: minutes in one launch before.
+        render(v, scene, "photon", 4, 4, device="cpu", photon_step=2e-4)
+    except KeyboardInterrupt:
+        print("interrupted", flush=True)
+        sys.exit(42)
+    print("finished", flush=True)
+""")
+
+
+@pytest.mark.skipif(sys.platform == "win32", reason="SIGINT")
+def test_ctrl_c_stops_photon_tracing_within_a_second():
+    waited, _, _ = interrupt_child(PHOTON_CHILD)
+    assert waited < 3.0, waited
