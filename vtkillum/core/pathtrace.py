@@ -214,7 +214,7 @@ class PathTracer:
         self.max_bounces = _bounce_limit(max_bounces)
         self.samples_per_pass = _positive_int(samples_per_pass, "samples_per_pass")
         self._volume = volume
-        self._lights_list = list(scene.lights)
+        self._n_lights = len(scene.lights)
         self._torn = False
         self.medium = make_medium(
             volume, scene.resolved_transfer_function(volume), scene.resolved_unit_distance(volume),
@@ -297,7 +297,7 @@ class PathTracer:
         The whole image on CUDA; on the CPU bands of whole rows, or parts of a row, of
         about :data:`BAND_EVENTS` estimated events each.
         """
-        events = (2 + len(self._scene_lights)) * (1.0 + self.optical_depth) \
+        events = (2 + self._n_lights) * (1.0 + self.optical_depth) \
             * self.samples_per_pass
         budget = BAND_EVENTS["cpu" if self.device == "cpu" else "cuda"]
         pixels = max(1, int(min(budget / events, self.width * self.height)))
@@ -355,10 +355,6 @@ class PathTracer:
         if self._torn:
             raise RuntimeError("a pass of this PathTracer was interrupted part-way (its sums "
                                "hold part of a pass); call reset() before using it again")
-
-    @property
-    def _scene_lights(self) -> list:
-        return self._lights_list
 
     @property
     def _vertex_limit(self) -> int:
