@@ -477,3 +477,18 @@ def test_add_illuminated_volume_takes_component_nan_policy_and_cell_arrays():
     np.testing.assert_array_equal(shots["cells"], shots["points"])
     with pytest.raises(ValueError, match="component=<index>"):
         pva.add_illuminated_volume(pv.Plotter(off_screen=True), other)
+
+
+def test_many_lights_accessor_gives_the_illumination_and_the_virtual_lights():
+    grid = slab()
+    light = DirectionalLight((0, 0, -1))
+    out, vls = grid.illum.many_lights(light, transfer_function=grey(2.0), albedo=0.9,
+                                      opacity_unit_distance=1.0, count=16, avsm_resolution=8,
+                                      device="cpu", return_virtual_lights=True)
+    t = as_ijk(out, "transmittance")
+    depth = (10 - np.arange(11)) * 0.1
+    np.testing.assert_allclose(t[3, 3, :], np.exp(-2.0 * depth), rtol=2e-3, atol=1e-5)
+    assert as_ijk(out, "scattered_fluence").max() > 0
+    assert vls.n_points > 0 and "radiance" in vls.point_data
+    with pytest.raises(ValueError, match="count"):
+        grid.illum.many_lights(light, transfer_function=grey(2.0), count=0, device="cpu")

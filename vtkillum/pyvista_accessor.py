@@ -57,6 +57,7 @@ from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.filters.ambient_extinction import AmbientExtinctionFilter
 from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLightFilter
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
+from vtkillum.filters.many_lights import ManyLightsFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
 from vtkillum.filters.photon_density import PhotonDensityFilter
 from vtkillum.filters.rgba_output import DEFAULT_EXPOSURE, with_rgba_output
@@ -365,11 +366,12 @@ def _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars, transfer
 
 
 def _run(filter_class, grid, scalars, optics, settings: dict, lights=None, rgba=False,
-         exposure=DEFAULT_EXPOSURE, component=None, nan_policy="raise"):
+         exposure=DEFAULT_EXPOSURE, component=None, nan_policy="raise", with_filter=False):
     """Configure a filter, run it on ``grid`` and return its output as new pyvista.ImageData.
 
     ``settings`` maps filter properties to ``(accessor argument, value)``; errors of the
-    filter name the accessor's arguments.
+    filter name the accessor's arguments. ``with_filter``: return ``(output, filter)``
+    (for filters with more output ports).
     """
     cls = with_rgba_output(filter_class) if rgba else filter_class
     algorithm = cls()
@@ -400,7 +402,7 @@ def _run(filter_class, grid, scalars, optics, settings: dict, lights=None, rgba=
         raise _in_accessor_words(err, names) from None
     result = pv.ImageData()
     result.shallow_copy(output)
-    return result
+    return (result, algorithm) if with_filter else result
 
 
 # === the filters as functions ======================================================================
@@ -570,6 +572,44 @@ def photon_density(grid, lights=None, scalars=None, *, cmap=None, opacity="linea
                  "OutputScale": ("output_scale", output_scale), "Device": ("device", device)},
                 lights=lights, rgba=rgba, exposure=exposure, component=component,
                 nan_policy=nan_policy)
+
+
+def many_lights(grid, lights=None, scalars=None, *, cmap=None, opacity="linear", clim=None,
+                n_colors=256, flip_scalars=False, transfer_function=None,
+                opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, count=256,
+                vsl_radius=2.0, transmittance="avsm", avsm_resolution=48, avsm_nodes=8,
+                seed=0, output_scale=1.0, device=None, rgba=False, exposure=DEFAULT_EXPOSURE,
+                component=None, nan_policy="raise", return_virtual_lights=False):
+    """Weber et al.'s many-light illumination volume (:class:`ManyLightsFilter`).
+
+    ``count`` virtual lights from random walks, spherical with ``vsl_radius`` voxels,
+    their transmittance from adaptive volumetric shadow maps (``transmittance="avsm"``,
+    ``avsm_resolution``² texels per cube face, ``avsm_nodes`` nodes per texel) or ray
+    marched (``"ray-marched"``); other parameters as in :func:`transmittance`.
+
+    Returns
+    -------
+    pyvista.ImageData or (pyvista.ImageData, pyvista.PolyData)
+        ``fluence`` (active), ``transmittance`` (one component per light) and
+        ``scattered_fluence`` (the virtual lights' light) on the light grid; with
+        ``return_virtual_lights=True`` also the virtual lights as points (``position``,
+        ``radiance``, ``radius``, ... arrays) to show with ``plotter.add_points``.
+    """
+    optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
+                     transfer_function, opacity_unit_distance)
+    out, algorithm = _run(
+        ManyLightsFilter, grid, scalars, optics,
+        {"Albedo": ("albedo", albedo), "Anisotropy": ("anisotropy", anisotropy),
+         "Count": ("count", count), "VSLRadius": ("vsl_radius", vsl_radius),
+         "Transmittance": ("transmittance", transmittance),
+         "AVSMResolution": ("avsm_resolution", avsm_resolution),
+         "AVSMNodes": ("avsm_nodes", avsm_nodes), "Seed": ("seed", seed),
+         "OutputScale": ("output_scale", output_scale), "Device": ("device", device)},
+        lights=lights, rgba=rgba, exposure=exposure, component=component,
+        nan_policy=nan_policy, with_filter=True)
+    if not return_virtual_lights:
+        return out
+    return out, pv.wrap(algorithm.GetVirtualLightsOutput())
 
 
 def ambient_extinction(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
@@ -802,6 +842,9 @@ class IllumAccessor:
 
     def photon_density(self, *args, **kwargs):
         return photon_density(self._grid, *args, **kwargs)
+
+    def many_lights(self, *args, **kwargs):
+        return many_lights(self._grid, *args, **kwargs)
 
     def ambient_extinction(self, *args, **kwargs):
         return ambient_extinction(self._grid, *args, **kwargs)

@@ -30,3 +30,21 @@ def test_compute_path_shows_the_many_light_image():
     assert np.abs(image * 255.0 - shown_rgb).max() <= 1.0
     assert (image.max(-1) > 0.02).mean() > 0.2
     window.Finalize()
+
+
+def test_many_lights_refine_while_the_camera_rests():
+    """Progressive like ``path``: refine() adds VL sets up to max_sets, the mean of the sets."""
+    volume = cloud(16)
+    scene = _medium_scene(volume, 6.0, 0.9, 0.3, [_side_light()])
+    renderer = vtkRenderer()
+    window = offscreen_window(renderer, scene.resolved_camera(volume), SIZE, SIZE)
+    shown = ComputeVolumeRenderer(renderer, volume, scene, method="many-lights", device="cpu",
+                                  max_sets=3, **OPTIONS)
+    window.Render()
+    assert shown.passes == 1
+    first = shown.result.radiance.copy()
+    assert shown.refine(5) == 3  # capped at max_sets
+    assert shown.result.info["sets"] == 3
+    assert not np.array_equal(first, shown.result.radiance)
+    assert shown.refine(1) == 3
+    window.Finalize()
