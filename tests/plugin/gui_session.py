@@ -65,6 +65,14 @@ def grab_window(name: str) -> None:
     summary.setdefault("window_grabs", []).append(name)
 
 
+def swapped_volumes(v) -> int:
+    """How many of the view's volumes the plugin draws illuminated."""
+    from vtkillum_paraview import display
+
+    hook = display._views.get(v.GetGlobalID())
+    return 0 if hook is None else len(hook.volumes)
+
+
 def vtkillum_sources() -> dict:
     return {name: proxy for (name, _), proxy in simple.GetSources().items()
             if proxy.GetXMLName().startswith("vtkIllum")}
@@ -75,7 +83,31 @@ state = {}
 
 
 def step_setup():
+    with x11.Display() as display:  # room for the panels and the view
+        display.move_resize(display.find_window("ParaView 5"), 0, 0, 1600, 1000)
     simple.LoadPlugin(str(PLUGIN), ns=globals())
+    from vtkillum.data.procedural import ct_phantom
+    from vtkillum.io.convert import image_data_from_volume
+    from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
+
+    import numpy as np
+
+    phantom = ct_phantom(96)
+    # A CT's partial-volume blur (about two voxels): the phantom's materials meet within one
+    # voxel, whose terraces a sharp opacity peak would show as rings.
+    values = phantom.scalars.astype(np.float64)
+    for _ in range(2):
+        for axis in range(3):
+            padded = np.pad(values, [(1, 1) if a == axis else (0, 0) for a in range(3)], "edge")
+            lo, hi = (padded.take(range(k, k + values.shape[axis]), axis) for k in (0, 2))
+            values = 0.25 * (lo + 2 * values + hi)
+    from vtkillum.core.volume import Volume
+
+    phantom = Volume(values.astype(np.float32), phantom.spacing, phantom.origin)
+    writer = vtkXMLImageDataWriter()
+    writer.SetFileName(str(OUT / "ct_phantom.vti"))
+    writer.SetInputData(image_data_from_volume(phantom, "density"))
+    writer.Write()
     wavelet = simple.Wavelet(registrationName="Wavelet1")
     state["wavelet"] = wavelet
     v = view()
@@ -129,12 +161,16 @@ def step_show_one():
     v.CameraViewUp = [0.0, 0.0, 1.0]
     simple.Render(v)
     simple.SaveScreenshot(str(OUT / "view_before_colour_edit.png"), v, ImageResolution=VIEW_SIZE)
-    executions = lt.GetClientSideObject().GetMTime()
+    misses = lt.GetClientSideObject().GetCacheStatistics().misses
+    summary["illuminated_volumes_in_view"] = swapped_volumes(v)
     lut = simple.GetColorTransferFunction("RTData")
     lut.ApplyPreset("Inferno (matplotlib)", True)
+    simple.GetOpacityTransferFunction("RTData").Points = [37.35, 0.0, 0.5, 0.0, 120.0, 0.0, 0.5, 0.0,
+                                                          200.0, 0.3, 0.5, 0.0, 276.8, 1.0, 0.5, 0.0]
     simple.Render(v)
     simple.SaveScreenshot(str(OUT / "view_after_colour_edit.png"), v, ImageResolution=VIEW_SIZE)
-    summary["colour_edit_changed_filter_mtime"] = lt.GetClientSideObject().GetMTime() != executions
+    summary["recomputed_after_colour_edit"] = \
+        lt.GetClientSideObject().GetCacheStatistics().misses - misses
     log("colour map edited")
 
 
@@ -187,6 +223,42 @@ def step_grab_2():
     log("window grabbed after load")
 
 
+def step_ct():
+    """A CT-like volume with Light Transmittance: the picture of the README."""
+    for proxy in simple.GetSources().values():
+        for v in simple.GetViews():
+            simple.Hide(proxy, v)
+    reader = simple.XMLImageDataReader(registrationName="ct_phantom.vti",
+                                       FileName=[str(OUT / "ct_phantom.vti")])
+    lit = constructor("vtkIllum Light Transmittance")(Input=reader)
+    # A key light from the front left and above, a dim blue fill light from the right.
+    lit.Lights = [0, 0.6, 0.9, -0.5, 1.0, 0.96, 0.9, 0, -0.9, 0.2, 0.1, 0.25, 0.27, 0.35]
+    simple.SetActiveSource(lit)
+    v = view()
+    display = simple.Show(lit, v)
+    lut = simple.GetColorTransferFunction("density")
+    lut.RGBPoints = [0.0, 1.0, 1.0, 1.0, 0.3, 0.95, 0.75, 0.6, 0.5, 0.85, 0.45, 0.4,
+                     0.65, 0.9, 0.8, 0.2, 0.9, 0.95, 0.93, 0.88, 1.0, 0.95, 0.93, 0.88]
+    # Skin faint, the lesion, bone on a ramp as wide as the tissue-bone border.
+    simple.GetOpacityTransferFunction("density").Points = [
+        0.0, 0.0, 0.5, 0.0, 0.12, 0.0, 0.5, 0.0, 0.3, 0.05, 0.5, 0.0, 0.42, 0.0, 0.5, 0.0,
+        0.58, 0.0, 0.5, 0.0, 0.65, 0.4, 0.5, 0.0, 0.7, 0.0, 0.5, 0.0,
+        0.72, 0.0, 0.5, 0.0, 0.9, 0.8, 0.5, 0.0, 1.0, 0.9, 0.5, 0.0]
+    v.ViewSize = [900, 800]
+    v.CameraPosition = [-260.0, -520.0, 110.0]
+    v.CameraFocalPoint = [0.0, 0.0, 0.0]
+    v.CameraViewUp = [0.0, 0.0, 1.0]
+    simple.Render(v)
+    summary["ct"] = {"color_array": list(display.ColorArrayName),
+                     "illuminated_volumes_in_view": swapped_volumes(v)}
+    log("CT phantom shown")
+
+
+def step_grab_ct():
+    grab_window("window_ct.png")
+    log("window grabbed with the CT phantom")
+
+
 def step_finish():
     (OUT / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     (OUT / "done").write_text("the GUI session reached its end\n")
@@ -197,7 +269,7 @@ def step_finish():
 STEPS = ([step_setup] + [make_create_step(label) for label in LABELS]
          + [make_edit_step(label) for label in LABELS[1:]]
          + [step_show_one, step_grab_1, step_bad_light, step_save_delete, step_load,
-            step_select_loaded, step_grab_2, step_finish])
+            step_select_loaded, step_grab_2, step_ct, step_grab_ct, step_finish])
 
 
 # === the driver: one step per timer tick, the GUI's event loop in between ====================

@@ -29,6 +29,9 @@ ROOT = Path(__file__).resolve().parents[2]
 simple._DisableFirstRenderCameraReset()  # the camera is the scene's, see shot()
 simple.LoadPlugin(str(ROOT / "paraview_plugin" / "vtkillum_plugin.py"), ns=globals())
 import vtkillum_plugin as plugin  # noqa: E402
+from vtkillum_paraview import display as _display  # noqa: E402
+
+_display.JITTER = False  # sampled exactly as ParaView's own mapper and the VTK reference
 from vtkmodules.vtkIOXML import vtkXMLImageDataWriter  # noqa: E402
 
 from vtkillum.data.procedural import smoke_plume  # noqa: E402

@@ -113,7 +113,19 @@ def test_a_wrong_light_names_the_row_and_column_without_a_traceback(gui):
 
 def test_window_grabs_show_the_gui(gui):
     out, _, _ = gui
-    for name in ("window_filters.png", "window_after_load.png"):
+    for name in ("window_filters.png", "window_after_load.png", "window_ct.png"):
         shot = image(out / name)
         assert shot.shape[0] > 400 and shot.shape[1] > 600, name
         assert shot.std() > 20.0, f"{name} looks blank"
+
+
+def test_editing_the_colour_map_changes_the_illumination_in_the_gui(gui):
+    out, _, _ = gui
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["illuminated_volumes_in_view"] == 1  # drawn by the plugin, per sample
+    assert summary["recomputed_after_colour_edit"] >= 1  # the filter followed the edit
+    before = image(out / "view_before_colour_edit.png")
+    after = image(out / "view_after_colour_edit.png")
+    assert np.abs(after - before).mean() > 5.0
+    assert summary["ct"]["color_array"] == ["POINTS", "density"]
+    assert summary["ct"]["illuminated_volumes_in_view"] == 1
