@@ -5,8 +5,9 @@ the caches of :class:`~vtkillum.core.ambient.cache.AmbientScatteringCache`:
 
 * TF change: σt grid, SAT, ambient extinction and radiance cache (ms),
 * g change and light change: radiance cache only (ms),
-* frames per second of the ambient gather (Algorithm 1) at ``--image``² with
-  the caches ready, the camera orbiting (kernel time, image left on the device),
+* frames per second of the ambient gather at ``--image``² with the caches ready, the
+  camera orbiting (kernel time, image left on the device); ``--gather`` picks the
+  estimator (``centred``, the default, or the paper's Algorithm 1, ``paper``),
 
 and prints them next to the paper's GTX 560 numbers of the same data set size
 and radius, with the speed-up. Needs only numpy, warp and vtkillum (no vtk).
@@ -110,7 +111,7 @@ def median_ms(fn, repeats: int) -> float:
 
 
 def bench(name: str, scale: float, image: int, frames: int, repeats: int, device: str,
-          step_voxels: float, stop: float, hardware: bool = False):
+          step_voxels: float, stop: float, hardware: bool = False, mode: str = "centred"):
     spec = DATASETS[name]
     dims = tuple(max(8, int(round(n * scale))) for n in spec["dims"])
     radius = spec["radius"] * (dims[0] / spec["dims"][0])  # the same fraction of the data
@@ -136,10 +137,11 @@ def bench(name: str, scale: float, image: int, frames: int, repeats: int, device
                            image, image)
 
     def frame(cam):
+        lobes = s.scattered_slice if mode == "centred" else s.table_slice
         return gather_device(s.medium, s.sigma_tilde, s.radiance.grid, s.lights, cam,
-                             s.table_slice, table.sigma_max, s.radius, step_voxels, True, 0,
+                             lobes, table.sigma_max, s.radius, step_voxels, True, 0,
                              stop, device=device, occupied=s.occupied, spacing=volume.spacing,
-                             textures=s.textures)
+                             textures=s.textures, mode=mode)
 
     frame(make_camera(cam0, volume, image, image))  # compile the gather
 
@@ -195,12 +197,15 @@ def main(argv=None) -> None:
                     help="ray-marching step of the gather in voxels (default 1)")
     ap.add_argument("--early-termination", type=float, default=0.98,
                     help="opacity at which rays stop (paper: 0.98)")
+    ap.add_argument("--gather", default="centred", choices=["centred", "paper"],
+                    help="gather estimator (default centred; paper: Algorithm 1 as published)")
     ap.add_argument("--hardware-filtering", action="store_true",
                     help="also time CUDA texture filtering (a second row per data set, 'hw')")
     args = ap.parse_args(argv)
     device = resolve_device(args.device)
     name = device_name(device)
-    print(f"ambient scattering on {name}; image {args.image}², step {args.step} voxel, "
+    print(f"ambient scattering ({args.gather} gather) on {name}; image {args.image}², "
+          f"step {args.step} voxel, "
           f"early termination {args.early_termination}, volume scale {args.sizes}; "
           "paper: GTX 560")
     modes = [False, True] if args.hardware_filtering else [False]
@@ -209,7 +214,7 @@ def main(argv=None) -> None:
     print("|---|---|---|---|---|---|---|---|---|---|")
     for ds, hardware in ((ds, hw) for ds in args.datasets for hw in modes):
         r = bench(ds, args.sizes, args.image, args.frames, args.repeats, device, args.step,
-                  args.early_termination, hardware)
+                  args.early_termination, hardware, args.gather)
         p_tf, p_g, p_l, p_fps = DATASETS[ds]["paper"]
         size = "×".join(str(n) for n in r["dims"])
         speed = (p_tf / r["tf"], p_g / r["g"], p_l / r["light"], r["fps"] / p_fps)

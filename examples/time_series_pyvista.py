@@ -21,17 +21,17 @@ from pathlib import Path
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")  # headless VTK
 
-import numpy as np  # noqa: E402
-import pyvista as pv  # noqa: E402
-from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase  # noqa: E402
-from vtkmodules.vtkCommonDataModel import vtkDataObject, vtkImageData  # noqa: E402
-from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP  # noqa: E402
+import numpy as np
+import pyvista as pv
+from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
+from vtkmodules.vtkCommonDataModel import vtkDataObject, vtkImageData
+from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
 
-from vtkillum.data.procedural import default_scene, plume_series  # noqa: E402
-from vtkillum.filters import ConvectionDiffusionLightFilter, LightTransmittanceFilter  # noqa: E402
-from vtkillum.io.convert import image_data_from_volume  # noqa: E402
-from vtkillum.mappers import apply_camera_to_vtk  # noqa: E402
-from vtkillum.pyvista_accessor import add_illuminated_volume  # noqa: E402
+from vtkillum.data.procedural import default_scene, plume_series
+from vtkillum.filters import ConvectionDiffusionLightFilter, LightTransmittanceFilter
+from vtkillum.io.convert import image_data_from_volume
+from vtkillum.mappers import apply_camera_to_vtk
+from vtkillum.pyvista_accessor import add_illuminated_volume
 
 FILTERS = {"transmittance": LightTransmittanceFilter,
            "convection_diffusion": ConvectionDiffusionLightFilter}
@@ -107,7 +107,8 @@ def main(argv=None) -> int:
         add_illuminated_volume(plotter, grid, illumination=illumination,
                                transfer_function=scene.transfer_function,
                                opacity_unit_distance=scene.resolved_unit_distance(series[k][1]),
-                               lights=scene.lights, albedo=scene.albedo, exposure=opts.exposure,
+                               lights=scene.lights, albedo=scene.albedo,
+                               anisotropy=scene.anisotropy, exposure=opts.exposure,
                                name="plume", reset_camera=False, render=False)
         if index == 0:
             apply_camera_to_vtk(scene.resolved_camera(series[0][1]), plotter.camera)

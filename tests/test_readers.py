@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import gzip
 import os
+import re
 import struct
 
 import numpy as np
@@ -255,6 +256,58 @@ def test_nrrd_errors(tmp_path, data):
         + b"\n" + data.tobytes(order="F"))
     with pytest.raises(ValueError, match="not orthogonal"):
         read_volume(sheared)
+
+
+def _corrupt_payloads(data):
+    packed = gzip.compress(data.tobytes(order="F"))
+    import bz2
+
+    return {
+        "truncated-gzip": ("gzip", packed[: len(packed) // 2]),
+        "not-gzip": ("gzip", b"plain bytes, no gzip magic" * 10),
+        "bad-bzip2": ("bzip2", b"BZh9" + b"garbage" * 40),
+        "truncated-bzip2": ("bzip2", bz2.compress(data.tobytes(order="F"))[:200]),
+        "bad-hex": ("hex", b"zz" * 4000),
+        "bad-ascii": ("ascii", b"1 2 three " * 500),
+    }
+
+
+@pytest.mark.parametrize("case", ["truncated-gzip", "not-gzip", "bad-bzip2", "truncated-bzip2",
+                                  "bad-hex", "bad-ascii"])
+def test_nrrd_corrupt_data_is_a_value_error_naming_the_file(tmp_path, data, case):
+    """Issue 15 row 4: zlib/gzip/bz2 errors (OSError, EOFError) escaped as tracebacks."""
+    encoding, payload = _corrupt_payloads(data)[case]
+    path = tmp_path / f"{case}.nrrd"
+    path.write_bytes(nrrd_header(SHAPE, encoding=encoding).encode() + b"\n" + payload)
+    with pytest.raises(ValueError, match=rf"{case}\.nrrd: the NRRD .*(corrupt|not a float)"):
+        read_volume(path)
+
+
+@pytest.mark.parametrize("field,value,message", [
+    ("dimension", "three", "'dimension' must hold integers, got 'three'"),
+    ("sizes", "12 eleven 10", "'sizes' must hold integers"),
+    ("sizes", "12 0 10", "must be positive"),
+    ("spacings", "0.5 0.7", "'spacings' must hold 3 value"),
+    ("axis mins", "0 x 0", "'axis mins' must hold numbers"),
+    ("space origin", "(1,2)", "'space origin' must be a 3-vector"),
+    ("space directions", "(1,0,0) (0,one,0) (0,0,1)", "'space directions' must hold numbers"),
+    ("byte skip", "some", "'byte skip' must hold integers"),
+    ("line skip", "-", "'line skip' must hold integers"),
+])
+def test_nrrd_header_errors_name_the_file_and_field(tmp_path, data, field, value, message):
+    """Issue 15 row 10: ``invalid literal for int() ... 'three'`` named neither."""
+    header = nrrd_header(SHAPE)
+    if field in ("dimension", "sizes"):
+        header = "\n".join(f"{field}: {value}" if line.startswith(f"{field}:") else line
+                           for line in header.split("\n"))
+    else:
+        header += f"{field}: {value}\n"
+        if field == "space origin":
+            header += "space: LPS\nspace directions: (1,0,0) (0,1,0) (0,0,1)\n"
+    path = tmp_path / "hdr.nrrd"
+    path.write_bytes(header.encode() + b"\n" + data.tobytes(order="F"))
+    with pytest.raises(ValueError, match="hdr\\.nrrd: NRRD .*" + re.escape(message)):
+        read_volume(path)
 
 
 # --- DICOM ----------------------------------------------------------------------------------------

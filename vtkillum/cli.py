@@ -7,8 +7,15 @@
     vtkillum render head.nii.gz --scene head.json --method path --spp 256 --output head.npy
     vtkillum scene --dataset head.nii.gz --output head.json   # a starter scene to edit
 
-User mistakes (missing files, bad scene fields, unknown methods or datasets) print one
-line ``vtkillum: error: ...`` and exit with status 2; ``--debug`` shows the traceback.
+User mistakes (missing files, bad scene fields, unknown methods or datasets, an output
+that cannot be written, an image too large for the memory) print one line
+``vtkillum: error: ...`` and exit with status 2; ``--debug`` shows the traceback.
+
+The output is checked before rendering (a writable directory, no directory or dangling
+link in the way of the picture or of the ``.alpha.npy`` file next to it) and written
+to temporary files in the same directory that are renamed into place once all of them
+are complete, so an interrupted or failed run never leaves a half-written file or a
+radiance file paired with an old alpha file.
 """
 
 from __future__ import annotations
@@ -17,7 +24,9 @@ import argparse
 import inspect
 import json
 import os
+import stat
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -31,6 +40,17 @@ OUTPUT_FORMATS = (".png", ".npy", ".npz")
 
 #: Largest image side accepted (a sanity limit against typos such as 40960).
 MAX_SIDE = 16384
+
+#: Bytes per pixel a render needs at its peak (device buffers, their host copies and the
+#: written output; measured on the CPU: ~36 for the ray casters, ~92 for one path-traced
+#: sample per pass, with headroom).
+BYTES_PER_PIXEL = {"path": 160}
+DEFAULT_BYTES_PER_PIXEL = 64
+#: Memory kept in reserve beyond the estimate (light volumes, tables, libraries).
+MEMORY_RESERVE = 256 << 20
+
+#: Suffix of the alpha file written next to a ``.npy`` output.
+ALPHA_SUFFIX = ".alpha"
 
 DEMO_DATASET = "builtin:plume"
 
@@ -75,10 +95,16 @@ def main(argv=None) -> int:
     _quiet_libraries()
     try:
         return args.run(args)
-    except (UserError, ValueError, FileNotFoundError, IsADirectoryError, PermissionError) as err:
+    except (UserError, ValueError, OSError) as err:  # OSError: files (missing, unreadable, ...)
         if args.debug:
             raise
         print(f"vtkillum: error: {_one_line(err)}", file=sys.stderr)
+        return 2
+    except MemoryError as err:
+        if args.debug:
+            raise
+        print(f"vtkillum: error: out of memory ({_one_line(err)}); try a smaller --size or "
+              "volume", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("vtkillum: interrupted", file=sys.stderr)
@@ -185,9 +211,10 @@ def run_demo(args) -> int:
 
 
 def run_render(args) -> int:
+    from vtkillum.core.device import resolve_device
     from vtkillum.core.render import method_function, render
 
-    output = _check_output(args.output, OUTPUT_FORMATS)
+    outputs = check_output(args.output, OUTPUT_FORMATS)
     width, height = _check_size(args.size)
     exposure = _parse_exposure(args.exposure)
     options = _parse_options(args.option)
@@ -199,26 +226,36 @@ def run_render(args) -> int:
             raise UserError(f"--spp does not apply to the {args.method!r} method (it takes no "
                             "samples per pixel; the path method does)")
         options["spp"] = args.spp
+    device = resolve_device(args.device)
 
     volume, scene = load_input(args.input, args.scene, args.array, args.component)
+    check_memory(args.method, width, height, device, volume)
     start = time.perf_counter()
-    with _progress_bar(args.quiet, f"{args.method} {width}x{height}") as progress:
-        result = render(volume, scene, args.method, width, height, args.device, progress,
-                        **options)
+    try:
+        with _progress_bar(args.quiet, f"{args.method} {width}x{height}") as progress:
+            result = render(volume, scene, args.method, width, height, device, progress,
+                            **options)
+    except ValueError as err:
+        if args.scene is None or str(err).startswith(str(args.scene)):
+            raise
+        # Options from the scene file are checked by the method: say where they came from.
+        raise ValueError(f"{err} (scene file {args.scene})") from err
     elapsed = time.perf_counter() - start
-    written = write_result(output, result, scene.background, exposure)
+    written = write_result(outputs[0], result, scene.background, exposure)
     if not args.quiet:
         print(f"wrote {', '.join(str(p) for p in written)} ({width}x{height}, {args.method}, "
-              f"{result.info.get('device', args.device or 'default device')}, {elapsed:.1f} s)")
+              f"{result.info.get('device', device)}, {elapsed:.1f} s)")
     return 0
 
 
 def run_scene(args) -> int:
-    from vtkillum.core.scene import save_scene
+    from vtkillum.core.scene import scene_json
 
-    output = _check_output(args.output, (".json",))
+    (output,) = check_output(args.output, (".json",))
     volume, scene = load_input(args.dataset, None, args.array, args.component)
-    save_scene(explicit_scene(scene, volume), output)
+    data = explicit_scene(scene, volume)
+    text = scene_json(data).encode()
+    write_atomically([(output, lambda f: f.write(text))])
     print(f"wrote {output}")
     return 0
 
@@ -265,39 +302,164 @@ def explicit_scene(scene, volume):
 
 
 def write_result(output: Path, result, background, exposure) -> list[Path]:
-    """Write a :class:`RenderResult` as .png/.npy/.npz (see ``OUTPUT_HELP``); returns the paths."""
+    """Write a :class:`RenderResult` as .png/.npy/.npz (see ``OUTPUT_HELP``); returns the paths.
+
+    The extension is matched case-insensitively and the name is kept as given (``UP.NPY``
+    writes ``UP.NPY`` and ``UP.alpha.NPY``). All files are written to temporary files in
+    their directories and renamed into place together (:func:`write_atomically`).
+    """
     from vtkillum.core.tonemap import auto_exposure, tonemap, write_png
 
+    output = Path(output)
     radiance = np.asarray(result.radiance, dtype=np.float32)
     alpha = np.asarray(result.alpha, dtype=np.float32)
     suffix = output.suffix.lower()
     if suffix == ".png":
         if exposure == "auto":
-            exposure = auto_exposure(result.composite(background))
-        write_png(output, tonemap(radiance, alpha, background, exposure))
-        return [output]
+            exposure = auto_exposure(radiance, alpha=alpha, background=background)
+        rgb8 = tonemap(radiance, alpha, background, exposure)
+        return write_atomically([(output, lambda f: write_png(f, rgb8))])
     if suffix == ".npy":
-        alpha_path = output.with_name(output.name[: -len(".npy")] + ".alpha.npy")
-        np.save(output, radiance)
-        np.save(alpha_path, alpha)
-        return [output, alpha_path]
-    np.savez(output, radiance=radiance, alpha=alpha,
-             background=np.asarray(background, dtype=np.float32))
-    return [output]
+        return write_atomically([(output, lambda f: np.save(f, radiance)),
+                                 (alpha_path(output), lambda f: np.save(f, alpha))])
+    bg = np.asarray(background, dtype=np.float32)
+    return write_atomically([(output, lambda f: np.savez(f, radiance=radiance, alpha=alpha,
+                                                         background=bg))])
+
+
+def alpha_path(output) -> Path:
+    """The alpha file next to a ``.npy`` output: ``name.npy`` -> ``name.alpha.npy`` (case kept)."""
+    output = Path(output)
+    return output.with_name(output.stem + ALPHA_SUFFIX + output.suffix)
+
+
+def output_files(output) -> list[Path]:
+    """Every file a render to ``output`` writes: the output, and its alpha file for .npy."""
+    output = Path(output)
+    return [output, alpha_path(output)] if output.suffix.lower() == ".npy" else [output]
+
+
+def check_output(path, allowed) -> list[Path]:
+    """Validate an output name before any work; returns :func:`output_files`.
+
+    Checks the extension (case-insensitive), that no output name is another's alpha
+    file, and for each file that its directory exists and takes new files, that no
+    directory, dangling symbolic link or other non-file is in the way, and that an
+    existing file may be overwritten. Raises :class:`UserError` naming the file.
+    """
+    out = Path(path)
+    if out.suffix.lower() not in allowed:
+        raise UserError(f"output {str(path)!r}: the extension must be one of "
+                        f"{', '.join(allowed)}")
+    if out.name.lower().endswith(ALPHA_SUFFIX + ".npy") and ".npy" in allowed:
+        raise UserError(f"output {str(path)!r}: names ending in {ALPHA_SUFFIX}.npy are the alpha "
+                        f"files of .npy outputs ({out.name[:-len(ALPHA_SUFFIX + '.npy')]}.npy "
+                        "writes its alpha there); choose another name")
+    files = output_files(out)
+    for n, target in enumerate(files):
+        role = "output" if n == 0 else f"alpha file {str(target)!r} of output"
+        _check_target(target, f"{role} {str(path)!r}" if n else f"output {str(path)!r}")
+    if len({os.path.realpath(f) for f in files}) < len(files):  # e.g. a link between them
+        raise UserError(f"output {str(path)!r}: the radiance and alpha files "
+                        f"{', '.join(map(str, files))} are the same file")
+    return files
+
+
+def _check_target(target: Path, what: str) -> None:
+    real = target
+    if target.is_symlink():
+        real = Path(os.path.realpath(target))
+        if not real.exists():
+            raise UserError(f"{what}: {target} is a dangling symbolic link (to "
+                            f"{os.readlink(target)}); remove it or choose another name")
+    if real.is_dir():
+        raise UserError(f"{what}: {target} is a directory; give a file name (or remove the "
+                        "directory)")
+    if real.exists() and not real.is_file():
+        raise UserError(f"{what}: {target} exists and is not a regular file")
+    if real.exists() and not os.access(real, os.W_OK):
+        raise UserError(f"{what}: {target} exists and is read-only")
+    parent = real.parent
+    if not parent.exists():
+        raise UserError(f"{what}: the directory {parent} does not exist")
+    if not parent.is_dir():
+        raise UserError(f"{what}: {parent} is not a directory")
+    try:  # the real test: can a file be created there (read-only file systems, ACLs)?
+        with tempfile.NamedTemporaryFile(dir=parent, prefix=f".{real.name}.", suffix=".tmp"):
+            pass
+    except OSError as err:
+        raise UserError(f"{what}: cannot write to the directory {parent} "
+                        f"({err.strerror or err})") from None
+
+
+def write_atomically(jobs) -> list[Path]:
+    """Write files all-or-nothing: ``jobs`` is a list of ``(path, write(binary_file))``.
+
+    Each file is written to a temporary file in its own directory; only when every one is
+    complete are they renamed into place (``os.replace``), so a failure or Ctrl-C while
+    writing leaves the old files untouched. A symbolic link is written through (its
+    target is replaced), like ``cp``. New files get the usual permissions (0666 less the
+    umask); a replaced file keeps its own. Returns the paths as given.
+    """
+    staged = []
+    try:
+        for path, write in jobs:
+            final = Path(os.path.realpath(path)) if Path(path).is_symlink() else Path(path)
+            fd, tmp = tempfile.mkstemp(dir=final.parent, prefix=f".{final.name}.",
+                                       suffix=".tmp")
+            staged.append((tmp, final))
+            with os.fdopen(fd, "wb") as f:
+                write(f)
+            os.chmod(tmp, _file_mode(final))
+        for tmp, final in staged:
+            os.replace(tmp, final)
+    finally:
+        for tmp, _ in staged:
+            if os.path.lexists(tmp):
+                os.unlink(tmp)
+    return [Path(path) for path, _ in jobs]
+
+
+def _file_mode(path: Path) -> int:
+    try:
+        return stat.S_IMODE(os.stat(path).st_mode)
+    except OSError:
+        umask = os.umask(0)
+        os.umask(umask)
+        return 0o666 & ~umask
+
+
+def check_memory(method: str, width: int, height: int, device: str, volume=None) -> None:
+    """Refuse an image that cannot fit in memory, before rendering it.
+
+    The need is :data:`BYTES_PER_PIXEL` of ``method`` per pixel plus
+    :data:`MEMORY_RESERVE` and 16 bytes per voxel (light volumes), compared with
+    :func:`vtkillum.core.device.available_memory` (host, and the GPU's free memory for a
+    CUDA device). The error names the largest size of the same aspect ratio that fits.
+    """
+    from vtkillum.core.device import available_memory
+
+    per_pixel = BYTES_PER_PIXEL.get(method, DEFAULT_BYTES_PER_PIXEL)
+    fixed = MEMORY_RESERVE + (16 * int(np.prod(volume.dims)) if volume is not None else 0)
+    need = per_pixel * width * height + fixed
+    host, gpu = available_memory(device)
+    for where, have in (("memory", host), (f"{device} memory", gpu)):
+        if have is None or need <= have:
+            continue
+        scale = np.sqrt(max(have - fixed, 0) / (per_pixel * width * height))
+        w, h = int(width * scale), int(height * scale)
+        fits = (f"the largest image of this shape that fits is about --size {w} {h}"
+                if w >= 1 and h >= 1 else "not even a tiny image fits")
+        raise UserError(f"--size {width} {height}: the {method!r} render needs about "
+                        f"{_gigabytes(need)} of {where}, {_gigabytes(have)} is available; "
+                        f"{fits}")
+
+
+def _gigabytes(n: int) -> str:
+    return f"{n / 2**30:.1f} GB" if n >= 2**30 else f"{n / 2**20:.0f} MB"
 
 
 # --- helpers --------------------------------------------------------------------------------------
-def _check_output(path, allowed) -> Path:
-    out = Path(path)
-    if out.suffix.lower() not in allowed:
-        raise UserError(f"output {path!r}: the extension must be one of {', '.join(allowed)}")
-    if not out.parent.exists():
-        raise UserError(f"output {path!r}: the directory {out.parent} does not exist")
-    if out.is_dir():
-        raise UserError(f"output {path!r} is a directory; give a file name")
-    return out
-
-
 def _check_size(size) -> tuple[int, int]:
     width, height = size
     if not (1 <= width <= MAX_SIDE and 1 <= height <= MAX_SIDE):

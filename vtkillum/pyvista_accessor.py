@@ -49,9 +49,13 @@ from vtkillum.filters.ambient_extinction import AmbientExtinctionFilter
 from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLightFilter
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
+from vtkillum.filters.photon_density import PhotonDensityFilter
 from vtkillum.filters.rgba_output import DEFAULT_EXPOSURE, with_rgba_output
-from vtkillum.io.convert import transfer_function_from_vtk, transfer_function_to_vtk
-from vtkillum.io.convert import volume_from_image_data
+from vtkillum.io.convert import (
+    transfer_function_from_vtk,
+    transfer_function_to_vtk,
+    volume_from_image_data,
+)
 
 #: Name of the accessor on ``pyvista.ImageData``.
 ACCESSOR = "illum"
@@ -169,6 +173,34 @@ def _scalars(grid, scalars):
     return grid.point_data[scalars]
 
 
+def _illumination_lights(image, lights, core_lights) -> list:
+    """The lights an illumination image was computed with, or ``core_lights`` without them.
+
+    Raises ``ValueError`` when ``lights`` were given and differ from the image's.
+    """
+    from vtkillum.io.illumination_arrays import lights_from_field
+
+    stored = lights_from_field(image)
+    if not stored:
+        return core_lights
+    if lights is not None and not _same_lights(core_lights, stored):
+        raise ValueError(
+            "the illumination was computed with other lights than lights=...; leave lights "
+            "out (the illumination's are used) or recompute the illumination with them"
+        )
+    return stored
+
+
+def _same_lights(a, b) -> bool:
+    def row(light):
+        d = light.to_dict()
+        return [d["type"] == "point", *d.get("direction", d.get("position")),
+                *d.get("irradiance", d.get("intensity"))]
+
+    return len(a) == len(b) and all(np.allclose(row(x), row(y), rtol=1e-6, atol=1e-9)
+                                    for x, y in zip(a, b))
+
+
 def _check_grid(grid) -> None:
     if not isinstance(grid, vtkImageData):
         raise TypeError(f"expected a pyvista.ImageData (uniform grid), got {type(grid).__name__}; "
@@ -277,8 +309,9 @@ def transmittance(grid, lights=None, scalars=None, *, cmap=None, opacity="linear
     Returns
     -------
     pyvista.ImageData
-        ``fluence`` (RGB, active), ``transmittance_0`` ..., and at full resolution the
-        input arrays.
+        ``fluence`` (RGB, active), ``transmittance`` (one component per light),
+        ``scattered_fluence`` (zeros), and at full resolution the input arrays
+        (:mod:`vtkillum.io.illumination_arrays`).
 
     Examples
     --------
@@ -292,7 +325,7 @@ def transmittance(grid, lights=None, scalars=None, *, cmap=None, opacity="linear
     >>> out = grid.illum.transmittance(vtkillum.DirectionalLight((0, 0, -1)),
     ...                                transfer_function=tf, opacity_unit_distance=1.0,
     ...                                device="cpu")
-    >>> t = out["transmittance_0"].reshape(11, 6, 6)       # [k, j, i]
+    >>> t = out["transmittance"].reshape(11, 6, 6)         # [k, j, i], one light
     >>> round(float(t[0, 3, 3]), 3), round(float(np.exp(-1.0)), 3)
     (0.368, 0.368)
     """
@@ -317,8 +350,13 @@ def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity=
     Returns
     -------
     pyvista.ImageData
-        ``fluence`` (active), ``direct_fluence``, ``transmittance_<l>`` on the light
-        grid (or, with ``rgba=True``, on the data grid with ``illuminated_rgba``).
+        The filter's arrays on the light grid (or, with ``rgba=True``, on the data grid
+        with ``illuminated_rgba``): ``fluence`` (active; the total light as an isotropic
+        fluence) and what :class:`ConvectionDiffusionLightFilter` writes besides, and its
+        lights as field data. :func:`add_illuminated_volume` and :func:`render` read it
+        with :func:`vtkillum.io.illumination_arrays.illumination_from_image` (per-light
+        ``transmittance`` and ``scattered_fluence`` when present, else ``fluence`` as
+        isotropic scattered light).
     """
     if np.ndim(scattering) == 0:
         scattering = (float(scattering),) * 3
@@ -328,6 +366,37 @@ def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity=
                 {"Albedo": albedo, "LightVolumeScale": light_volume_scale,
                  "Scattering": tuple(float(s) for s in scattering), "Iterations": iterations,
                  "Tolerance": tolerance, "Solver": solver, "Device": device},
+                lights=lights, rgba=rgba, exposure=exposure)
+
+
+def photon_density(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
+                   clim=None, n_colors=256, flip_scalars=False, transfer_function=None,
+                   opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, photons=200_000,
+                   radius=2.0, max_order=0, seed=0, passes=1, historygrams=True,
+                   direct_light="exact", output_scale=1.0, device=None, rgba=False,
+                   exposure=DEFAULT_EXPOSURE):
+    """Jönsson et al.'s photon density light volume (:class:`PhotonDensityFilter`).
+
+    ``photons`` per pass, ``radius`` in voxels, ``max_order`` the maximum scattering
+    order S_n (0: unbounded, Russian roulette), ``passes`` of progressive photon mapping,
+    ``direct_light`` ``"exact"`` (per-light transmittance, photons only for scattered
+    light) or ``"photons"`` (the paper's all-photon estimate); other parameters as in
+    :func:`transmittance`.
+
+    Returns
+    -------
+    pyvista.ImageData
+        ``fluence`` (active), ``transmittance`` (one component per light) and
+        ``scattered_fluence`` on the light grid, its lights as field data (see
+        :func:`convection_diffusion`).
+    """
+    optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
+                     transfer_function, opacity_unit_distance)
+    return _run(PhotonDensityFilter, grid, scalars, optics,
+                {"Albedo": albedo, "Anisotropy": anisotropy, "Photons": photons,
+                 "Radius": radius, "MaxOrder": max_order, "Seed": seed, "Passes": passes,
+                 "Historygrams": historygrams, "DirectLight": direct_light,
+                 "OutputScale": output_scale, "Device": device},
                 lights=lights, rgba=rgba, exposure=exposure)
 
 
@@ -365,6 +434,12 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
         ``"emission"``, ``"single"``, ``"illumination"`` (give ``illumination=`` an
         output of :func:`transmittance` / :func:`convection_diffusion`, or an
         ``IlluminationVolume``), ``"path"``, ...
+    lights : optional
+        See the module docstring. With ``illumination=`` a filter output, default: the
+        lights it was computed with (stored with it); other lights are an error.
+    anisotropy : float
+        Henyey–Greenstein ``g`` of the phase function (also applied to the direct light
+        of an illumination volume).
     camera : vtkillum.Camera or pyvista.Camera, optional
         Default: framing the volume like ``vtkRenderer.ResetCamera``.
     filename : str, optional
@@ -390,20 +465,22 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
     ctf, otf, u = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
                           transfer_function, opacity_unit_distance)
     volume = volume_from_image_data(grid, scalars, association="points")
+    core_lights = lights_from_pyvista(lights)
     illumination = options.get("illumination")
     if isinstance(illumination, vtkImageData):
-        from vtkillum.core.illumination import IlluminationVolume
-        from vtkillum.io.convert import point_array
+        from vtkillum.io.illumination_arrays import illumination_from_image
+        from vtkillum.mappers.inputs import check_covers
 
-        options["illumination"] = IlluminationVolume.for_volume(
-            volume, point_array(illumination, "fluence"))
+        check_covers(illumination, volume)
+        options["illumination"] = illumination_from_image(illumination, volume)
+        core_lights = _illumination_lights(illumination, lights, core_lights)
     if camera is not None and isinstance(camera, pv.Camera):
         from vtkillum.mappers.camera_bridge import camera_from_vtk
 
         camera = camera_from_vtk(camera, aspect=width / height)
     scene = Scene(transfer_function=transfer_function_from_vtk(ctf, otf),
                   opacity_unit_distance=u, albedo=albedo, anisotropy=anisotropy,
-                  lights=lights_from_pyvista(lights), camera=camera, background=background)
+                  lights=core_lights, camera=camera, background=background)
     result = core_render(volume, scene, method, width, height, device=device, **options)
     if filename is not None:
         write_png(filename, tonemap(exposure * result.radiance, result.alpha, background,
@@ -415,14 +492,16 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
 def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cmap=None,
                            opacity="linear", clim=None, n_colors=256, flip_scalars=False,
                            transfer_function=None, opacity_unit_distance=None, lights=None,
-                           albedo=0.9, exposure=4 * np.pi, shading=None, step_size=None, name=None,
-                           reset_camera=None, render=True):
+                           albedo=0.9, anisotropy=0.0, exposure=4 * np.pi, shading=None,
+                           step_size=None, jitter=True, name=None, reset_camera=None,
+                           render=True):
     """Add ``grid`` shaded by an illumination volume to a pyvista plotter.
 
     Builds an :class:`~vtkillum.mappers.IlluminatedVolume` (VTK's GPU ray caster
-    with the illumination-volume source term) and adds it with
-    ``plotter.add_actor``; ``cmap``, ``opacity``, ``clim`` follow
-    ``Plotter.add_volume``.
+    with the phase-aware illumination-volume source term: the direct light per light
+    with the Henyey–Greenstein phase function, the scattered light isotropic; see
+    :mod:`vtkillum.core.illumination`) and adds it with ``plotter.add_actor``;
+    ``cmap``, ``opacity``, ``clim`` follow ``Plotter.add_volume``.
 
     Parameters
     ----------
@@ -430,24 +509,34 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     grid : pyvista.ImageData
         Point scalars (``scalars``, default the active ones).
     illumination : optional
-        The fluence: the output of :func:`transmittance` / :func:`convection_diffusion`
-        (any pyvista/VTK image with a ``fluence`` array covering the grid's box), a
-        VTK algorithm or output port producing one, an ``IlluminationVolume`` or
-        ``(nx, ny, nz, 3)`` array, the name of a method (``"transmittance"`` or
-        ``"convection_diffusion"``, computed here with these lights and transfer
-        function), or ``None`` for unshadowed light.
+        The illumination volume: the output of :func:`transmittance` /
+        :func:`convection_diffusion` (any pyvista/VTK image covering the grid's box with
+        the arrays of :mod:`vtkillum.io.illumination_arrays`: per-light
+        ``transmittance`` and ``scattered_fluence``, or only a ``fluence`` taken as
+        isotropic scattered light), a VTK algorithm or output port producing one, an
+        ``IlluminationVolume`` or ``(nx, ny, nz, 3)`` scattered-fluence array, the name
+        of a method (``"transmittance"`` or ``"convection_diffusion"``, computed here with
+        these lights and transfer function), or ``None`` for unshadowed direct light.
     lights : optional
-        As in :func:`transmittance`; also used for shading directions.
-    albedo, exposure : float
-        Scattering albedo; factor on the radiance written to the frame buffer. The
-        default 4π shows a fully lit voxel under irradiance 1 as albedo × colour (the
-        isotropic phase function spreads scattered light over 4π sr), as the ParaView
-        plugin does.
+        As in :func:`transmittance`; also the Phong directions. A filter output carries
+        the lights it was computed with, and those are used (other ``lights`` are an
+        error).
+    albedo, anisotropy : float
+        Scattering albedo; Henyey–Greenstein ``g`` applied to the direct light.
+    exposure : float
+        Factor on the radiance written to the frame buffer. The default 4π shows a fully
+        lit voxel under irradiance 1 as albedo × colour when ``g = 0`` (the isotropic
+        phase function spreads scattered light over 4π sr), as the ParaView plugin does;
+        with ``g > 0`` the side facing away from the light (forward scattering) is
+        brighter.
     shading : dict, optional
         ``{"ambient", "diffuse", "specular", "shininess"}`` of the illumination
         shading (default ambient 1: pure scattering).
     step_size : float, optional
         Sample distance of the ray caster; default half the smallest spacing.
+    jitter : bool
+        Per-pixel offset of the samples (noise instead of wood-grain rings at sharp
+        surfaces); ``False`` samples step midpoints.
     name, reset_camera, render
         As in ``Plotter.add_actor``.
 
@@ -485,11 +574,14 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
         tf = transfer_function_from_vtk(ctf, otf)
         illumination = methods[illumination](grid, core_lights, scalars, transfer_function=tf,
                                              opacity_unit_distance=u, albedo=albedo)
+    elif isinstance(illumination, vtkImageData):
+        core_lights = _illumination_lights(illumination, lights, core_lights)
     scene = Scene(transfer_function=transfer_function_from_vtk(ctf, otf),
-                  opacity_unit_distance=u, albedo=albedo, lights=core_lights,
+                  opacity_unit_distance=u, albedo=albedo, anisotropy=anisotropy,
+                  lights=core_lights,
                   step_size=step_size, shading=dict(SHADING_DEFAULTS, **(shading or {})))
     volume = IlluminatedVolume(grid, scene, illumination=illumination, array_name=scalars,
-                               exposure=exposure)
+                               exposure=exposure, jitter=jitter)
     plotter.add_actor(volume, name=name, reset_camera=reset_camera, render=render)
     return volume
 
@@ -512,6 +604,9 @@ class IllumAccessor:
 
     def convection_diffusion(self, *args, **kwargs):
         return convection_diffusion(self._grid, *args, **kwargs)
+
+    def photon_density(self, *args, **kwargs):
+        return photon_density(self._grid, *args, **kwargs)
 
     def ambient_extinction(self, *args, **kwargs):
         return ambient_extinction(self._grid, *args, **kwargs)

@@ -67,6 +67,30 @@ def test_absorbing_sphere_is_analytic(device):
     assert np.all(np.abs(tt - np.exp(-2 * sg)) <= 5 * tse + 1e-7)
 
 
+def test_scattered_part_is_the_table_less_its_unscattered_light(shipped, device):
+    """M = L~o - U with U analytic (table.unscattered): 0 for an absorbing sphere (only
+    unscattered light leaves it), 0 without extinction, >= 0 and carrying the rest otherwise."""
+    from vtkillum.core.ambient.table import unscattered
+
+    th = np.linspace(0, np.pi, 7)
+    absorbing = generate_table(theta=th, sigma=[0.0, 1.0, 2.0], g=[-0.5, 0.4], samples=4000,
+                               albedo=0.0, seed=5, device=device, progress=False)
+    assert np.all(absorbing.scattered <= 5 * absorbing.stderr + 1e-7)
+    assert np.all(shipped.scattered >= 0) and np.all(shipped.scattered[:, 0] == 0)
+    u = unscattered(*np.meshgrid(shipped.theta, shipped.sigma, shipped.g, indexing="ij"))
+    big = shipped.scattered > 0
+    np.testing.assert_allclose(shipped.scattered[big] + u[big], shipped.radiance[big],
+                               rtol=1e-5, atol=1e-6)
+    # where clipped, L~o is within its Monte-Carlo error (and float16 rounding) of U
+    clipped = ~big
+    clipped[:, 0] = False
+    assert np.all(shipped.radiance[clipped] <= u[clipped] * 1.004 + 4 * shipped.stderr[clipped]
+                  + 1e-6)
+    # thick spheres: M is all there is (the unscattered light has died out)
+    np.testing.assert_allclose(shipped.scattered[:, -1], shipped.radiance[:, -1], rtol=1e-5,
+                               atol=1e-9)
+
+
 def energy_with_error(t):
     w = np.sin(t.theta)
     dth = np.gradient(t.theta)
@@ -159,6 +183,8 @@ def test_device_table_slices_equal_the_host_slices(shipped, device):
     for g in (shipped.g[3], 0.37, -0.55, 5.0, -5.0, 0.0):
         dt.set_g(g)
         np.testing.assert_allclose(dt.g_slice.numpy(), shipped.g_slice(g), rtol=2e-6, atol=0)
+        np.testing.assert_allclose(dt.scattered_slice.numpy(), shipped.scattered_slice(g),
+                                   rtol=2e-6, atol=0)
         np.testing.assert_allclose(dt.transmittance_slice.numpy(),
                                    shipped.transmittance_slice(g), rtol=2e-6, atol=1e-7)
     one = PreintegrationTable(shipped.radiance[:, :, :1], shipped.rel_stderr[:, :, :1],
@@ -168,6 +194,7 @@ def test_device_table_slices_equal_the_host_slices(shipped, device):
     dt = DeviceTable(one, device)
     dt.set_g(0.4)
     np.testing.assert_array_equal(dt.g_slice.numpy(), one.radiance[:, :, 0])
+    np.testing.assert_array_equal(dt.scattered_slice.numpy(), one.scattered[:, :, 0])
     np.testing.assert_array_equal(dt.transmittance_slice.numpy(), one.transmittance[:, 0])
 
 

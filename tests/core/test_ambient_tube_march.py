@@ -114,8 +114,16 @@ def test_shadow_behind_an_occluder_and_cache_resolution(device):
     line = cache.numpy()[0, :, 2, 2, 0]
     assert line[0] == pytest.approx(1.0)
     assert np.all(np.diff(line) <= 1e-7)
-    # one step of 2r = 2 crosses the slab (tau = r sigma = 3): T = exp(-1.5 * 3)
-    assert line[-1] == pytest.approx(np.exp(-4.5), rel=1e-3)
+    # The slab's line integral (point values 0, 3, 3, 3, 0 at x = 3..7, trilinear) is 9 over
+    # steps of 2r = 2: sum of the steps' r * mean(sigma~) is 4.5, so T = exp(-1.5 * 4.5).
+    table = np.exp(-1.5 * TAU)  # looked up linearly between its entries, as the kernel does
+    assert line[-1] == pytest.approx(np.interp(0.75, TAU, table) ** 2 * np.exp(-1.5 * 3.0),
+                                     rel=1e-4)
+    # The paper's one sample per step, at the step's centre (x = 5), sees sigma~ = 3 once.
+    paper = radiance_cache(wp.array(sig, dtype=wp.float32, device=device), vol.spacing,
+                           vol.extent, lw, np.exp(-1.5 * TAU), SIGMA_MAX, radius=1.0,
+                           scale=0.5, device=device, substeps=1).numpy()[0, -1, 2, 2, 0]
+    assert paper == pytest.approx(np.exp(-1.5 * 3.0), rel=1e-3)
     with pytest.raises(ValueError, match="radiance_cache_scale"):
         radiance_cache(wp.array(sig, dtype=wp.float32, device=device), vol.spacing, vol.extent,
                        lw, np.exp(-TAU), SIGMA_MAX, radius=1.0, scale=0.0, device=device)
@@ -136,3 +144,33 @@ def test_point_light_irradiance_is_held_within_one_radius(device):
     assert np.all(np.isfinite(cache))
     np.testing.assert_allclose(cache, ref, rtol=1e-5)
     np.testing.assert_allclose(cache[4, 4, 4], [2.0, 1.0, 0.5], rtol=1e-6)
+
+
+@pytest.mark.parametrize("radius", [2.0, 4.0])
+def test_thin_shell_shadows_wherever_it_lies_on_the_step_grid(device, radius):
+    """A shell thinner than r (optical depth 3) across a directional light, moved in half-voxel
+    steps through one whole tube step of 2r: the front behind it must not depend on where the
+    shell falls between the step's samples. With the paper's one sample of sigma~ per step at the
+    sphere's centre it slips between the samples (the SAT cube's half-width is only 0.81 r) and
+    the light behind it varies from the shadowed value up to 1 (no shadow at all)."""
+    from vtkillum.core.ambient.sat import ambient_extinction
+
+    shape = (81, 9, 9)
+    vol = Volume(np.zeros(shape, np.float32))
+    lw = make_lights([DirectionalLight((1, 0, 0))], vol, device)
+    trans = np.exp(-2 * TAU)  # absorption only: the front behind is exp(-3) whatever r is
+
+    def front(x0, substeps=None):
+        sig = np.zeros(shape, np.float32)
+        i = int(np.floor(x0))
+        sig[i], sig[i + 1] = 3.0 * (1 - (x0 - i)), 3.0 * (x0 - i)  # optical depth 3
+        st = ambient_extinction(sig, (1, 1, 1), radius, device)
+        c = radiance_cache(st, (1, 1, 1), vol.extent, lw, trans, SIGMA_MAX, radius, 1.0,
+                           device, substeps=substeps).numpy()
+        return float(c[0, 60, 4, 4, 0])
+
+    positions = np.arange(30.0, 30.0 + 2 * radius + 1e-6, 0.5)
+    fronts = np.array([front(x) for x in positions])
+    np.testing.assert_allclose(fronts, np.exp(-3.0), rtol=0.03)
+    paper = np.array([front(x, substeps=1) for x in positions])
+    assert paper.max() > 3 * np.exp(-3.0)  # the leak this test guards against

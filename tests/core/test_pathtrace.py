@@ -461,3 +461,46 @@ def test_render_path_options_and_progress(device):
         render_path(volume, scene, 8, 8, device, None, step_size=0.1)
     with pytest.raises(ValueError, match="Camera"):
         PathTracer(volume, scene, 8, 8, device=device).reset(camera=(0, 0, 5))
+
+
+def _scattered_power(volume, scene, device, max_bounces, passes=96):
+    """Power scattered out of the cube (quarter-sphere quadrature of parallel views)."""
+    half, size = 0.9, 24
+    total, variance = 0.0, 0.0
+    for i, (direction, weight) in enumerate(quarter_sphere_quadrature()):
+        scene.camera = parallel_camera_towards(direction, half)
+        tracer = PathTracer(volume, scene, size, size, device=device, seed=100 + i,
+                            max_bounces=max_bounces)
+        tracer.run(passes)
+        pixel_area = (2 * half / size) ** 2
+        total += 4 * weight * tracer.radiance[..., 0].astype(np.float64).sum() * pixel_area
+        variance += (4 * weight * pixel_area) ** 2 * tracer.radiance_variance[..., 0].sum()
+    return total, np.sqrt(variance)
+
+
+def test_default_is_unbiased_in_a_thick_conservative_cube(device):
+    """Albedo 1, optical thickness 8: photons scatter dozens of times before they leave.
+    The default (no bounce limit, Russian roulette only) conserves the power; the old default
+    of 16 bounces loses a visible part of it, so the test can tell the two apart."""
+    tau = 8.0
+    volume, scene = cube_scene(tau, 1.0, 0.0, n=8)
+    exact = SIDE**2 * (1 - np.exp(-tau))
+    total, sigma = _scattered_power(volume, scene, device, max_bounces=0)
+    assert abs(total - exact) < 4 * sigma + 0.005 * exact, (total, exact, sigma)
+    capped, _ = _scattered_power(volume, scene, device, max_bounces=16, passes=32)
+    assert capped < 0.95 * exact, (capped, exact)  # measured: 0.90 of it
+
+
+def test_safety_cap_is_counted_and_reported(device, monkeypatch):
+    from vtkillum.core import pathtrace
+
+    volume, scene = cube_scene(8.0, 1.0, 0.0, n=8)
+    scene.camera = parallel_camera_towards(np.array([1.0, 0.0, 0.0]), 0.9)
+    tracer = PathTracer(volume, scene, 8, 8, device=device, seed=1)
+    assert render_path(volume, scene, 8, 8, device, None, spp=2).info["capped_paths"] == 0
+    monkeypatch.setattr(pathtrace, "MAX_PATH_VERTICES", 2)
+    with pytest.warns(RuntimeWarning, match="safety cap"):
+        info = tracer.run(2).result().info
+    assert info["capped_paths"] > 0 and info["max_bounces"] == 0
+    with pytest.raises(ValueError, match="non-negative"):
+        render_path(volume, scene, 8, 8, device, None, spp=1, max_bounces=-1)

@@ -218,7 +218,7 @@ def test_illuminated_equals_isotropic_single(device):
     np.testing.assert_allclose(shaded.radiance, single.radiance, rtol=2e-3)
     np.testing.assert_allclose(shaded.alpha, single.alpha, atol=1e-6)
     # A plain array is accepted too and gives the same image.
-    again = render_illuminated(vol, scene, 12, 12, device, illumination=illum.fluence, **opts)
+    again = render_illuminated(vol, scene, 12, 12, device, illumination=illum.scattered, **opts)
     np.testing.assert_array_equal(again.radiance, shaded.radiance)
 
 

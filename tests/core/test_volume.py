@@ -1,5 +1,7 @@
 """Bad volumes get clear errors (or the documented NaN handling); good ones keep their geometry."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -68,3 +70,49 @@ def test_input_array_is_not_modified():
     a = np.array([[[np.nan, 1.0], [2.0, 3.0]], [[4.0, 5.0], [6.0, 7.0]]])
     Volume(a, nan_policy="fill")
     assert np.isnan(a[0, 0, 0])
+
+
+# --- issue 15 row 9: in-place edits cannot leave a stale content key ----------------------------
+def _render(volume):
+    from vtkillum.core.render import render
+    from vtkillum.core.scene import Scene
+    from vtkillum.core.transfer_function import TransferFunction
+
+    scene = Scene(transfer_function=TransferFunction([0.0, 1.0], [0.0, 0.8]))
+    return render(volume, scene, "transmittance", 8, 8, "cpu").radiance
+
+
+def test_edits_of_the_input_array_do_not_reach_the_volume():
+    """A float32 input was kept by reference: editing it left the cached key (and renders) stale."""
+    a = np.zeros((6, 6, 6), np.float32)
+    a[2:4, 2:4, 2:4] = 1.0
+    v = Volume(a)
+    key, before = v.content_key, _render(v)
+    a[...] = 0.0  # the caller reuses its buffer
+    assert v.scalars.max() == 1.0
+    assert v.content_key == key == Volume(v.scalars.copy()).content_key
+    np.testing.assert_array_equal(_render(v), before)
+    assert before.max() > 0
+
+
+def test_the_volume_s_arrays_are_read_only():
+    v = Volume(np.ones((3, 3, 3), np.float32), spacing=np.array([1.0, 2.0, 3.0]))
+    for name in ("scalars", "spacing", "origin", "direction"):
+        array = getattr(v, name)
+        assert not array.flags.writeable
+        with pytest.raises(ValueError, match="read-only"):
+            array[(0,) * array.ndim] = 5.0
+    with pytest.raises(AttributeError, match="make a new one"):
+        v.scalars = np.zeros((3, 3, 3), np.float32)
+    edited = v.scalars.copy()
+    edited[1, 1, 1] = 7.0
+    w = dataclasses.replace(v, scalars=edited)  # the documented way to change the data
+    assert w.content_key != v.content_key and w.value_range == (1.0, 7.0)
+
+
+def test_no_copy_of_another_volume_s_data():
+    v = Volume(np.ones((3, 3, 3), np.float32))
+    moved = dataclasses.replace(v, origin=(1.0, 2.0, 3.0))
+    assert np.shares_memory(moved.scalars, v.scalars)  # read-only already: shared, not copied
+    view = np.ones((4, 4, 4), np.float32)[:, :, :3]
+    assert not np.shares_memory(Volume(view).scalars, view)

@@ -165,7 +165,7 @@ def test_light_volume_renders_in_both_mapper_paths(make_image):
 
     # OpenGL path, fed by the filter's output port.
     renderer = vtkRenderer()
-    renderer.AddVolume(IlluminatedVolume(img, scene, illumination=f.GetOutputPort()))
+    renderer.AddVolume(IlluminatedVolume(img, scene, illumination=f.GetOutputPort(), jitter=False))
     window = offscreen_window(renderer, scene.camera, size, size)
     diff = np.abs(read_window_rgb(window) - reference.radiance) / reference.radiance.max()
     window.Finalize()

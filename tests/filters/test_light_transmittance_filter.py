@@ -33,13 +33,17 @@ def test_arrays_and_beer_lambert_in_world_space(make_image):
     out = f.execute(img)
     pd = out.GetPointData()
     names = [pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())]
-    assert names == ["density", "fluence", "transmittance_0", "transmittance_1"]
+    assert names == ["density", "fluence", "transmittance", "scattered_fluence"]
     assert out.GetPointData().GetScalars().GetName() == "fluence"
-    T0 = point_array(out, "transmittance_0")
+    assert out.GetFieldData().GetArray("vtkillum_lights").GetNumberOfTuples() == 2
+    T = point_array(out, "transmittance")
+    assert T.shape == (10, 8, 6, 2)
+    T0 = T[..., 0]
     x = np.arange(10) * 0.5  # distance travelled inside the box
     np.testing.assert_allclose(T0[:, 3, 2], np.exp(-np.log(2.0) * x), rtol=2e-4)
     assert point_array(out, "fluence").shape == (10, 8, 6, 3)
-    assert np.all(point_array(out, "transmittance_1") <= 1.0)
+    assert np.all(T[..., 1] <= 1.0)
+    assert not np.any(point_array(out, "scattered_fluence"))
 
 
 def test_half_resolution_light_volume(make_image):
@@ -51,7 +55,7 @@ def test_half_resolution_light_volume(make_image):
     assert out.GetDimensions() == (5, 4, 3)
     np.testing.assert_allclose(out.GetBounds(), img.GetBounds())
     x = np.linspace(0.0, 4.5, 5)
-    np.testing.assert_allclose(point_array(out, "transmittance_0")[:, 1, 1],
+    np.testing.assert_allclose(point_array(out, "transmittance")[:, 1, 1],
                                np.exp(-np.log(2.0) * x), rtol=2e-4)
     f.SetStepSize(0.05)  # a property of its own: re-executes
     before = f.GetMTime()
@@ -83,3 +87,16 @@ def test_needs_a_light(make_image):
     f = make_filter()
     with pytest.raises(ValueError, match="no lights"):
         f.execute(homogeneous(make_image))
+
+
+def test_lights_field_keeps_the_source_radius(make_image):
+    from vtkillum.io.illumination_arrays import lights_from_field
+
+    f = make_filter()
+    f.AddDirectionalLight((0, -1, 0), (1.0, 2.0, 3.0))
+    f.AddPointLight((0, 0, 0), (1.0, 1.0, 1.0))
+    f._lights[1].radius = 0.75  # the filter API has no radius setter; the core light does
+    f.Modified()
+    lights = lights_from_field(f.execute(homogeneous(make_image)))
+    assert lights[0].kind == 0 and np.allclose(lights[0].irradiance, (1, 2, 3))
+    assert lights[1].kind == 1 and lights[1].radius == 0.75

@@ -23,6 +23,13 @@ single-scattering source ``sigma_s * phi / (4 pi)``.
 The line integral is evaluated with the midpoint rule on equal steps no longer
 than ``step_size``; this is exact in homogeneous media and second-order
 accurate where ``sigma_t`` is smooth.
+
+A shadow ray is never longer than the box diagonal, so a step shorter than
+``diagonal / MAX_STEPS_PER_RAY`` (the ray caster's limit,
+:data:`vtkillum.core.raymarch.MAX_STEPS_PER_RAY`) is refused with an error naming
+the smallest usable step. The grid points are launched in chunks of at most
+:data:`CHUNK_SAMPLES` samples, so that Ctrl-C (``KeyboardInterrupt``) stops a long
+march on the CPU within about a second.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import resolve_device
+from vtkillum.core.raymarch import MAX_STEPS_PER_RAY
 from vtkillum.core.warp_common import (
     Lights,
     Medium,
@@ -40,6 +48,11 @@ from vtkillum.core.warp_common import (
     make_medium,
     shadow_transmittance,
 )
+
+#: Upper bound of the shadow-ray samples of one kernel launch (grid points x steps per
+#: ray): about 0.1 s of one CPU core, a fraction of a millisecond on a GPU. Python sees
+#: Ctrl-C only between launches.
+CHUNK_SAMPLES = {"cpu": 1 << 25, "cuda": 1 << 32}
 
 
 def light_transmittance(volume, transfer_function, unit_distance: float, lights, shape=None,
@@ -67,7 +80,7 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
     device : str, optional
         Warp device; see :func:`vtkillum.core.device.resolve_device`.
     progress : callable, optional
-        Called as ``progress(fraction_done)`` after each light.
+        Called as ``progress(fraction_done)`` after each launch (see :data:`CHUNK_SAMPLES`).
 
     Returns
     -------
@@ -86,6 +99,7 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
         step_size = 0.5 * float(np.min(volume.spacing))
     if not (np.isfinite(step_size) and step_size > 0):
         raise ValueError(f"step_size must be positive and finite, got {step_size}")
+    steps_per_ray = max_steps_per_ray(volume, step_size)
     device = resolve_device(device)
 
     medium = make_medium(volume, transfer_function, unit_distance, device=device)
@@ -94,20 +108,50 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
     n_lights = len(lights)
     transmittance = wp.zeros((n_lights, *shape), dtype=wp.float32, device=device)
 
-    # One launch per light so that progress can be reported between launches; each launch
-    # still runs one thread per (light, grid point).
+    # Launches of at most CHUNK_SAMPLES samples each (whole lights or runs of grid points in
+    # C order), so that progress is reported and Ctrl-C is seen between them.
+    n_points = int(np.prod(shape))
+    budget = CHUNK_SAMPLES["cpu" if device == "cpu" else "cuda"]
+    chunk = int(min(n_points, max(1, budget // steps_per_ray)))
+    launches = n_lights * ((n_points + chunk - 1) // chunk)
+    done = 0
     for li in range(n_lights):
-        wp.launch(transmittance_kernel, dim=(1, *shape),
-                  inputs=[medium, packed, li, grid_spacing, float(step_size), transmittance],
-                  device=device)
-        if progress is not None:
-            wp.synchronize_device(device)
-            progress((li + 1) / n_lights)
+        for first in range(0, n_points, chunk):
+            count = min(chunk, n_points - first)
+            wp.launch(transmittance_kernel, dim=count,
+                      inputs=[medium, packed, li, first, grid_spacing, float(step_size),
+                              transmittance], device=device)
+            done += 1
+            if progress is not None or launches > 1:
+                wp.synchronize_device(device)  # the launch ends here: Ctrl-C lands after it
+            if progress is not None:
+                progress(done / launches)
 
     fluence = wp.zeros(shape, dtype=wp.vec3, device=device)
     wp.launch(fluence_kernel, dim=shape, inputs=[packed, transmittance, grid_spacing, fluence],
               device=device)
     return transmittance.numpy(), fluence.numpy().reshape(*shape, 3)
+
+
+def max_steps_per_ray(volume, step_size: float) -> int:
+    """Most steps a shadow ray through ``volume`` can take; refuses overlong marches.
+
+    Raises
+    ------
+    ValueError
+        When a ray across the box diagonal would need more than
+        :data:`~vtkillum.core.raymarch.MAX_STEPS_PER_RAY` steps; the message names the
+        smallest usable step.
+    """
+    diagonal = float(np.linalg.norm(volume.extent))
+    steps = diagonal / float(step_size)
+    if steps > MAX_STEPS_PER_RAY:
+        raise ValueError(
+            f"step_size {step_size:g} needs {steps:.3g} samples along a shadow ray across the "
+            f"volume (diagonal {diagonal:g}); use at least "
+            f"{diagonal / MAX_STEPS_PER_RAY:.3g} world units"
+        )
+    return max(1, int(np.ceil(steps)))
 
 
 def _grid_shape(volume, shape) -> tuple[int, int, int]:
@@ -126,16 +170,22 @@ def _grid_shape(volume, shape) -> tuple[int, int, int]:
 
 
 @wp.kernel
-def transmittance_kernel(medium: Medium, lights: Lights, first_light: int, grid_spacing: wp.vec3,
-                         step_size: float, out: wp.array4d(dtype=wp.float32)):
-    """Shadow ray from one light-grid point towards one light.
+def transmittance_kernel(medium: Medium, lights: Lights, li: int, first_point: int,
+                         grid_spacing: wp.vec3, step_size: float,
+                         out: wp.array4d(dtype=wp.float32)):
+    """Shadow ray from one light-grid point towards light ``li``.
 
-    ``wp.tid()`` = ``(o, i, j, k)``: light ``first_light + o``, grid point ``[i, j, k]``
-    (x, y, z) at local position ``(i, j, k) * grid_spacing`` (world units).
-    Writes the transmittance (unitless) to ``out[first_light + o, i, j, k]``.
+    ``wp.tid()`` = ``n``: grid point number ``first_point + n`` in C order of the grid
+    ``out.shape[1:]``, i.e. point ``[i, j, k]`` (x, y, z) at local position
+    ``(i, j, k) * grid_spacing`` (world units).
+    Writes the transmittance (unitless) to ``out[li, i, j, k]``.
     """
-    offset, i, j, k = wp.tid()
-    li = first_light + offset
+    n = first_point + wp.tid()
+    nz = out.shape[3]
+    nyz = out.shape[2] * nz
+    i = n // nyz
+    j = (n - i * nyz) // nz
+    k = n - i * nyz - j * nz
     p = grid_point(i, j, k, grid_spacing)
     w, dist, _irradiance = light_incidence(lights, li, p)
     out[li, i, j, k] = shadow_transmittance(medium, p, w, dist, step_size, 0.5, 0.0)

@@ -1,8 +1,19 @@
 """Directional and point lights shared by every method.
 
 A directional light has a *travel* direction (the way photons move) and an RGB
-irradiance ``E`` per unit area perpendicular to it. A point light has a position
-and an RGB intensity ``I``; its irradiance at distance ``d`` is ``I / d**2``.
+irradiance ``E`` per unit area perpendicular to it. A point light has a position,
+an RGB intensity ``I`` and a source radius ``r``; its irradiance at distance ``d``
+is ``I / max(d, r)**2``: a small sphere rather than a mathematical point, so that a
+light on or next to a sample gives a bounded contribution in every method (the ray
+caster, the light volumes, the path tracer and ambient scattering all evaluate it
+through :func:`vtkillum.core.warp_common.light_incidence`). ``r = 0`` (the default)
+means half the smallest voxel spacing of the volume it lights
+(:func:`resolved_radius`).
+
+Values are limited to what the float32 kernels can carry without overflow
+(:data:`MAX_VALUE` for intensities and irradiances, :data:`MAX_COORDINATE` for
+positions): a light beyond them is refused with a clear error instead of
+producing infinite or NaN pixels.
 """
 
 from __future__ import annotations
@@ -13,6 +24,11 @@ import numpy as np
 
 DIRECTIONAL = 0
 POINT = 1
+
+#: Largest irradiance / intensity component: squares and sums stay finite in float32.
+MAX_VALUE = 1.0e30
+#: Largest |coordinate| of a point light (world units): d**2 stays finite in float32.
+MAX_COORDINATE = 1.0e15
 
 
 def _vec3(value, name: str) -> np.ndarray:
@@ -26,6 +42,9 @@ def _rgb(value, name: str) -> np.ndarray:
     v = _vec3(value, name)
     if np.any(v < 0):
         raise ValueError(f"{name} must be non-negative, got {value!r}")
+    if np.any(v > MAX_VALUE):
+        raise ValueError(f"{name} must not exceed {MAX_VALUE:g} (float32 rendering would "
+                         f"overflow), got {value!r}; rescale the lights and the exposure")
     return v
 
 
@@ -68,21 +87,40 @@ class PointLight:
     position : (3,) float
         World-space position.
     intensity : (3,) float
-        RGB radiant intensity; irradiance at distance d is ``intensity / d**2``.
+        RGB radiant intensity; irradiance at distance d is ``intensity / max(d, r)**2``.
+    radius : float
+        Source radius ``r`` in world units (>= 0); 0 (default): half the smallest
+        voxel spacing of the volume being lit.
     """
 
     position: np.ndarray
     intensity: np.ndarray = (1.0, 1.0, 1.0)
+    radius: float = 0.0
 
     def __post_init__(self) -> None:
         self.position = _vec3(self.position, "light.position")
+        if np.any(np.abs(self.position) > MAX_COORDINATE):
+            raise ValueError(
+                f"light.position must lie within {MAX_COORDINATE:g} world units of the origin, "
+                f"got {self.position.tolist()}; a light that far away is a directional light")
         self.intensity = _rgb(self.intensity, "light.intensity")
+        try:
+            radius = float(self.radius)
+        except (TypeError, ValueError):
+            radius = float("nan")
+        if not (np.isfinite(radius) and 0.0 <= radius <= MAX_COORDINATE):
+            raise ValueError(f"light.radius must be a non-negative number of world units (0: "
+                             f"half a voxel), got {self.radius!r}")
+        self.radius = radius
 
     kind = POINT
 
     def to_dict(self) -> dict:
-        return {"type": "point", "position": self.position.tolist(),
-                "intensity": self.intensity.tolist()}
+        d = {"type": "point", "position": self.position.tolist(),
+             "intensity": self.intensity.tolist()}
+        if self.radius > 0:
+            d["radius"] = self.radius
+        return d
 
 
 Light = DirectionalLight | PointLight
@@ -94,7 +132,8 @@ def light_from_dict(d: dict, index: int = 0) -> Light:
     if not isinstance(d, dict) or "type" not in d:
         raise ValueError(f"{where}: expected an object with a 'type' of 'directional' or 'point'")
     kind = d["type"]
-    fields = {"directional": {"direction", "irradiance"}, "point": {"position", "intensity"}}
+    fields = {"directional": {"direction", "irradiance"},
+              "point": {"position", "intensity", "radius"}}
     if kind not in fields:
         raise ValueError(f"{where}.type: {kind!r} is not 'directional' or 'point'")
     unknown = set(d) - fields[kind] - {"type"}
@@ -107,7 +146,8 @@ def light_from_dict(d: dict, index: int = 0) -> Light:
             return DirectionalLight(d["direction"], d.get("irradiance", (1.0, 1.0, 1.0)))
         if "position" not in d:
             raise ValueError("position is missing")
-        return PointLight(d["position"], d.get("intensity", (1.0, 1.0, 1.0)))
+        return PointLight(d["position"], d.get("intensity", (1.0, 1.0, 1.0)),
+                          d.get("radius", 0.0))
     except ValueError as err:
         raise ValueError(f"{where}: {err}") from err
 
@@ -133,3 +173,44 @@ def pack_lights(lights, rotation=None, origin=None):
             vecs[i] = R.T @ (l.position - o)
             rgb[i] = l.intensity
     return kinds, vecs.astype(np.float32), rgb.astype(np.float32)
+
+
+def resolved_radius(light, volume) -> float:
+    """Source radius of ``light`` for ``volume`` (world units; 0 for directional lights).
+
+    A point light's own radius, or half the volume's smallest spacing when it is 0.
+    """
+    if light.kind == DIRECTIONAL:
+        return 0.0
+    return float(light.radius) if light.radius > 0 else 0.5 * float(np.min(volume.spacing))
+
+
+def irradiance_on_grid(light, volume, shape) -> np.ndarray:
+    """RGB irradiance of one light at the points of a grid covering ``volume``'s box.
+
+    Parameters
+    ----------
+    light : DirectionalLight or PointLight
+    volume : vtkillum.core.volume.Volume
+        Gives the box (local frame ``[0, extent]``) and its world placement.
+    shape : (3,) int
+        Grid points per axis (at least 2 each).
+
+    Returns
+    -------
+    ndarray (nx, ny, nz, 3) float32
+        Constant for a directional light; ``I / max(d, r)**2`` for a point light, with
+        ``r`` the larger of its source radius and half a grid spacing (a picture of the
+        light for display; renderers evaluate the irradiance per sample).
+    """
+    shape = tuple(int(n) for n in shape)
+    if light.kind == DIRECTIONAL:
+        return np.broadcast_to(np.asarray(light.irradiance, np.float32),
+                               (*shape, 3)).copy()
+    spacing = volume.extent / (np.asarray(shape) - 1)
+    p = volume.to_local(light.position)
+    axes = [np.arange(n) * h - c for n, h, c in zip(shape, spacing, p)]
+    d2 = (axes[0][:, None, None] ** 2 + axes[1][None, :, None] ** 2
+          + axes[2][None, None, :] ** 2)
+    d2 = np.maximum(d2, max(resolved_radius(light, volume), 0.5 * float(spacing.min())) ** 2)
+    return (np.asarray(light.intensity)[None, None, None, :] / d2[..., None]).astype(np.float32)

@@ -34,8 +34,14 @@ towards the lights. At each step:
 * **Direction sampling** from the HG phase function itself (``sample_hg``), whose
   weight ``p / pdf`` is exactly 1.
 * ``max_bounces`` is the number of scattering vertices that receive NEE;
-  ``max_bounces = 1`` is single scattering. The estimate is unbiased for the
-  radiance of paths with at most ``max_bounces`` scattering events.
+  ``max_bounces = 1`` is single scattering and the estimate is then unbiased for
+  the radiance of paths with at most ``max_bounces`` scattering events. The
+  default, ``max_bounces = 0``, is **unlimited**: only Russian roulette ends a
+  walk, so the estimate is unbiased for the full radiative transfer equation.
+  A safety cap of :data:`MAX_PATH_VERTICES` vertices still bounds a walk (a
+  medium of albedo 1 with no exit would otherwise never end); walks that reach
+  it are counted and reported in ``info["capped_paths"]`` (with a warning), so
+  a truncated estimate is never silent.
 * **Russian roulette** from the ``RR_START``-th vertex on: the walk continues to
   the next vertex with probability ``q = min(1, max_c throughput_c)`` and the
   throughput is divided by ``q`` (unbiased; a path whose weight has dropped to
@@ -61,6 +67,7 @@ from __future__ import annotations
 
 import sys
 import time
+import warnings
 
 import numpy as np
 import warp as wp
@@ -90,6 +97,8 @@ from vtkillum.core.warp_common import (
 
 #: Russian roulette on the path starts after this many scattering vertices.
 RR_START = wp.constant(3)
+#: Safety cap on the scattering vertices of one walk when ``max_bounces`` is unlimited (0).
+MAX_PATH_VERTICES = 100_000
 #: Shadow-ray transmittance below which weight-window roulette kicks in.
 SHADOW_RR_THRESHOLD = wp.constant(0.1)
 #: Salt of the per-pass seeds (keeps them apart from other estimators' streams).
@@ -106,7 +115,7 @@ def render_path(volume, scene, width: int, height: int, device: str | None = Non
     volume : vtkillum.core.volume.Volume
     scene : vtkillum.core.scene.Scene
         Optical model, lights and camera; ``scene.options["path"]`` gives the defaults
-        of ``spp`` (64), ``max_bounces`` (16) and ``seed`` (0).
+        of ``spp`` (64), ``max_bounces`` (0: unlimited) and ``seed`` (0).
     width, height : int
         Image size in pixels.
     device : str, optional
@@ -117,7 +126,8 @@ def render_path(volume, scene, width: int, height: int, device: str | None = Non
         Samples per pixel.
     max_bounces : int, optional
         Maximum number of scattering vertices receiving next-event estimation (1: single
-        scattering).
+        scattering); 0 (the default) leaves the walk to Russian roulette alone, up to the
+        safety cap :data:`MAX_PATH_VERTICES`.
     seed : int, optional
         Random seed; the same seed gives the same image on one device.
 
@@ -126,8 +136,9 @@ def render_path(volume, scene, width: int, height: int, device: str | None = Non
     RenderResult
         Linear radiance (H, W, 3), alpha = 1 - transmittance (H, W), and ``info`` with
         ``spp``, ``max_bounces``, ``seed``, ``ms_per_pass``, ``samples_per_second`` (camera
-        paths per second, all pixels) and, from two passes on, the per-pixel
-        ``radiance_variance`` of the mean (H, W, 3).
+        paths per second, all pixels), ``capped_paths`` (walks that reached the safety cap;
+        0 unless ``max_bounces`` is unlimited and the medium hardly absorbs) and, from two
+        passes on, the per-pixel ``radiance_variance`` of the mean (H, W, 3).
     """
     if options:
         raise ValueError(
@@ -136,8 +147,7 @@ def render_path(volume, scene, width: int, height: int, device: str | None = Non
         )
     defaults = scene.options["path"]
     spp = _positive_int(defaults["spp"] if spp is None else spp, "spp")
-    max_bounces = _positive_int(defaults["max_bounces"] if max_bounces is None else max_bounces,
-                                "max_bounces")
+    max_bounces = _bounce_limit(defaults["max_bounces"] if max_bounces is None else max_bounces)
     seed = _int(defaults["seed"] if seed is None else seed, "seed")
     tracer = PathTracer(volume, scene, width, height, device=device, seed=seed,
                         max_bounces=max_bounces)
@@ -164,7 +174,9 @@ class PathTracer:
     seed : int
         Random seed (pass ``p`` of pixel ``i`` uses ``rand_init(hash(seed, p), i)``).
     max_bounces : int
-        Maximum number of scattering vertices receiving next-event estimation.
+        Maximum number of scattering vertices receiving next-event estimation; 0
+        (default): unlimited, walks end by Russian roulette (or at the safety cap
+        :data:`MAX_PATH_VERTICES`, counted in :attr:`capped_paths`).
     samples_per_pass : int
         Samples per pixel taken by one kernel launch (more per launch amortises launch
         overhead on a GPU; the variance estimate then is over per-pass means).
@@ -177,12 +189,12 @@ class PathTracer:
     """
 
     def __init__(self, volume, scene, width: int, height: int, device: str | None = None,
-                 seed: int = 0, max_bounces: int = 16, samples_per_pass: int = 1) -> None:
+                 seed: int = 0, max_bounces: int = 0, samples_per_pass: int = 1) -> None:
         self.device = resolve_device(device)
         self.width = _positive_int(width, "width")
         self.height = _positive_int(height, "height")
         self.seed = _int(seed, "seed")
-        self.max_bounces = _positive_int(max_bounces, "max_bounces")
+        self.max_bounces = _bounce_limit(max_bounces)
         self.samples_per_pass = _positive_int(samples_per_pass, "samples_per_pass")
         self._volume = volume
         self.medium = make_medium(
@@ -194,6 +206,7 @@ class PathTracer:
         self._sum = wp.zeros(shape, dtype=wp.vec3d, device=self.device)
         self._sum2 = wp.zeros(shape, dtype=wp.vec3d, device=self.device)
         self._sum_alpha = wp.zeros(shape, dtype=wp.float64, device=self.device)
+        self._capped = wp.zeros(1, dtype=wp.int64, device=self.device)
         self._seconds = 0.0
         # Compile/load the kernels now so that the first pass's timing is the kernel's own.
         wp.load_module(sys.modules[__name__], device=self.device)
@@ -219,6 +232,7 @@ class PathTracer:
         self._sum.zero_()
         self._sum2.zero_()
         self._sum_alpha.zero_()
+        self._capped.zero_()
         self.passes = 0
         self._seconds = 0.0
         return self
@@ -233,13 +247,23 @@ class PathTracer:
                 dim=(self.height, self.width),
                 inputs=[self.medium, self._cam, self.lights,
                         stream_seed(self.seed, self.passes, PASS_SALT), self.samples_per_pass,
-                        self.max_bounces, self._sum, self._sum2, self._sum_alpha],
+                        self._vertex_limit, self._sum, self._sum2, self._sum_alpha,
+                        self._capped],
                 device=self.device,
             )
             self.passes += 1
         wp.synchronize_device(self.device)
         self._seconds += time.perf_counter() - start
         return self
+
+    @property
+    def _vertex_limit(self) -> int:
+        return self.max_bounces if self.max_bounces > 0 else MAX_PATH_VERTICES
+
+    @property
+    def capped_paths(self) -> int:
+        """Walks that reached the safety cap :data:`MAX_PATH_VERTICES` (unlimited mode only)."""
+        return int(self._capped.numpy()[0]) if self.max_bounces == 0 else 0
 
     @property
     def samples(self) -> int:
@@ -282,9 +306,15 @@ class PathTracer:
             "device": self.device,
             "ms_per_pass": 1000.0 * self._seconds / max(self.passes, 1),
             "samples_per_second": pixels / self._seconds if self._seconds > 0 else float("nan"),
+            "capped_paths": self.capped_paths,
         }
+        if info["capped_paths"]:
+            warnings.warn(
+                f"path: {info['capped_paths']} of {pixels} walks reached the safety cap of "
+                f"{MAX_PATH_VERTICES} scattering vertices (albedo near 1 in a closed medium); "
+                "their light beyond it is missing", RuntimeWarning, stacklevel=2)
         if self.passes >= 2:
-            info["radiance_variance"] = self.radiance_variance.astype(np.float32)
+            info["radiance_variance"] = self.radiance_variance  # float64: squares of huge lights
         return RenderResult(self.radiance, self.alpha, info)
 
 
@@ -293,6 +323,13 @@ def _is_integral(value) -> bool:
         return not isinstance(value, bool) and float(value).is_integer()
     except (TypeError, ValueError, OverflowError):
         return False
+
+
+def _bounce_limit(value) -> int:
+    if not _is_integral(value) or int(value) < 0:
+        raise ValueError(
+            f"max_bounces must be a non-negative integer (0: unlimited), got {value!r}")
+    return int(value)
 
 
 def _positive_int(value, name: str) -> int:
@@ -355,17 +392,21 @@ def ratio_tracking(m: Medium, o: wp.vec3, d: wp.vec3, t_start: float, t_end: flo
 @wp.func
 def trace_path(m: Medium, lights: Lights, o: wp.vec3, d: wp.vec3, max_bounces: int,
                state: wp.uint32):
-    """One camera path: returns ``(radiance, primary transmittance, state)``."""
+    """One camera path: returns ``(radiance, primary transmittance, capped, state)``.
+
+    ``capped`` is 1 when the walk was still alive after ``max_bounces`` vertices.
+    """
     radiance = wp.vec3(0.0)
     box = ray_box(o, d, m.extent)
     t_start = wp.max(box[0], 0.0)
     t_end = box[1]
     if t_end <= t_start:
-        return radiance, 1.0, state
+        return radiance, 1.0, 0, state
     T_primary, state = ratio_tracking(m, o, d, t_start, t_end, 0, state)
 
     throughput = wp.vec3(1.0)
     x = o
+    capped = int(0)
     for bounce in range(max_bounces):
         hit, t, s, state = delta_tracking(m, x, d, t_start, t_end, state)
         if not hit:
@@ -384,6 +425,7 @@ def trace_path(m: Medium, lights: Lights, o: wp.vec3, d: wp.vec3, max_bounces: i
                 radiance = radiance + (T_light * hg_phase(wp.dot(wl, d), m.g)) * wp.cw_mul(
                     throughput, irradiance)
         if bounce + 1 >= max_bounces:
+            capped = 1
             break
         if bounce + 1 >= RR_START:
             q = wp.min(1.0, wp.max(throughput[0], wp.max(throughput[1], throughput[2])))
@@ -398,19 +440,21 @@ def trace_path(m: Medium, lights: Lights, o: wp.vec3, d: wp.vec3, max_bounces: i
         d = sample_hg(d, m.g, u1, u2)
         t_start = 0.0
         t_end = ray_box(x, d, m.extent)[1]
-    return radiance, T_primary, state
+    return radiance, T_primary, capped, state
 
 
 @wp.kernel
 def path_trace_kernel(m: Medium, cam: CameraParams, lights: Lights, seed: int, spp: int,
                       max_bounces: int, sum_radiance: wp.array2d(dtype=wp.vec3d),
                       sum_radiance2: wp.array2d(dtype=wp.vec3d),
-                      sum_alpha: wp.array2d(dtype=wp.float64)):
+                      sum_alpha: wp.array2d(dtype=wp.float64),
+                      capped_paths: wp.array(dtype=wp.int64)):
     """One pass of ``spp`` camera paths per pixel, added to the running sums.
 
     ``wp.tid()`` is ``(row, col)`` of the image, row 0 at the top. Radiance is in the
     lights' units (irradiance E, or I / d^2, per steradian through the phase function);
-    ``sum_radiance2`` accumulates the square of the per-pass mean (for the variance).
+    ``sum_radiance2`` accumulates the square of the per-pass mean (for the variance);
+    ``capped_paths[0]`` counts walks still alive after ``max_bounces`` vertices.
     """
     row, col = wp.tid()
     state = wp.rand_init(seed, row * cam.width + col)
@@ -420,7 +464,9 @@ def path_trace_kernel(m: Medium, cam: CameraParams, lights: Lights, seed: int, s
         jx, state = uniform(state)
         jy, state = uniform(state)
         o, d = camera_ray(cam, float(col) + jx, float(row) + jy)
-        radiance, T, state = trace_path(m, lights, o, d, max_bounces, state)
+        radiance, T, capped, state = trace_path(m, lights, o, d, max_bounces, state)
+        if capped != 0:
+            wp.atomic_add(capped_paths, 0, wp.int64(1))
         total = total + radiance
         alpha = alpha + (1.0 - T)
     mean = total / float(spp)

@@ -16,8 +16,9 @@ Three render methods share one ray-marching kernel (one thread per pixel):
     with ``σs = albedo · color · σt``; there is no emission term.
 ``illumination`` (:func:`render_illuminated`)
     Like ``single`` but the in-scattered light comes from a precomputed
-    :class:`~vtkillum.core.illumination.IlluminationVolume` (fluence ``φ``) and the
-    Phong factor of Zhang & Ma 2013 eq. 24: source ``σs φ / (4π) · S``; see
+    :class:`~vtkillum.core.illumination.IlluminationVolume` (per-light
+    transmittance ``T_l`` and scattered fluence ``φ_s``) and the Phong factor of
+    Zhang & Ma 2013 eq. 24: source ``σs [Σ_l p(θ_l) T_l E_l + φ_s / (4π)] · S``; see
     :mod:`vtkillum.core.illumination` for the convention. This is where the
     illumination methods (convection–diffusion, ambient scattering, photons, ...) plug in.
 
@@ -55,17 +56,21 @@ from vtkillum.core.raymarch import (
 from vtkillum.core.render import RenderResult
 from vtkillum.core.warp_common import (
     CameraParams,
+    LightGrid,
     Lights,
     Medium,
     RGBGrid,
     hg_phase,
+    inside_box,
     light_incidence,
     lookup_color,
     lookup_sigma_t,
     make_camera,
+    make_light_grid,
     make_lights,
     make_medium,
     make_rgb_grid,
+    sample_light_grid,
     sample_rgb,
     sample_scalar,
     shadow_transmittance,
@@ -77,8 +82,10 @@ SINGLE = wp.constant(1)
 ILLUMINATION = wp.constant(2)
 MODE_NAMES = {EMISSION: "emission", SINGLE: "single", ILLUMINATION: "illumination"}
 
-#: Options every ray-cast method accepts, with their defaults.
-RAYCAST_OPTIONS = RAY_OPTIONS
+#: Options every ray-cast method accepts, with their defaults. ``near_cells``: how far
+#: (in light-grid cells) ``illumination`` marches the direct light's shadow ray exactly
+#: before reading the cached transmittance (0: read the grid at the sample).
+RAYCAST_OPTIONS = {**RAY_OPTIONS, "near_cells": 2.0}
 
 #: Pixels per kernel launch when the image is tiled into row bands (progress reporting).
 TILE_PIXELS = {"cpu": 1 << 14, "cuda": 1 << 20}
@@ -134,8 +141,9 @@ def render_illuminated(volume, scene, width, height, device=None, progress=None,
     Parameters
     ----------
     illumination : IlluminationVolume or ndarray (nx, ny, nz, 3)
-        Fluence covering the volume's box (an array is wrapped with
-        :meth:`IlluminationVolume.for_volume`).
+        Per-light transmittance and scattered fluence covering the volume's box, with
+        one transmittance channel per scene light; an array is taken as an isotropic
+        scattered fluence (:meth:`IlluminationVolume.for_volume`).
     **others
         As :func:`render_emission`; the scene's albedo, lights (for the Phong
         directions) and ``shading`` are used as well.
@@ -147,7 +155,7 @@ def render_illuminated(volume, scene, width, height, device=None, progress=None,
         )
     if not isinstance(illumination, IlluminationVolume):
         illumination = IlluminationVolume.for_volume(volume, illumination)
-    illumination.check_matches(volume)
+    illumination.check_matches(volume, scene.lights)
     return _render(ILLUMINATION, volume, scene, width, height, device, progress, illumination,
                    options)
 
@@ -158,7 +166,13 @@ def _parse_options(options: dict, volume, scene) -> dict:
         raise ValueError(
             f"unknown ray-casting option(s) {sorted(unknown)}; known: {sorted(RAYCAST_OPTIONS)}"
         )
-    return ray_options(options, volume, scene)
+    opts = ray_options(options, volume, scene)
+    near = options.get("near_cells", RAYCAST_OPTIONS["near_cells"])
+    if not (isinstance(near, (int, float, np.floating)) and np.isfinite(near) and near >= 0):
+        raise ValueError(f"near_cells must be a non-negative number of light-grid cells, got "
+                         f"{near!r}")
+    opts["near_cells"] = float(near)
+    return opts
 
 
 def _render(mode, volume, scene, width, height, device, progress, illumination, options):
@@ -174,10 +188,13 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
                          scene.anisotropy, device)
     cam = make_camera(scene.resolved_camera(volume), volume, width, height)
     lights = make_lights(scene.lights, volume, device)
-    if illumination is not None:
-        illum = make_rgb_grid(illumination.fluence, illumination.extent, device)
-    else:  # the kernel always takes a grid; other modes never read it
-        illum = make_rgb_grid(np.zeros((2, 2, 2, 3), np.float32), volume.extent, device)
+    # The kernel always takes both grids; absent parts are a zero grid / an empty light grid.
+    scattered = None if illumination is None else illumination.scattered
+    if scattered is None:
+        scattered = np.zeros((2, 2, 2, 3), np.float32)
+    illum = make_rgb_grid(scattered, volume.extent, device)
+    direct = make_light_grid(None if illumination is None else illumination.transmittance,
+                             volume.extent, device, opts["near_cells"])
     grad_eps = gradient_threshold(volume)
 
     wp.synchronize_device(device)
@@ -185,7 +202,7 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
 
     radiance, alpha, samples, n_tiles = launch_row_bands(
         raycast_kernel,
-        [medium, cam, lights, illum, mode, opts["step_size"], int(opts["jitter"]), opts["seed"],
+        [medium, cam, lights, illum, direct, mode, opts["step_size"], int(opts["jitter"]), opts["seed"],
          opts["early_termination"], wp.vec4(ka, kd, ks, shininess), float(grad_eps)],
         width, height, TILE_PIXELS["cpu" if device == "cpu" else "cuda"], device, progress)
     t_render = time.perf_counter()
@@ -226,6 +243,38 @@ def single_scatter_light(m: Medium, lights: Lights, p: wp.vec3, d: wp.vec3, step
 
 
 @wp.func
+def cached_transmittance(m: Medium, direct: LightGrid, li: int, p: wp.vec3, wl: wp.vec3,
+                         dist: float, step: float, xi: float):
+    """``T_l(p)``: an exact march over the first ``direct.near`` towards the light, then the grid.
+
+    The grid is read one cell towards the light rather than at ``p``: interpolating it
+    across a sharp surface mixes points in front of and behind the surface, a
+    grid-aligned error that shows as rings and bands; the short exact march resolves the
+    surface instead (see :mod:`vtkillum.core.illumination`).
+    """
+    near = wp.min(direct.near, dist)
+    t = float(1.0)
+    if near > 0.0:
+        t = shadow_transmittance(m, p, wl, near, step, xi, 0.0)
+    q = p + near * wl
+    if near < dist and inside_box(q, m.extent):
+        t = t * sample_light_grid(direct, li, q)
+    return t
+
+
+@wp.func
+def cached_direct_light(m: Medium, lights: Lights, direct: LightGrid, p: wp.vec3, d: wp.vec3,
+                        step: float, xi: float):
+    """``Σ_l p(θ_l) T_l E_l`` at ``p`` with ``T_l`` from :func:`cached_transmittance`."""
+    acc = wp.vec3(0.0)
+    for li in range(direct.count):
+        wl, dist, e = light_incidence(lights, li, p)
+        phase = hg_phase(wp.dot(wl, d), m.g)
+        acc += (phase * cached_transmittance(m, direct, li, p, wl, dist, step, xi)) * e
+    return acc
+
+
+@wp.func
 def phong_factor(m: Medium, lights: Lights, p: wp.vec3, d: wp.vec3, shading: wp.vec4,
                  grad_eps: float):
     """``S = ka + kd mean|n.l| + ks mean max(n.h, 0)^shininess`` (see ``illumination.py``)."""
@@ -256,6 +305,7 @@ def raycast_kernel(
     cam: CameraParams,
     lights: Lights,
     illum: RGBGrid,
+    direct: LightGrid,
     mode: int,
     step: float,
     jitter: int,
@@ -309,9 +359,13 @@ def raycast_kernel(
                     src = m.albedo * wp.cw_mul(
                         col, single_scatter_light(m, lights, p, d, step, shadow_xi, stop_t))
                 else:
-                    phi = sample_rgb(illum, p)
+                    shadow_xi = float(0.5)
+                    if jitter != 0:
+                        shadow_xi = wp.randf(state)
+                    light = sample_rgb(illum, p) / (4.0 * wp.pi) + cached_direct_light(
+                        m, lights, direct, p, d, step, shadow_xi)
                     s_fac = phong_factor(m, lights, p, d, shading, grad_eps)
-                    src = (m.albedo * s_fac / (4.0 * wp.pi)) * wp.cw_mul(col, phi)
+                    src = (m.albedo * s_fac) * wp.cw_mul(col, light)
                 colour += (trans * a) * src
                 trans *= 1.0 - a
                 if 1.0 - trans > stop_alpha:

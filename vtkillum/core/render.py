@@ -29,6 +29,7 @@ METHODS: dict[str, str] = {
     "transmittance": "vtkillum.core.transmittance_render:render_transmittance",
     "ambient-scattering": "vtkillum.core.ambient.render:render_ambient_scattering",
     "convection-diffusion": "vtkillum.core.convection_diffusion:render_convection_diffusion",
+    "photon": "vtkillum.core.photon.render:render_photon",
 }
 
 

@@ -34,7 +34,7 @@ from vtkillum.core.transfer_function import TransferFunction, check_unit_distanc
 
 #: Options of the methods that have their own scene section: field -> default.
 METHOD_OPTIONS: dict[str, dict] = {
-    "path": {"spp": 64, "max_bounces": 16, "seed": 0},
+    "path": {"spp": 64, "max_bounces": 0, "seed": 0},  # max_bounces 0: unlimited (roulette)
     "convection_diffusion": {
         "light_volume_scale": 0.5,     # light-volume resolution relative to the data
         "scattering": [0.0, 0.0, 0.0],  # per-channel diffusion coefficient sigma_hat_s, world units²
@@ -51,10 +51,81 @@ METHOD_OPTIONS: dict[str, dict] = {
         "ambient_occlusion": False,    # add the SAT-based ambient-occlusion term
         "ambient_occlusion_strength": 0.25,  # its ambient fluence / sum of light irradiances
         "hardware_filtering": False,   # CUDA texture filtering of the grids (faster, ~1e-3 off)
+        "gather": "centred",           # "centred" or the paper's Algorithm 1 ("paper")
+    },
+    "photon": {  # photon mapping with Historygrams (Jönsson et al. 2012), core/photon/render.py
+        "photons": 200000, "radius": 2.0, "max_order": 0, "segments": 8, "seed": 0,
+        "historygrams": True, "spatial_historygram": True, "direct": "exact", "passes": 1,
+        "alpha": 0.6666666666666666, "surface_range": [0.0, 0.0], "surface_gradient": 0.02,
+        "surface_diffuse": 0.6, "surface_specular": 0.4, "surface_shininess": 40.0,
     },
 }
 
 SHADING_DEFAULTS = {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0, "shininess": 32.0}
+
+
+def _integer(lo: int):
+    return lambda v: float(v).is_integer() and v >= lo
+
+
+def _number(lo: float, hi: float = np.inf, lo_open: bool = False, hi_open: bool = False):
+    return lambda v: ((v > lo) if lo_open else (v >= lo)) and ((v < hi) if hi_open else (v <= hi))
+
+
+#: Ranges of the scene's sections, checked when a scene is built so that a mistake in a
+#: scene file is reported with the file's name, before any rendering: (section, field) ->
+#: (test of a value that already has the default's type, what the value must be). The
+#: methods check their options again; fields not listed here (names such as the solver)
+#: are left to them.
+OPTION_CHECKS = {
+    ("shading", "ambient"): (_number(0.0), "a non-negative number"),
+    ("shading", "diffuse"): (_number(0.0), "a non-negative number"),
+    ("shading", "specular"): (_number(0.0), "a non-negative number"),
+    ("shading", "shininess"): (_number(0.0, lo_open=True), "a positive number"),
+    ("path", "spp"): (_integer(1), "a positive integer"),
+    ("path", "max_bounces"): (_integer(0), "a non-negative integer (0: unlimited)"),
+    ("path", "seed"): (_integer(-(2**63)), "an integer"),
+    ("convection_diffusion", "scattering"): (
+        lambda v: all(_real(x) and x >= 0 for x in v), "three non-negative numbers"),
+    ("convection_diffusion", "iterations"): (
+        _integer(0), "a non-negative integer (0: solve to convergence)"),
+    ("convection_diffusion", "tolerance"): (
+        _number(0.0, 1.0, lo_open=True, hi_open=True), "a number in (0, 1)"),
+    ("convection_diffusion", "source_radius"): (
+        _number(0.0), "a non-negative number of world units (0: 2 spacings)"),
+    ("ambient_scattering", "radius"): (_number(0.0, lo_open=True), "a positive number"),
+    ("ambient_scattering", "radius_units"): (lambda v: v in ("voxels", "world"),
+                                             "'voxels' or 'world'"),
+    ("ambient_scattering", "radiance_cache_scale"): (
+        _number(0.0, 1.0, lo_open=True), "a number in (0, 1]"),
+    ("ambient_scattering", "specular"): (_number(0.0), "a non-negative number"),
+    ("ambient_scattering", "ambient_occlusion_strength"): (_number(0.0), "a non-negative number"),
+}
+
+
+#: Light fields that hold numbers (strings such as "0.5" are refused, as for ``albedo``).
+NUMERIC_LIGHT_FIELDS = {"direction", "irradiance", "position", "intensity", "radius"}
+
+
+def _real(value) -> bool:
+    """A finite real number (not a bool, not a string)."""
+    return (isinstance(value, (int, float, np.integer, np.floating))
+            and not isinstance(value, (bool, np.bool_)) and bool(np.isfinite(value)))
+
+
+def _check_numbers(value, where: str, shape=None) -> None:
+    """Refuse anything but (nested lists of) numbers: strings such as "0.5" included."""
+    items = value if isinstance(value, (list, tuple)) else [value]
+    for item in items:
+        if isinstance(item, (list, tuple)):
+            _check_numbers(item, where)
+        elif not _real(item):
+            raise ValueError(f"{where} must hold finite numbers, got {_short(value)}")
+
+
+def _short(value, limit: int = 80) -> str:
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 TOP_LEVEL = {"transfer_function", "opacity_unit_distance", "albedo", "anisotropy", "lights",
              "camera", "background", "step_size", "shading"} | set(METHOD_OPTIONS)
@@ -85,6 +156,9 @@ class Scene:
             self.opacity_unit_distance = check_unit_distance(self.opacity_unit_distance)
         if self.step_size is not None and not (np.isfinite(self.step_size) and self.step_size > 0):
             raise ValueError(f"step_size must be positive, got {self.step_size}")
+        if np.asarray(self.background).dtype.kind not in "iuf":
+            raise ValueError(f"background must be three non-negative numbers, got "
+                             f"{_short(self.background)}")
         bg = np.asarray(self.background, dtype=np.float64).reshape(-1)
         if bg.shape != (3,) or not np.all(np.isfinite(bg)) or np.any(bg < 0):
             raise ValueError("background must be three non-negative numbers")
@@ -149,8 +223,16 @@ class Scene:
         if "lights" in d:
             if not isinstance(d["lights"], list):
                 raise ValueError("lights must be a list of light objects")
+            for i, light in enumerate(d["lights"]):
+                if isinstance(light, dict):
+                    for key, value in light.items():
+                        if key in NUMERIC_LIGHT_FIELDS:
+                            _check_numbers(value, f"lights[{i}].{key}")
             kw["lights"] = [light_from_dict(l, i) for i, l in enumerate(d["lights"])]
         if "camera" in d:
+            if isinstance(d["camera"], dict):
+                for key, value in d["camera"].items():
+                    _check_numbers(value, f"camera.{key}")
             kw["camera"] = Camera.from_dict(d["camera"])
         for key in ("opacity_unit_distance", "albedo", "anisotropy", "step_size"):
             if key in d:
@@ -187,6 +269,9 @@ def _merge(section: str, defaults: dict, given) -> dict:
             ok = isinstance(value, type(ref))
         if not ok:
             raise ValueError(f"{section}.{key}: expected a value like {ref!r}, got {value!r}")
+        check = OPTION_CHECKS.get((section, key))
+        if check is not None and not check[0](value):
+            raise ValueError(f"{section}.{key} must be {check[1]}, got {value!r}")
         out[key] = value
     return out
 
@@ -195,9 +280,15 @@ def load_scene(path) -> Scene:
     """Read and validate a scene file; errors name the file and the field."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text())
+        data = json.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise FileNotFoundError(f"scene file {path} does not exist") from None
+    except IsADirectoryError:
+        raise ValueError(f"scene file {path} is a directory; give a JSON file") from None
+    except UnicodeDecodeError as err:
+        raise ValueError(f"{path}: not a JSON scene file (binary data: byte "
+                         f"0x{err.object[err.start]:02x} at position {err.start} is not UTF-8 "
+                         "text)") from None
     except json.JSONDecodeError as err:
         raise ValueError(f"{path}: not valid JSON ({err})") from err
     try:
@@ -206,6 +297,11 @@ def load_scene(path) -> Scene:
         raise ValueError(f"{path}: {err}") from err
 
 
+def scene_json(scene: Scene) -> str:
+    """``scene`` as the JSON text :func:`save_scene` writes."""
+    return json.dumps(scene.to_dict(), indent=2)
+
+
 def save_scene(scene: Scene, path) -> None:
     """Write ``scene`` as JSON (round-trips through :func:`load_scene`)."""
-    Path(path).write_text(json.dumps(scene.to_dict(), indent=2))
+    Path(path).write_text(scene_json(scene))

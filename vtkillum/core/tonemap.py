@@ -2,35 +2,83 @@
 
 ``png = round(255 * clip(exposure * (L + (1 - alpha) * background), 0, 1) ** (1 / gamma))``
 with ``gamma = 2.2`` by default (``gamma = 1`` keeps the values linear, which is how
-VTK's ray caster writes its frame buffer).
+VTK's ray caster writes its frame buffer). NaN maps to 0 and +inf to 255.
+
+The map works in float32 on bands of :data:`CHUNK_PIXELS` pixels, so that a huge image
+needs only its 8-bit result and one band of temporaries (not float64 copies of itself).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+#: Pixels tone-mapped at a time (bounds the temporaries to a few MB).
+CHUNK_PIXELS = 1 << 18
+
 
 def tonemap(radiance, alpha=None, background=(0.0, 0.0, 0.0), exposure: float = 1.0,
             gamma: float = 2.2) -> np.ndarray:
     """Linear radiance (H, W, 3) to uint8 RGB (H, W, 3). See the module docstring."""
-    rgb = np.asarray(radiance, dtype=np.float64)
-    if alpha is not None:
-        rgb = rgb + (1.0 - np.asarray(alpha, dtype=np.float64))[..., None] * np.asarray(background)
-    rgb = np.clip(np.nan_to_num(rgb * exposure), 0.0, 1.0) ** (1.0 / gamma)
-    return np.round(rgb * 255.0).astype(np.uint8)
+    rad = np.asarray(radiance)
+    alp = None if alpha is None else np.asarray(alpha)
+    bg = np.asarray(background, dtype=np.float32)
+    out = np.empty(rad.shape, dtype=np.uint8)
+    inv_gamma = np.float32(1.0 / gamma)
+    for rows in _bands(rad.shape):
+        rgb = np.array(rad[rows], dtype=np.float32)  # a copy: the band's workspace
+        if alp is not None:
+            rgb += (np.float32(1.0) - alp[rows].astype(np.float32))[..., None] * bg
+        with np.errstate(over="ignore", invalid="ignore"):
+            rgb *= np.float32(exposure)
+        np.nan_to_num(rgb, copy=False, nan=0.0, posinf=1.0, neginf=0.0)
+        np.clip(rgb, 0.0, 1.0, out=rgb)
+        np.power(rgb, inv_gamma, out=rgb)
+        rgb *= np.float32(255.0)
+        np.rint(rgb, out=rgb)
+        out[rows] = rgb
+    return out
 
 
-def auto_exposure(radiance, percentile: float = 99.5) -> float:
-    """Exposure that maps the given percentile of the brightest channel to 1."""
-    peak = float(np.percentile(np.asarray(radiance).max(axis=-1), percentile))
+def auto_exposure(radiance, percentile: float = 99.5, alpha=None,
+                  background=(0.0, 0.0, 0.0)) -> float:
+    """Exposure that maps the given percentile of the brightest channel to 1.
+
+    With ``alpha``, of the radiance composited over ``background``
+    (``L + (1 - alpha) * background``), computed band by band in float32.
+    """
+    rad = np.asarray(radiance)
+    bg = np.asarray(background, dtype=np.float32)
+    peak_channel = np.empty(rad.shape[:-1], dtype=np.float32)
+    for rows in _bands(rad.shape):
+        rgb = rad[rows].astype(np.float32)
+        if alpha is not None:
+            rgb = rgb + (np.float32(1.0) - np.asarray(alpha)[rows].astype(np.float32))[
+                ..., None] * bg
+        peak_channel[rows] = rgb.max(axis=-1)
+    finite = np.isfinite(peak_channel)
+    values = peak_channel if finite.all() else peak_channel[finite]  # NaN/inf: not a level
+    if values.size == 0:
+        return 1.0
+    peak = float(np.percentile(values, percentile))
     return 1.0 / peak if peak > 0 else 1.0
 
 
+def _bands(shape):
+    """Slices of whole rows (first axis) holding about :data:`CHUNK_PIXELS` pixels each."""
+    if len(shape) < 2:
+        yield slice(None)
+        return
+    per_row = max(1, int(np.prod(shape[1:-1])))
+    rows = max(1, CHUNK_PIXELS // per_row)
+    for r0 in range(0, shape[0], rows):
+        yield slice(r0, r0 + rows)
+
+
 def write_png(path, rgb8: np.ndarray) -> None:
-    """Write an (H, W, 3) uint8 image as PNG (Pillow)."""
+    """Write an (H, W, 3) uint8 image as PNG (Pillow); ``path`` may be a binary file object."""
     from PIL import Image
 
-    Image.fromarray(np.ascontiguousarray(rgb8, dtype=np.uint8), "RGB").save(path)
+    Image.fromarray(np.ascontiguousarray(rgb8, dtype=np.uint8), "RGB").save(path, format="PNG")
 
 
 def read_png(path) -> np.ndarray:

@@ -19,6 +19,10 @@ MAX_ALPHA = 1.0 - 1e-6
 #: Number of entries of the lookup tables handed to the kernels.
 TABLE_SIZE = 4096
 
+#: Bound of the tables' range: half the largest float32 (the kernels' precision), so that
+#: even ``hi - lo`` is finite in float32.
+TABLE_RANGE_MAX = float(np.finfo(np.float32).max) / 2.0
+
 
 @dataclass
 class TransferFunction:
@@ -40,6 +44,8 @@ class TransferFunction:
     colors: np.ndarray = field(default=None)
 
     def __post_init__(self) -> None:
+        for name in ("scalars", "opacity", "colors"):
+            _check_numeric(getattr(self, name), name)
         s = np.asarray(self.scalars, dtype=np.float64).reshape(-1)
         a = np.asarray(self.opacity, dtype=np.float64).reshape(-1)
         if s.size == 0:
@@ -51,7 +57,9 @@ class TransferFunction:
             )
         if not (np.all(np.isfinite(s)) and np.all(np.isfinite(a))):
             raise ValueError("transfer_function: control points and opacities must be finite")
-        if np.any(np.diff(s) <= 0):
+        with np.errstate(over="ignore"):  # points at ±1e308: the gap overflows, still > 0
+            increasing = np.all(np.diff(s) > 0)
+        if not increasing:
             raise ValueError(
                 "transfer_function.scalars: control points must be strictly increasing "
                 f"(got {s.tolist()}); sort them together with their opacities and colours"
@@ -73,12 +81,12 @@ class TransferFunction:
     # --- evaluation -----------------------------------------------------------------
     def alpha(self, values) -> np.ndarray:
         """Opacity at ``values`` (piecewise linear, constant outside the control points)."""
-        return np.interp(np.asarray(values, dtype=np.float64), self.scalars, self.opacity)
+        return _interp(np.asarray(values, dtype=np.float64), self.scalars, self.opacity)
 
     def color(self, values) -> np.ndarray:
         """RGB colour at ``values``, shape ``values.shape + (3,)``."""
         v = np.asarray(values, dtype=np.float64)
-        return np.stack([np.interp(v, self.scalars, self.colors[:, c]) for c in range(3)], -1)
+        return np.stack([_interp(v, self.scalars, self.colors[:, c]) for c in range(3)], -1)
 
     def sigma_t(self, values, unit_distance: float) -> np.ndarray:
         """Extinction coefficient ``-ln(1 - alpha) / u`` in 1/world units."""
@@ -98,7 +106,11 @@ class TransferFunction:
         unit_distance : float
             Opacity unit distance ``u`` in world units.
         value_range : (float, float), optional
-            Data range the table must cover; the control-point range is always included.
+            Data range the table must cover (the kernels look up nothing else). The table
+            spans the control points too, but at most one data-range width beyond the data
+            on either side: control points far outside the data (say at ±1e30) would
+            otherwise make the entries too coarse to resolve the function over the data,
+            or overflow float32 (the kernels' precision).
         size : int
             Number of entries.
 
@@ -109,13 +121,17 @@ class TransferFunction:
         color : ndarray (size, 3) float32
             Colour per entry.
         lo, hi : float
-            Data values of the first and last entries.
+            Data values of the first and last entries (finite in float32, ``lo < hi``).
         """
         lo, hi = self.domain()
         if value_range is not None:
-            lo, hi = min(lo, float(value_range[0])), max(hi, float(value_range[1]))
+            vlo, vhi = float(value_range[0]), float(value_range[1])
+            lo, hi = min(lo, vlo), max(hi, vhi)
+            width = vhi - vlo if vhi > vlo else max(1.0, abs(vlo))
+            lo, hi = max(lo, vlo - width), min(hi, vhi + width)
+        lo, hi = max(lo, -TABLE_RANGE_MAX), min(hi, TABLE_RANGE_MAX)
         if hi <= lo:
-            hi = lo + 1.0
+            hi = lo + max(1.0, abs(lo) * 1e-6)
         # Sample alpha (not sigma_t) linearly, as VTK's opacity table does, then convert.
         v = np.linspace(lo, hi, size)
         return (
@@ -156,6 +172,42 @@ class TransferFunction:
     def ramp(cls, lo: float, hi: float, max_opacity: float = 0.5, color=(1.0, 1.0, 1.0)):
         """Linear opacity ramp from 0 at ``lo`` to ``max_opacity`` at ``hi``, uniform colour."""
         return cls([lo, hi], [0.0, max_opacity], [color, color])
+
+
+def _interp(x, xp, fp):
+    """Piecewise-linear interpolation, constant outside ``xp`` (as ``np.interp``), robust at
+    the float64 limits.
+
+    Each value is the convex combination ``(1 - t) f_j + t f_(j+1)`` with
+    ``t = (x - x_j) / (x_(j+1) - x_j)`` computed on halved values (exact, and no overflow for
+    control points at ±1e308). ``np.interp`` uses slopes instead: across a gap of 1e308 the
+    slope is a denormal with few significant bits, which moved values outside the range of
+    their control points (negative colours from non-negative ones) or, when the gap
+    overflowed, held each segment at its left value. Results stay within ``[min fp, max fp]``.
+    """
+    x = np.asarray(x, dtype=np.float64)
+    xp = np.asarray(xp, dtype=np.float64)
+    fp = np.asarray(fp, dtype=np.float64)
+    if xp.size == 1:
+        return np.full(x.shape, fp[0])
+    j = np.clip(np.searchsorted(xp, x, side="right") - 1, 0, xp.size - 2)
+    lo, hi = 0.5 * xp[j], 0.5 * xp[j + 1]
+    t = np.clip((0.5 * x - lo) / (hi - lo), 0.0, 1.0)
+    return np.clip((1.0 - t) * fp[j] + t * fp[j + 1], fp.min(), fp.max())
+
+
+def _check_numeric(values, name: str) -> None:
+    """Refuse strings, booleans and other non-numbers (numpy would turn "0.5" into 0.5)."""
+    if values is None:
+        return
+    try:
+        kind = np.asarray(values).dtype.kind
+    except ValueError:  # ragged nested lists
+        kind = "O"
+    if kind not in "iuf":
+        text = repr(values)
+        text = text if len(text) <= 80 else text[:77] + "..."
+        raise ValueError(f"transfer_function.{name} must hold numbers, got {text}")
 
 
 def check_unit_distance(u: float) -> float:

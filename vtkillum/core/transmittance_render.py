@@ -1,12 +1,12 @@
 """The ``transmittance`` method: a cached single-scattering light volume, then ray casting.
 
-The baseline that later illumination methods are compared with: the unscattered
-fluence ``phi = sum_l T_l E_l`` is computed once on a light grid
+The baseline that later illumination methods are compared with: the transmittance
+``T_l`` towards every light is computed once on a light grid
 (:func:`vtkillum.core.light_transmittance.light_transmittance`, what
 ``LightTransmittanceFilter`` caches) and the image is ray cast with it
-(:func:`vtkillum.core.raycast.render_illuminated`). With isotropic scattering and the
-default shading this equals ``single`` up to the light grid's interpolation; unlike
-``single`` it ignores the anisotropy ``g`` (the fluence has no direction).
+(:func:`vtkillum.core.raycast.render_illuminated`), which applies the phase function
+and the irradiance per sample. With the default shading this equals ``single`` up to
+the light grid's interpolation, for any anisotropy ``g``.
 """
 
 from __future__ import annotations
@@ -43,13 +43,14 @@ def render_transmittance(volume, scene, width, height, device=None, progress=Non
     key = (device, shape, tf.scalars.tobytes(), tf.opacity.tobytes(), float(u),
            repr([light.to_dict() for light in scene.lights]))
     t0 = time.perf_counter()
-    fluence = volume.derived(
-        "transmittance_fluence", key,
-        lambda: light_transmittance(volume, tf, u, scene.lights, shape=shape, device=device)[1])
+    transmittance = volume.derived(
+        "light_transmittance", key,
+        lambda: light_transmittance(volume, tf, u, scene.lights, shape=shape, device=device)[0])
     t1 = time.perf_counter()
+    illumination = IlluminationVolume.for_volume(volume, transmittance=transmittance)
     result = render_illuminated(volume, scene, width, height, device, progress,
-                                illumination=IlluminationVolume.for_volume(volume, fluence),
-                                **options)
+                                illumination=illumination, **options)
     result.info.update(method="transmittance", light_volume_s=t1 - t0,
-                       light_volume_shape=shape, fluence_max=float(np.max(fluence)))
+                       light_volume_shape=shape,
+                       transmittance_min=float(np.min(transmittance)))
     return result

@@ -64,6 +64,15 @@ class Volume(GridGeometry):
     nan_policy : {"raise", "fill"}
         What to do with NaN/Inf samples: raise, or replace them with the smallest
         finite value (they then render like the most transparent data).
+
+    Notes
+    -----
+    A Volume is a value: its caches (:attr:`content_key`, :attr:`value_range`,
+    :meth:`derived`) are computed once. So that they can never go stale, the Volume keeps
+    its own copy of the data whenever it would otherwise share the caller's memory (a
+    float32 C-ordered input), its arrays are read-only (``writeable=False``: an in-place
+    edit raises ``ValueError``), and its fields cannot be reassigned. To change the data,
+    make a new Volume, e.g. ``dataclasses.replace(v, scalars=edited)``.
     """
 
     scalars: np.ndarray
@@ -73,7 +82,7 @@ class Volume(GridGeometry):
     nan_policy: str = "raise"
 
     def __post_init__(self) -> None:
-        s = np.asarray(self.scalars)
+        s = source = np.asarray(self.scalars)
         if s.dtype.kind == "c" or s.dtype.kind not in "biuf":
             raise ValueError(f"volume scalars must be real numbers, got dtype {s.dtype}")
         if s.ndim == 4 and s.shape[-1] == 1:
@@ -103,23 +112,39 @@ class Volume(GridGeometry):
                 )
             else:
                 raise ValueError("nan_policy must be 'raise' or 'fill'")
-        self.scalars = np.ascontiguousarray(s)
-        sp = np.asarray(self.spacing, dtype=np.float64).reshape(-1)
+        s = np.ascontiguousarray(s)
+        if np.may_share_memory(s, source) and not _frozen(source):
+            s = s.copy()  # the caller's array: its later edits must not reach this Volume
+        s.flags.writeable = False
+        self.scalars = s
+        sp = np.array(self.spacing, dtype=np.float64).reshape(-1)
         if sp.shape != (3,) or not np.all(np.isfinite(sp)) or np.any(sp <= 0):
             raise ValueError(
                 f"volume spacing must be three positive numbers, got {np.asarray(self.spacing)}; "
                 "a negative spacing flips an axis: flip the array and move the origin instead"
             )
+        sp.flags.writeable = False
         self.spacing = sp
-        o = np.asarray(self.origin, dtype=np.float64).reshape(-1)
+        o = np.array(self.origin, dtype=np.float64).reshape(-1)
         if o.shape != (3,) or not np.all(np.isfinite(o)):
             raise ValueError("volume origin must be three finite numbers")
+        o.flags.writeable = False
         self.origin = o
-        d = np.asarray(self.direction, dtype=np.float64)
+        d = np.array(self.direction, dtype=np.float64)
         if d.shape != (3, 3) or not np.allclose(d.T @ d, np.eye(3), atol=1e-6):
             raise ValueError("volume direction must be an orthonormal 3x3 matrix")
+        d.flags.writeable = False
         self.direction = d
         self._derived = {}
+        object.__setattr__(self, "_initialised", True)
+
+    def __setattr__(self, name, value) -> None:
+        if name in _DATA_FIELDS and getattr(self, "_initialised", False):
+            raise AttributeError(
+                f"Volume.{name} cannot be replaced: a Volume is a value whose caches are keyed "
+                f"on its content; make a new one, e.g. dataclasses.replace(volume, {name}=...)"
+            )
+        object.__setattr__(self, name, value)
 
     @property
     def dims(self) -> tuple[int, int, int]:
@@ -154,6 +179,14 @@ class Volume(GridGeometry):
             entry = (key, make())
             self._derived[name] = entry
         return entry[1]
+
+
+_DATA_FIELDS = frozenset({"scalars", "spacing", "origin", "direction", "nan_policy"})
+
+
+def _frozen(array: np.ndarray) -> bool:
+    """An array nobody can write to: read-only and owning its memory (e.g. another Volume's)."""
+    return not array.flags.writeable and array.base is None
 
 
 def array_digest(array) -> str:

@@ -15,7 +15,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp, resolve_device
-from vtkillum.core.lights import pack_lights
+from vtkillum.core.lights import pack_lights, resolved_radius
 
 init_warp()
 
@@ -51,6 +51,22 @@ class RGBGrid:
 
 
 @wp.struct
+class LightGrid:
+    """Per-light scalars (e.g. transmittance ``T_l``) on a grid covering ``[0, extent]``.
+
+    ``data[l, i, j, k]`` is light ``l``'s value at grid point ``[i, j, k]``; ``count`` is
+    the number of lights (0: an empty placeholder that kernels never read); ``near`` is
+    the distance (world units) that lookups march exactly before reading the grid
+    (:func:`vtkillum.core.raycast.cached_transmittance`).
+    """
+
+    data: wp.array4d(dtype=wp.float32)
+    inv_spacing: wp.vec3
+    count: int
+    near: float
+
+
+@wp.struct
 class CameraParams:
     """A camera in the local frame; see :mod:`vtkillum.core.camera` for pixel conventions."""
 
@@ -68,11 +84,13 @@ class CameraParams:
 
 @wp.struct
 class Lights:
-    """Light list: kind (0 directional, 1 point), travel direction or position, RGB."""
+    """Light list: kind (0 directional, 1 point), travel direction or position, RGB, and
+    the source radius of point lights (irradiance ``I / max(d, radius)**2``)."""
 
     kind: wp.array(dtype=wp.int32)
     vec: wp.array(dtype=wp.vec3)
     rgb: wp.array(dtype=wp.vec3)
+    radius: wp.array(dtype=wp.float32)
     count: int
 
 
@@ -120,6 +138,21 @@ def sample_scalar(a: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.v
 def sample_rgb(grid: RGBGrid, p: wp.vec3):
     """Trilinear sample of an RGB grid at local position ``p``."""
     return trilinear(grid.data, grid.inv_spacing, p)
+
+
+@wp.func
+def sample_light_grid(grid: LightGrid, li: int, p: wp.vec3):
+    """Trilinear sample of light ``li``'s channel of a :class:`LightGrid` at local position ``p``."""
+    a = grid.data
+    idx, f = trilinear_index(p, grid.inv_spacing, wp.vec3i(a.shape[1], a.shape[2], a.shape[3]))
+    i = idx[0]
+    j = idx[1]
+    k = idx[2]
+    c00 = wp.lerp(a[li, i, j, k], a[li, i + 1, j, k], f[0])
+    c10 = wp.lerp(a[li, i, j + 1, k], a[li, i + 1, j + 1, k], f[0])
+    c01 = wp.lerp(a[li, i, j, k + 1], a[li, i + 1, j, k + 1], f[0])
+    c11 = wp.lerp(a[li, i, j + 1, k + 1], a[li, i + 1, j + 1, k + 1], f[0])
+    return wp.lerp(wp.lerp(c00, c10, f[1]), wp.lerp(c01, c11, f[1]), f[2])
 
 
 @wp.func
@@ -320,13 +353,17 @@ def free_path(sigma: float, state: wp.uint32):
 # --- lights and camera ---------------------------------------------------------------------------
 @wp.func
 def light_incidence(lights: Lights, li: int, p: wp.vec3):
-    """Unit direction from ``p`` towards light ``li``, its distance, and the RGB irradiance at ``p``."""
+    """Unit direction from ``p`` towards light ``li``, its distance, and the RGB irradiance at ``p``.
+
+    Point lights give ``I / max(d, r)**2`` with ``r`` their source radius (bounded next to
+    the light, see :mod:`vtkillum.core.lights`).
+    """
     if lights.kind[li] == DIRECTIONAL:
         return -lights.vec[li], FAR, lights.rgb[li]
     d = lights.vec[li] - p
-    dist2 = wp.max(wp.dot(d, d), 1.0e-12)
-    dist = wp.sqrt(dist2)
-    return d / dist, dist, lights.rgb[li] / dist2
+    dist = wp.max(wp.length(d), 1.0e-20)
+    r = wp.max(dist, lights.radius[li])
+    return d / dist, dist, lights.rgb[li] / (r * r)
 
 
 @wp.func
@@ -404,6 +441,35 @@ def make_rgb_grid(data: np.ndarray, extent, device: str | None = None) -> RGBGri
     return g
 
 
+def make_light_grid(data: np.ndarray | None, extent, device: str | None = None,
+                    near_cells: float = 0.0) -> LightGrid:
+    """Upload per-light grids ``(n_lights, nx, ny, nz)`` covering ``[0, extent]``.
+
+    ``None`` gives an empty placeholder (``count = 0``) for kernels that take the struct
+    but have no per-light data to read. ``near_cells`` sets :attr:`LightGrid.near` in
+    cells of the grid (its largest spacing).
+    """
+    device = resolve_device(device)
+    g = LightGrid()
+    if data is None:
+        g.data = wp.zeros((1, 2, 2, 2), dtype=wp.float32, device=device)
+        g.inv_spacing = wp.vec3(1.0, 1.0, 1.0)
+        g.count = 0
+        g.near = 0.0
+        return g
+    data = np.asarray(data, dtype=np.float32)
+    if data.ndim != 4 or min(data.shape[1:]) < 2:
+        raise ValueError(f"per-light grids must have shape (n_lights, nx, ny, nz) with n >= 2, "
+                         f"got {data.shape}")
+    extent = np.asarray(extent, dtype=np.float64)
+    g.data = wp.array(np.ascontiguousarray(data), dtype=wp.float32, device=device)
+    spacing = extent / (np.asarray(data.shape[1:]) - 1)
+    g.inv_spacing = wp.vec3(*(1.0 / spacing).astype(np.float32))
+    g.count = int(data.shape[0])
+    g.near = float(near_cells) * float(spacing.max())
+    return g
+
+
 def make_camera(camera, volume, width: int, height: int) -> CameraParams:
     """Map a :class:`~vtkillum.core.camera.Camera` into ``volume``'s local frame."""
     if int(width) < 1 or int(height) < 1:
@@ -431,6 +497,8 @@ def make_lights(lights, volume, device: str | None = None) -> Lights:
     out.kind = wp.array(kinds, dtype=wp.int32, device=device)
     out.vec = wp.array(vecs, dtype=wp.vec3, device=device)
     out.rgb = wp.array(rgb, dtype=wp.vec3, device=device)
+    out.radius = wp.array(np.array([resolved_radius(light, volume) for light in lights],
+                                   np.float32), dtype=wp.float32, device=device)
     out.count = len(kinds)
     return out
 

@@ -11,6 +11,7 @@ from vtkillum.filters.base import IlluminationFilterBase, IlluminationParameters
 from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLightFilter
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
+from vtkillum.filters.photon_density import PhotonDensityFilter
 
 __all__ = [
     "AmbientExtinctionFilter",
@@ -19,4 +20,5 @@ __all__ = [
     "IlluminationParameters",
     "LightTransmittanceFilter",
     "OpticalPropertiesFilter",
+    "PhotonDensityFilter",
 ]

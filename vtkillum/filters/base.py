@@ -73,6 +73,7 @@ from vtkillum.io.convert import (
     transfer_function_from_vtk,
     volume_from_image_data,
 )
+from vtkillum.io.illumination_arrays import add_lights_field
 
 #: Default memory budget of the per-time-step cache.
 DEFAULT_CACHE_MB = 512.0
@@ -569,6 +570,8 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
                 raise ValueError(f"{type(self).__name__}.compute returned {array_name!r} with "
                                  f"shape {values.shape}; expected {shape} (+ components)")
             add_point_array(output, array_name, values, set_active=index == 0)
+        if self.requires_lights:
+            add_lights_field(output, params.lights)
         time = self._input_time(image, out_info)
         if time is not None:
             output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), time)

@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.light_transmittance import light_transmittance
 from vtkillum.filters.base import IlluminationFilterBase
+from vtkillum.io.illumination_arrays import illumination_arrays
 
 
 class LightTransmittanceFilter(IlluminationFilterBase):
@@ -16,11 +18,17 @@ class LightTransmittanceFilter(IlluminationFilterBase):
     ``OutputDimensions``, covering the same box). Output arrays:
 
     ``fluence`` (RGB, active scalars)
-        ``phi(x) = sum_l T_l(x) E_l(x)``, the illumination volume the ray caster
-        turns into the single-scattering source ``sigma_s * phi / (4 pi)``
+        ``phi(x) = sum_l T_l(x) E_l(x)``, the unscattered light as an isotropic fluence
+        (for display).
+    ``transmittance`` (one component per light)
+        ``T_l(x)`` in [0, 1] towards light ``l``, in the order of the filter's lights:
+        the direct light that the mappers shade with the phase function
         (:mod:`vtkillum.core.illumination`).
-    ``transmittance_0`` .. ``transmittance_<n-1>`` (1 component each)
-        ``T_l(x)`` in [0, 1] towards light ``l``, in the order of the filter's lights.
+    ``scattered_fluence`` (RGB)
+        Zeros (this filter computes no scattering).
+
+    and the lights as field data ``vtkillum_lights``
+    (:mod:`vtkillum.io.illumination_arrays`).
 
     Parameters
     ----------
@@ -57,10 +65,9 @@ class LightTransmittanceFilter(IlluminationFilterBase):
         return self._step_size
 
     def compute(self, volume, params):
-        transmittance, fluence = light_transmittance(
+        transmittance, _fluence = light_transmittance(
             volume, params.transfer_function, params.unit_distance, params.lights,
             shape=params.output_shape, step_size=self._step_size or None,
             device=params.device, progress=params.progress)
-        arrays = {"fluence": fluence}
-        arrays.update({f"transmittance_{i}": t for i, t in enumerate(transmittance)})
-        return arrays
+        illumination = IlluminationVolume.for_volume(volume, transmittance=transmittance)
+        return illumination_arrays(illumination, volume, params.lights, params.output_shape)

@@ -45,6 +45,7 @@ from __future__ import annotations
 import bz2
 import gzip
 import re
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -310,6 +311,20 @@ def read_nrrd(path):
         Orthonormal columns; coordinates converted to LPS for RAS/LAS spaces.
     """
     path = Path(path)
+    try:
+        return _parse_nrrd(path)
+    except ValueError as err:
+        if str(err).startswith(f"{path}:"):
+            raise
+        # A value the parser did not expect (e.g. a header field that holds too few
+        # entries): say which file, never a bare Python message.
+        raise ValueError(f"{path}: malformed NRRD file ({err})") from err
+    except (IndexError, TypeError) as err:
+        raise ValueError(f"{path}: malformed NRRD file ({type(err).__name__}: {err})") from err
+
+
+def _parse_nrrd(path: Path):
+    """:func:`read_nrrd` proper; errors it raises name the file."""
     raw = path.read_bytes()
     magic_end = raw.find(b"\n")
     if not raw.startswith(b"NRRD") or magic_end < 0:
@@ -337,8 +352,11 @@ def read_nrrd(path):
             raise ValueError(f"{path}: NRRD header lacks the required field {key!r}")
         return fields[key]
 
-    ndim = int(need("dimension"))
-    sizes = [int(s) for s in need("sizes").split()]
+    ndim = _nrrd_numbers(path, "dimension", need("dimension"), int)[0]
+    sizes = _nrrd_numbers(path, "sizes", need("sizes"), int)
+    if ndim < 1 or min(sizes, default=0) < 1:
+        raise ValueError(f"{path}: NRRD 'dimension' and 'sizes' must be positive, got "
+                         f"dimension {ndim}, sizes {sizes}")
     if len(sizes) != ndim:
         raise ValueError(f"{path}: NRRD 'sizes' has {len(sizes)} entries for dimension {ndim}")
     type_name = need("type").lower()
@@ -361,7 +379,8 @@ def read_nrrd(path):
         if len(tokens) != ndim:
             raise ValueError(f"{path}: NRRD 'space directions' has {len(tokens)} entries for "
                              f"dimension {ndim}")
-        directions = [None if t == "none" else np.array([float(v) for v in t[1:-1].split(",")])
+        directions = [None if t == "none" else
+                      np.array(_nrrd_numbers(path, "space directions", t[1:-1], float, ","))
                       for t in tokens]
         spatial = [d is not None for d in directions]
     if "kinds" in fields:
@@ -381,7 +400,11 @@ def read_nrrd(path):
     count = int(np.prod(sizes))
     payload = _nrrd_payload(path, fields, body, encoding, dtype, count)
     if encoding in ("ascii", "text", "txt"):
-        values = np.array(payload.split(), dtype=dtype.newbyteorder("="))
+        try:
+            values = np.array(payload.split(), dtype=dtype.newbyteorder("="))
+        except (ValueError, OverflowError) as err:
+            raise ValueError(f"{path}: the NRRD ascii data holds a value that is not a "
+                             f"{type_name} ({_one_line(err)})") from err
     else:
         values = np.frombuffer(payload[: count * dtype.itemsize], dtype=dtype)
     if values.size < count:
@@ -405,17 +428,23 @@ def read_nrrd(path):
                              "orthogonal (sheared grid); resample it onto an orthogonal grid")
         origin = np.zeros(3)
         if "space origin" in fields:
-            origin = np.array([float(v) for v in fields["space origin"].strip("() ").split(",")])
+            origin = np.array(_nrrd_numbers(path, "space origin",
+                                            fields["space origin"].strip("() "), float, ","))
+            if origin.shape != (3,):
+                raise ValueError(f"{path}: NRRD 'space origin' must be a 3-vector, got "
+                                 f"{fields['space origin']!r}")
         direction, origin = to_world @ rotation, to_world @ origin
     else:
         spacing = np.ones(3)
         if "spacings" in fields:
-            values = [float(v) for v in fields["spacings"].replace("nan", "1").split()]
+            values = _nrrd_numbers(path, "spacings", fields["spacings"].replace("nan", "1"),
+                                   float, count=ndim)
             spacing = np.abs(np.array([values[a] for a in space_axes]))
         origin = np.zeros(3)
         if "axis mins" in fields or "axismins" in fields:
-            mins = fields.get("axis mins", fields.get("axismins")).replace("nan", "0").split()
-            origin = np.array([float(mins[a]) for a in space_axes])
+            mins = _nrrd_numbers(path, "axis mins", fields.get(
+                "axis mins", fields.get("axismins")).replace("nan", "0"), float, count=ndim)
+            origin = np.array([mins[a] for a in space_axes])
         direction = np.eye(3)
     return data, spacing, origin, direction
 
@@ -432,27 +461,57 @@ def _nrrd_payload(path, fields, body, encoding, dtype, count) -> bytes:
         if not target.exists():
             raise FileNotFoundError(f"{path}: its data file {target} does not exist")
         body = target.read_bytes()
-    for _ in range(int(fields.get("line skip", fields.get("lineskip", 0)))):
+    line_skip = _nrrd_numbers(path, "line skip",
+                              fields.get("line skip", fields.get("lineskip", "0")), int)[0]
+    for _ in range(line_skip):
         body = body[body.find(b"\n") + 1:]
-    byte_skip = int(fields.get("byte skip", fields.get("byteskip", 0)))
+    byte_skip = _nrrd_numbers(path, "byte skip",
+                              fields.get("byte skip", fields.get("byteskip", "0")), int)[0]
     if encoding == "raw":
         if byte_skip == -1:
             return body[len(body) - count * dtype.itemsize:]
         return body[byte_skip:]
-    if encoding in ("gzip", "gz"):
-        body = gzip.decompress(body)
-    elif encoding in ("bzip2", "bz2"):
-        body = bz2.decompress(body)
-    elif encoding == "hex":
-        body = bytes.fromhex(body.decode("ascii"))
-    elif encoding in ("ascii", "text", "txt"):
-        return body.decode("ascii")
-    else:
-        raise ValueError(f"{path}: unsupported NRRD encoding {encoding!r}; supported: raw, "
-                         "gzip, bzip2, hex, ascii")
+    try:
+        if encoding in ("gzip", "gz"):
+            body = gzip.decompress(body)
+        elif encoding in ("bzip2", "bz2"):
+            body = bz2.decompress(body)
+        elif encoding == "hex":
+            body = bytes.fromhex(body.decode("ascii"))
+        elif encoding in ("ascii", "text", "txt"):
+            return body.decode("ascii")
+        else:
+            raise ValueError(f"{path}: unsupported NRRD encoding {encoding!r}; supported: raw, "
+                             "gzip, bzip2, hex, ascii")
+    except (OSError, EOFError, zlib.error, ValueError) as err:  # gzip.BadGzipFile is an OSError
+        if str(err).startswith(f"{path}:"):
+            raise
+        what = {"gz": "gzip", "bz2": "bzip2", "text": "ascii", "txt": "ascii"}.get(encoding,
+                                                                                  encoding)
+        raise ValueError(f"{path}: the NRRD data ({what} encoding) is corrupt or truncated "
+                         f"({_one_line(err)})") from err
     if byte_skip == -1:
         return body[len(body) - count * dtype.itemsize:]
     return body[byte_skip:]
+
+
+def _nrrd_numbers(path, key: str, text: str, kind, sep: str | None = None,
+                  count: int | None = None) -> list:
+    """The numbers of NRRD field ``key`` (``kind`` int or float); errors name file and field."""
+    tokens = [t.strip() for t in str(text).split(sep)]
+    try:
+        values = [kind(t) for t in tokens if t]
+    except ValueError:
+        noun = "integers" if kind is int else "numbers"
+        raise ValueError(f"{path}: NRRD field {key!r} must hold {noun}, got {text!r}") from None
+    if not values or (count is not None and len(values) != count):
+        raise ValueError(f"{path}: NRRD field {key!r} must hold "
+                         f"{'at least one' if count is None else count} value(s), got {text!r}")
+    return values
+
+
+def _one_line(err: BaseException) -> str:
+    return " ".join(str(err).split()) or type(err).__name__
 
 
 def _read_nrrd(path, array, component, nan_policy):

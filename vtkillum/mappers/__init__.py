@@ -1,7 +1,8 @@
 """Turning data and illumination into pixels inside VTK windows.
 
-* :class:`IlluminatedVolume` -- OpenGL path: a ``vtkVolume`` whose GPU ray caster
-  is shaded by an illumination volume (interactive windows, pyvista ``add_actor``).
+* :class:`IlluminatedVolume` -- OpenGL path: a ``vtkMultiVolume`` whose GPU ray caster
+  is shaded by an illumination volume (per-light transmittance with the phase function,
+  scattered fluence; interactive windows, pyvista ``add_actor``).
 * :class:`ComputeVolumeRenderer` -- compute path: any registered warp method
   (``emission``, ``single``, ``illumination``, progressive ``path``, ...) shown in a
   VTK renderer.
@@ -18,13 +19,13 @@ from vtkillum.mappers.camera_bridge import (
     scene_from_vtk,
 )
 from vtkillum.mappers.compute_mapper import ComputeVolumeRenderer
-from vtkillum.mappers.illuminated_volume_mapper import IlluminatedVolume, ScalarFluenceImage
+from vtkillum.mappers.illuminated_volume_mapper import IlluminatedVolume, IlluminationInputs
 
 __all__ = [
     "AmbientScatteringVolume",
     "ComputeVolumeRenderer",
     "IlluminatedVolume",
-    "ScalarFluenceImage",
+    "IlluminationInputs",
     "apply_camera_to_vtk",
     "apply_scene_to_volume_property",
     "camera_from_vtk",

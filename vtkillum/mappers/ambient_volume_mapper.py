@@ -2,16 +2,22 @@
 
 :class:`AmbientScatteringVolume` is a ``vtkMultiVolume`` (so ``renderer.AddVolume(v)``
 and pyvista's ``plotter.add_actor(v)`` take it) whose
-``vtkOpenGLGPUVolumeRayCastMapper`` runs the ambient ray casting of Algorithm 1
-(eqs. 18–21) per pixel, the same per-sample formula as the warp gather
-(:mod:`vtkillum.core.ambient.gather`)::
+``vtkOpenGLGPUVolumeRayCastMapper`` runs the ambient ray casting per pixel, the same
+per-sample formulas as the warp gather (:mod:`vtkillum.core.ambient.gather`), for both of
+its estimators: the centred one (default)::
+
+    J̃ += T(x') (1 - exp(-σt Δ)) Λ color(x') ⊙ Σ_j [p(θ_j) T_j + M(θ_j, r σ̃t(x'), g)] L̃d,j(x_j)
+
+with ``x_j = x' + min(r, d_j) (-ω_j)``, ``T_j`` the transmittance of the data from
+``x_j`` to ``x'`` (a short shadow ray, midpoints of steps no longer than the sample
+distance) and ``M`` the table's scattered part; and the paper's Algorithm 1
+(``gather="paper"``)::
 
     J̃ += T(x_o) · Δ · Λ σt(x') color(x') ⊙ Σ_j L̃o(θ_j, r σ̃t(x'), g) L̃d,j(x' - r ω_j)
 
 with ``T(x_o)`` the transmittance to the camera from the sphere's exit point
-``x_o = x' + r ω`` (the attenuation inside the sphere is in the table), plus the
-optional specular lobe and SAT ambient-occlusion terms. Alpha is ``1 - T`` along the
-whole ray. The preprocessing runs in warp through an
+``x_o = x' + r ω``; plus the optional specular lobe and SAT ambient-occlusion terms.
+Alpha is ``1 - T`` along the whole ray. The preprocessing runs in warp through an
 :class:`~vtkillum.core.ambient.cache.AmbientScatteringCache`, so each edit recomputes
 only the stages it invalidates (the paper's Table 1): data or transfer function →
 SAT, ``σ̃t`` and radiance cache; radius → ``σ̃t`` and radiance cache; ``g``, albedo
@@ -27,9 +33,10 @@ every texture coordinate itself from the sample's position in the volume's local
 ====  =====================================  ==========================================
 port  image                                  contents
 ====  =====================================  ==========================================
-0     ``n_θ × n_σ × 2``, 1 component         ``L̃o(θ, r σ̃t)`` at the scene's ``g`` (both
-                                             slices equal), fetched texel by texel and
-                                             interpolated bilinearly as the gather does
+0     ``n_θ × n_σ × 2``, 1 component         ``M(θ, r σ̃t)`` (centred) or ``L̃o`` (paper)
+                                             at the scene's ``g`` (both slices equal),
+                                             fetched texel by texel and interpolated
+                                             bilinearly as the gather does
 1     data grid, 1 component                 the rendered scalar (float32)
 2     data grid, 1 component                 ambient extinction ``σ̃t`` (1/world units)
 3     radiance-cache grid, 4 components      ``L̃d,j / rgb_j`` for lights j = 0..3
@@ -98,7 +105,7 @@ from vtkillum.core.ambient.cache import AmbientScatteringCache
 from vtkillum.core.ambient.render import parse_options
 from vtkillum.core.ambient.table import PreintegrationTable, load_table
 from vtkillum.core.illumination import gradient_threshold
-from vtkillum.core.lights import DIRECTIONAL, pack_lights
+from vtkillum.core.lights import DIRECTIONAL, pack_lights, resolved_radius
 from vtkillum.core.resample import scaled_shape
 from vtkillum.core.scene import Scene
 from vtkillum.io.convert import add_point_array, image_like, volume_from_image_data
@@ -117,7 +124,7 @@ OPTICS_ROW = 64
 #: Options taken from the scene's ``ambient_scattering`` section or as keywords.
 OPTION_KEYS = ("radius", "radius_units", "radiance_cache_scale", "specular",
                "ambient_occlusion", "ambient_occlusion_strength", "early_termination",
-               "step_size", "table")
+               "step_size", "table", "gather")
 
 # --- GLSL ----------------------------------------------------------------------------------------
 # Values come back from VTK's normalised textures as mix(range.lo, range.hi, v * scale + bias),
@@ -231,23 +238,52 @@ float il_lobe(float cosTheta, float opticalRadius)
   return mix(a, b, fv);
 }
 
-// Unit direction towards light j, and its RGB irradiance at p (light_incidence).
-void il_incidence(int j, vec3 p, out vec3 toLight, out vec3 irradiance)
+// Unit direction towards light j, its distance (1e30 for directional lights) and its RGB
+// irradiance at p (light_incidence).
+void il_incidence(int j, vec3 p, out vec3 toLight, out float dist, out vec3 irradiance)
 {
   vec3 v = vec3(il_lights[4 * j + 1], il_lights[4 * j + 2], il_lights[4 * j + 3]);
   vec3 rgb = vec3(il_lightRGB[3 * j], il_lightRGB[3 * j + 1], il_lightRGB[3 * j + 2]);
   if (il_lights[4 * j] < 0.5)
   {
     toLight = -v;
+    dist = 1.0e30;
     irradiance = rgb;
   }
   else
   {
+    // Point lights are small spheres: I / max(d, r)^2 (vtkillum.core.lights).
     vec3 d = v - p;
-    float d2 = max(dot(d, d), 1.0e-12);
-    toLight = d / sqrt(d2);
-    irradiance = rgb / d2;
+    dist = max(length(d), 1.0e-20);
+    toLight = d / dist;
+    float r = max(dist, il_lightRadius[j]);
+    irradiance = rgb / (r * r);
   }
+}
+
+// Henyey-Greenstein phase function, normalised to 1 over the sphere (warp_common.hg_phase).
+float il_hg(float cosTheta)
+{
+  float denom = 1.0 + il_g * il_g - 2.0 * il_g * cosTheta;
+  return (1.0 - il_g * il_g) / (4.0 * IL_PI * denom * sqrt(denom));
+}
+
+// Transmittance of the real medium from p along w over len: equal segments no longer than the
+// sample spacing, each sampled at its midpoint (gather.segment_transmittance, xi = 0.5).
+float il_segmentTransmittance(vec3 p, vec3 w, float len)
+{
+  if (len <= 0.0)
+  {
+    return 1.0;
+  }
+  int n = int(ceil(len / il_step));
+  float h = len / float(n);
+  float tau = 0.0;
+  for (int q = 0; q < n; ++q)
+  {
+    tau += il_sigmaAt(p + (float(q) + 0.5) * h * w);
+  }
+  return exp(-tau * h);
 }
 
 // Central-difference gradient facing the viewer, or 0 where it vanishes (gather.view_normal).
@@ -301,35 +337,68 @@ SHADER_IMPL = """
         for (int j = 0; j < il_numLights; ++j)
         {
           vec3 il_to;
+          float il_dist;
           vec3 il_e;
-          il_incidence(j, il_p, il_to, il_e);
+          il_incidence(j, il_p, il_to, il_dist, il_e);
           // cos(theta_j) = omega . omega_j, omega = -dir towards the camera, omega_j = -il_to
-          float il_l = il_lobe(dot(il_dir, il_to), il_tau);
+          float il_cos = dot(il_dir, il_to);
+          float il_l = il_lobe(il_cos, il_tau);  // M (centred) or L~o (paper)
+          float il_spec = 0.0;
           if (il_specular > 0.0 && dot(il_n, il_n) > 0.0)
           {
             vec3 il_h = normalize(il_to - il_dir);
-            il_l += il_specular * pow(max(dot(il_n, il_h), 0.0), il_shininess) / (4.0 * IL_PI);
+            il_spec = il_specular * pow(max(dot(il_n, il_h), 0.0), il_shininess) / (4.0 * IL_PI);
           }
-          // distributed light at x_j = x' - r omega_j, the point where light j enters the sphere
-          float il_f = il_cache(il_p + il_radius * il_to)[j];
           vec3 il_rgb = vec3(il_lightRGB[3 * j], il_lightRGB[3 * j + 1], il_lightRGB[3 * j + 2]);
-          il_light += (il_l * il_f) * il_rgb;
+          if (il_centred != 0)
+          {
+            // x_j = x' + r omega_l (not past a point light); the unscattered part reaches x'
+            // through the real medium
+            float il_seg = min(il_radius, il_dist);
+            float il_f = il_cache(il_p + il_seg * il_to)[j];
+            float il_direct = il_segmentTransmittance(il_p, il_to, il_seg);
+            il_light += (((il_hg(il_cos) + il_spec) * il_direct + il_l) * il_f) * il_rgb;
+          }
+          else
+          {
+            // distributed light at x_j = x' - r omega_j, the point where light j enters the sphere
+            float il_f = il_cache(il_p + il_radius * il_to)[j];
+            il_light += ((il_l + il_spec) * il_f) * il_rgb;
+          }
           il_eSum += il_e;
         }
         if (il_ambientOcclusion > 0.0)
         {
           il_light += (il_ambientOcclusion * exp(-il_tau) / (4.0 * IL_PI)) * il_eSum;
         }
-        il_radiance += (il_transOut * il_step * il_albedo * il_sig) * il_opt.rgb * il_light;
+        if (il_centred != 0)
+        {
+          il_radiance += (il_trans * (1.0 - exp(-il_sig * il_step)) * il_albedo) * il_opt.rgb *
+            il_light;
+        }
+        else
+        {
+          il_radiance += (il_transOut * il_step * il_albedo * il_sig) * il_opt.rgb * il_light;
+        }
       }
       il_trans *= exp(-il_sig * il_step);
-      if (dot(il_p - il_cam, il_dir) - il_radius > 0.0)
+      if (il_centred != 0)
       {
-        il_transOut *= exp(-il_sigmaAt(il_p - il_radius * il_dir) * il_step);
+        if (il_trans < il_stopTransmittance)
+        {
+          g_exit = true;
+        }
       }
-      if (il_transOut < il_stopTransmittance)
+      else
       {
-        g_exit = true;
+        if (dot(il_p - il_cam, il_dir) - il_radius > 0.0)
+        {
+          il_transOut *= exp(-il_sigmaAt(il_p - il_radius * il_dir) * il_step);
+        }
+        if (il_transOut < il_stopTransmittance)
+        {
+          g_exit = true;
+        }
       }
     }
 """
@@ -364,7 +433,7 @@ class AmbientScatteringVolume(vtkMultiVolume):
     **options
         Override the scene's ``ambient_scattering`` section: ``radius``,
         ``radius_units``, ``radiance_cache_scale``, ``specular``, ``ambient_occlusion``,
-        ``ambient_occlusion_strength``; and ``early_termination`` (0.999),
+        ``ambient_occlusion_strength``, ``gather``; and ``early_termination`` (0.999),
         ``step_size`` (world units) and ``table`` (a
         :class:`~vtkillum.core.ambient.table.PreintegrationTable`), as for
         ``render(..., method="ambient-scattering")``.
@@ -659,7 +728,8 @@ class AmbientScatteringInputs(VTKPythonAlgorithmBase):
         recomputed = set(state.recomputed)
 
         # Table slice at g: the pipeline output (re-made on every execution, it is small).
-        slice_ = np.asarray(state.table_slice.numpy(), dtype=np.float32)
+        table_slice = state.scattered_slice if opts["gather"] == "centred" else state.table_slice
+        slice_ = np.asarray(table_slice.numpy(), dtype=np.float32)
         out.ShallowCopy(_stretched_image(volume, slice_.shape + (2,)))
         add_point_array(out, "ambient_table", np.repeat(slice_[:, :, None], 2, axis=2),
                         set_active=True)
@@ -695,6 +765,8 @@ class AmbientScatteringInputs(VTKPythonAlgorithmBase):
         u.SetUniformf("il_radius", float(state.radius))
         u.SetUniformf("il_sigmaMax", float(table.sigma_max))
         u.SetUniformf("il_albedo", float(scene.albedo))
+        u.SetUniformf("il_g", float(scene.anisotropy))
+        u.SetUniformi("il_centred", int(opts["gather"] == "centred"))
         u.SetUniformf("il_tableLo", float(medium.table_lo))
         u.SetUniformf("il_tableScale", float(medium.table_scale))
         u.SetUniformi("il_tableSize", int(medium.sigma_table.shape[0]))
@@ -712,6 +784,9 @@ class AmbientScatteringInputs(VTKPythonAlgorithmBase):
         u.SetUniformi("il_numLights", len(kinds))
         u.SetUniform1fv("il_lights", 4 * MAX_LIGHTS, packed.reshape(-1).tolist())
         u.SetUniform1fv("il_lightRGB", 3 * MAX_LIGHTS, colours.reshape(-1).tolist())
+        radii = np.zeros(MAX_LIGHTS, dtype=np.float64)
+        radii[: len(kinds)] = [resolved_radius(light, volume) for light in lights]
+        u.SetUniform1fv("il_lightRadius", MAX_LIGHTS, radii.tolist())
 
 
 # --- host helpers ------------------------------------------------------------------------------

@@ -35,8 +35,10 @@ from vtkillum.core.render import METHODS, RenderResult, render
 from vtkillum.core.scene import Scene
 from vtkillum.core.tonemap import tonemap
 from vtkillum.core.volume import Volume
-from vtkillum.io.convert import point_array, volume_from_image_data
+from vtkillum.io.convert import volume_from_image_data
+from vtkillum.io.illumination_arrays import illumination_from_image, lights_from_field
 from vtkillum.mappers.camera_bridge import camera_from_vtk
+from vtkillum.mappers.inputs import check_covers
 
 #: The method rendered progressively.
 PROGRESSIVE = "path"
@@ -57,7 +59,13 @@ class ComputeVolumeRenderer:
     method : str
         A registered method name (see :data:`vtkillum.core.render.METHODS`).
     illumination : IlluminationVolume, ndarray or vtkImageData, optional
-        The fluence for ``method="illumination"`` (image data: its ``fluence`` point array).
+        The illumination volume for ``method="illumination"``: per-light transmittance
+        (the direct light, shaded with the phase function) and scattered fluence; an
+        ``(nx, ny, nz, 3)`` array is a scattered fluence; image data are read with
+        :func:`vtkillum.io.illumination_arrays.illumination_from_image` (``transmittance``
+        and ``scattered_fluence``, or only ``fluence``) and, when they carry the lights
+        (field data ``vtkillum_lights``), are rendered with those lights instead of the
+        scene's.
     device : str, optional
         Warp device.
     exposure, gamma : float
@@ -98,6 +106,7 @@ class ComputeVolumeRenderer:
         if not 0.0 < self.resolution_scale <= 1.0:
             raise ValueError(f"resolution_scale must lie in (0, 1], got {resolution_scale}")
         self.illumination = None
+        self._illumination_lights = None
         self.set_illumination(illumination)
         self.method = None
         self.options: dict = {}
@@ -149,25 +158,40 @@ class ComputeVolumeRenderer:
         self.invalidate()
 
     def set_illumination(self, illumination) -> None:
-        """The fluence for ``illumination``: IlluminationVolume, array or image data."""
+        """The illumination volume for ``illumination``: IlluminationVolume, array or image data.
+
+        Image data that carry lights (``vtkillum_lights``) bring them along: they replace
+        the scene's lights while this illumination is set (see :attr:`lights`).
+        """
+        lights = None
         if illumination is None:
-            self.illumination = None
+            volume = None
         elif isinstance(illumination, IlluminationVolume):
             illumination.check_matches(self.volume)
-            self.illumination = illumination
+            volume = illumination
         elif isinstance(illumination, np.ndarray):
-            self.illumination = IlluminationVolume.for_volume(self.volume, illumination)
+            volume = IlluminationVolume.for_volume(self.volume, illumination)
         elif isinstance(illumination, vtkImageData):
-            fluence = point_array(illumination, "fluence")
-            if fluence.ndim == 3:
-                fluence = np.repeat(fluence[..., None], 3, axis=-1)
-            self.illumination = IlluminationVolume.for_volume(self.volume, fluence)
+            check_covers(illumination, self.volume)
+            volume = illumination_from_image(illumination, self.volume)
+            lights = lights_from_field(illumination)
+            volume.check_matches(self.volume, lights)
         else:
             raise TypeError(
                 "illumination must be an IlluminationVolume, an (nx, ny, nz, 3) array or image "
-                f"data with a 'fluence' point array, got {type(illumination).__name__}"
+                "data with illumination arrays (transmittance / scattered_fluence or fluence), "
+                f"got {type(illumination).__name__}"
             )
+        self.illumination = volume
+        self._illumination_lights = lights
         self.invalidate()
+
+    @property
+    def lights(self) -> list:
+        """The lights rendered: the illumination image's when it carries them, else the scene's."""
+        if self._illumination_lights:
+            return list(self._illumination_lights)
+        return list(self.scene.lights)
 
     def invalidate(self) -> None:
         """Forget the image shown: the next render of the renderer recomputes it."""
@@ -192,7 +216,7 @@ class ComputeVolumeRenderer:
         """Image size ``(width, height)``: the renderer's size times ``resolution_scale``."""
         w, h = self.renderer.GetSize()
         s = self.resolution_scale
-        return max(1, int(round(w * s))), max(1, int(round(h * s)))
+        return max(1, round(w * s)), max(1, round(h * s))
 
     def update(self) -> bool:
         """Re-render if the camera, the viewport size or the configuration changed.
@@ -210,6 +234,7 @@ class ComputeVolumeRenderer:
             return False
         scene = copy.copy(self.scene)
         scene.camera = camera
+        scene.lights = self.lights
         if self.method == PROGRESSIVE:
             if self._tracer is None or (self._tracer.width, self._tracer.height) != (width, height):
                 from vtkillum.core.pathtrace import PathTracer

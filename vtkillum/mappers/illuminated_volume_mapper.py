@@ -1,51 +1,126 @@
 """OpenGL ray casting shaded by an illumination volume, inside any VTK render window.
 
-:class:`IlluminatedVolume` is a ``vtkVolume`` (so ``renderer.AddVolume(v)`` and
+:class:`IlluminatedVolume` is a ``vtkMultiVolume`` (so ``renderer.AddVolume(v)`` and
 pyvista's ``plotter.add_actor(v)`` take it) whose ``vtkOpenGLGPUVolumeRayCastMapper``
 composites the same source term as the warp ray caster
-(:func:`vtkillum.core.raycast.render_illuminated`, Zhang & Ma 2013 eq. 24)::
+(:func:`vtkillum.core.raycast.render_illuminated`; the convention is
+:mod:`vtkillum.core.illumination`)::
 
-    per step Δ:   α = 1 - exp(-σt Δ)              (VTK's opacity-corrected table)
-                  C += T α · albedo · color(s) · φ(x) / (4π) · S(x)
-                  T *= 1 - α
+    per step Δ (world units), sample x on a ray travelling along d:
+        α  = 1 - exp(-σt(x) Δ)
+        J  = albedo · color(s) · [Σ_l p_HG(w_l · d) T_l(x) E_l(x) + φ_s(x) / 4π] · S(x)
+        C += T α J ;  T *= 1 - α
 
-which is ``T (1 - exp(-σt Δ)) / σt · σs φ / (4π) · S`` with
-``σs = albedo · color · σt``: the σt of the exact step integral cancels. ``S`` is
-the Phong factor of :mod:`vtkillum.core.illumination` (two-sided normal from
-central differences one voxel apart, mean over the scene's lights, ``S = ka + kd``
-where the gradient vanishes).
+with ``w_l`` the unit vector towards light ``l``, ``E_l`` its irradiance at the
+sample (directional: ``E``; point: ``I / max(d, r)²``, ``r`` its source radius), ``φ_s`` the isotropic scattered
+fluence and ``S`` the Phong factor (two-sided normal from central differences one
+voxel apart, mean over the lights, ``S = ka + kd`` where the gradient vanishes). The
+direct light's transmittance is read the way
+:func:`vtkillum.core.raycast.cached_transmittance` reads it::
 
-How the fluence reaches the shader
-----------------------------------
-The fluence rides along as three extra components of the mapper's input: a small
-pipeline stage, :class:`ScalarFluenceImage`, stacks the rendered scalar and the RGB
-fluence (trilinearly resampled onto the data grid when it has another resolution)
-into one 4-component float image, and the volume property renders it with
-independent components. VTK uploads, normalises and interpolates that texture
-itself, re-uploads it whenever the pipeline re-executes (new data, a new time step,
-an edited fluence, a new illumination source) and owns its OpenGL lifetime, so
-the volume survives its window being closed and shown in a new one (like any
-VTK GPU mapper it cannot be drawn by two live windows in turn). The
-fragment shader's composite step (``//VTK::Shading::Impl``) is replaced through the
-volume's ``vtkShaderProperty``; its parameters are custom uniforms.
-(A separate ``vtkTextureObject`` bound in an ``UpdateShaderEvent`` observer also
-works, but the observer gets no render window to create the texture in, and
-VTK 9.7 does not fire the event on a window's first frame.)
+    T_l(x) = exp(-∫_0^near σt(x + t w_l) dt) · T_grid,l(x + near w_l)
 
-Simplifications
----------------
-* The input must be point data with one component (the core's convention);
-  the data are not split into texture blocks (``vtkVolumeTexture`` partitions
-  are not supported).
-* The mapper's sampling follows VTK: samples start one step inside the volume's
-  box (not on the entry face as in the warp caster), rays stop at alpha
-  ``1 - 1/255``, opacity comes from VTK's 1D table of the corrected opacity.
-* Memory: the combined image holds 4 float32 per voxel (16 bytes), on the CPU and
-  on the GPU, whatever the fluence's own resolution.
-* The fluence is resampled onto the data grid on the CPU when resolutions differ;
-  the GPU then interpolates that, which equals trilinear interpolation of the
-  coarse grid exactly where the fine points sit on coarse cell boundaries and
-  closely elsewhere.
+``near = near_cells ×`` the largest spacing of the transmittance grid (capped at the
+light's distance), the integral marched exactly on the data (midpoint rule, segments
+no longer than Δ), the grid read only where ``x + near w_l`` lies in the box and
+before the light. Reading the grid one or two cells towards the light instead of at
+``x`` keeps its interpolation from mixing points in front of and behind a sharp
+surface (concentric rings and bands); the short exact march resolves the surface.
+
+How the data reach the shader
+-----------------------------
+Five inputs of one ``vtkMultiVolume`` (each a texture VTK uploads, re-uploads when
+its image is modified, and owns, so the volume survives its window being closed and
+shown in a new one). All cover the data's box, but the shader computes every
+texture coordinate itself from the sample's position in the volume's local frame
+(``[0, extent]``), so each grid keeps its own resolution:
+
+====  ============================  ======================================================
+port  image                         contents
+====  ============================  ======================================================
+0     ``256 × m × 2``, 1 component  the warp kernels' colour and σt tables (4096 entries,
+                                    4 texels each, interpolated linearly as they do); σt
+                                    lets the shader attenuate segments of any length
+1     data grid, 1 component        the rendered scalar (float32)
+2     transmittance grid, 4 comp.   ``T_0 .. T_3``
+3     transmittance grid, 4 comp.   ``T_4 .. T_7`` (a 2×2×2 placeholder for ≤ 4 lights)
+4     scattered grid, 4 comp.       ``φ_s`` RGB, 0 (a placeholder when there is none)
+====  ============================  ======================================================
+
+Hence :data:`MAX_LIGHTS` = 8 lights; more raise a ``ValueError`` (render them with
+the compute path, :class:`~vtkillum.mappers.ComputeVolumeRenderer`). Port 0 is the
+output of :class:`IlluminationInputs`, a pipeline stage with the data on input 0
+and the illumination on input 1 (optional); ports 1–4 are images it keeps and
+refreshes only when their source changed (new data, a new illumination output, a
+time step, ``array.Modified()``), so a transfer-function or light edit re-uploads
+only the small table. Light directions, colours and all other parameters are
+custom uniforms of the volume's ``vtkShaderProperty`` (see :data:`UNIFORMS`).
+
+The lights: an illumination image that carries the field array ``vtkillum_lights``
+(every vtkillum illumination filter writes it; :mod:`vtkillum.io.illumination_arrays`)
+is shaded with those lights, the ones its transmittance channels belong to; otherwise
+the scene's lights are used, and a transmittance must have one channel per scene
+light. :attr:`IlluminatedVolume.lights` tells which.
+
+GLSL for reuse (e.g. in ParaView's volume representation)
+---------------------------------------------------------
+The shader is four string constants; only the first depends on how the data are
+laid out in textures (all names start with ``il_``):
+
+* :data:`GLSL_LAYOUT_DEC` (format it with :func:`glsl_layout_dec`) -- this mapper's
+  fetches: ``il_toLocal(w)`` / ``il_dirToLocal(w)`` (world to the local frame),
+  ``il_scalar(p)`` (data value at local position ``p``), ``il_sigmaT(s)`` and
+  ``il_optics(s)`` (σt; colour and σt of data value ``s``),
+  ``il_gridTransmittance(l, p)`` and ``il_scatteredFluence(p)``. Another host (e.g.
+  one 4-component input holding scalar and φ_s, or its own textures bound in an
+  ``UpdateShaderEvent`` observer) provides the same functions for its textures.
+* :data:`GLSL_SHADING_DEC` -- the convention, written only in terms of those
+  functions and the uniforms of :data:`UNIFORMS`: HG phase, light incidence, the
+  exact near-field march, the cached transmittance, the Phong factor and
+  ``il_source(p, d, color)`` (``J / σt``). Declares the per-ray globals ``il_dir``
+  and ``il_step``.
+* :data:`GLSL_RAY_INIT` -- per ray (``//VTK::Shading::Init``): ray direction and step
+  in the local frame from VTK's ``g_dirStep``, first-sample offset (``il_jitter``).
+* :data:`GLSL_SAMPLE` -- per sample (``//VTK::Shading::Impl``): classification,
+  source, front-to-back compositing into ``g_fragColor`` (premultiplied), so VTK's
+  early termination at alpha ``1 - 1/255`` applies.
+
+:func:`shading_uniforms` computes the uniform values for a volume, scene and lights and
+:func:`set_uniforms` writes them to a ``vtkUniforms`` (``il_exposure`` and
+``il_jitter`` come from the volume's :attr:`~IlluminatedVolume.exposure` and
+:attr:`~IlluminatedVolume.jitter`).
+
+Tolerance vs the warp caster
+----------------------------
+``tests/rendering/test_mappers.py`` compares 64² renders, 8-bit read back, of the
+mapper with ``jitter=False`` and ``render_illuminated(..., jitter=False,
+early_termination=1 - 1/255)``: mean abs difference below 3e-3 of the reference's
+maximum and 99th percentile below 1.2e-2, for directional and point lights, one and two
+lights, g = 0.3, ±0.6, a pipeline input at half resolution and a sharp sphere with a
+half-resolution light grid. Measured: 3e-4 to 7.5e-4 mean and 2.4e-3 99th percentile
+in every case, which is the 8-bit read-back alone (the quantised warp image and the
+OpenGL image agree to 1e-6; every pixel lies within half an 8-bit level of the warp
+radiance); the per-case values are in that module's docstring.
+
+Simplifications and limits
+--------------------------
+* Samples lie at ``t0 + (k + ξ) Δ`` from the box entry, ``ξ`` a per-pixel hash in
+  [0, 1) by default (``jitter=True``, like the warp caster's default: deterministic steps
+  through a sharp surface show wood-grain rings, jitter turns them into noise) or 1/2
+  with ``jitter=False`` (the warp caster with ``jitter=False``, what the tests compare).
+  The hash is not the warp caster's random stream, so jittered images agree with it
+  only on average. VTK's own ``UseJittering`` (a tiled noise texture) is off.
+* Grids are interpolated by the texture unit (trilinear, clamped to the box as the
+  warp samplers; GPUs may use 8-bit interpolation weights).
+* Input: point data with one component (the core's convention), not split into
+  texture blocks; the volume's own transform (``SetPosition``, ``SetUserMatrix``)
+  must stay the identity: place the data with the image's origin, spacing and
+  direction. Cropping, clipping planes and depth peeling are not supported
+  (``vtkMultiVolume`` restrictions).
+* Memory (GPU and CPU): 4 bytes per data point (the float32 scalar), 16 per
+  transmittance-grid point per 4 lights, 16 per scattered-grid point.
+* Texture units: 5 volumes plus VTK's colour and opacity tables of each and the depth
+  buffer (16); implementations with fewer fragment texture units cannot draw it.
 """
 
 from __future__ import annotations
@@ -54,58 +129,305 @@ import math
 
 import numpy as np
 import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (OpenGL factory overrides)
+from vtkmodules.util.numpy_support import numpy_to_vtk
 from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
 from vtkmodules.vtkCommonCore import vtkOutputWindow
 from vtkmodules.vtkCommonDataModel import vtkImageData
 from vtkmodules.vtkCommonExecutionModel import vtkAlgorithm
 from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
 from vtkmodules.vtkRenderingCore import vtkVolume, vtkVolumeProperty
+from vtkmodules.vtkRenderingVolume import vtkMultiVolume
 from vtkmodules.vtkRenderingVolumeOpenGL2 import vtkOpenGLGPUVolumeRayCastMapper
 
-from vtkillum.core.illumination import GRADIENT_EPS, IlluminationVolume, shading_terms
-from vtkillum.core.lights import DIRECTIONAL, pack_lights
-from vtkillum.core.resample import resample_points
+from vtkillum.core.illumination import IlluminationVolume, gradient_threshold, shading_terms
+from vtkillum.core.lights import DIRECTIONAL, pack_lights, resolved_radius
 from vtkillum.core.scene import Scene
+from vtkillum.core.transfer_function import TABLE_SIZE
 from vtkillum.core.volume import Volume
-from vtkillum.io.convert import (
-    add_point_array,
-    direction_matrix,
-    first_point,
-    point_array,
-    volume_from_image_data,
-)
+from vtkillum.io.convert import add_point_array, image_like, volume_from_image_data
+from vtkillum.io.illumination_arrays import illumination_from_image, lights_from_field
 from vtkillum.mappers.camera_bridge import GridSummary, apply_scene_to_volume_property
-from vtkillum.mappers.inputs import connect_input, rendered_point_array
+from vtkillum.mappers.inputs import check_covers, connect_input, rendered_point_array
 
-#: Name of the 4-component (scalar, fluence R, G, B) array handed to the mapper.
-COMBINED_ARRAY = "vtkillum_scalar_fluence"
-
-#: Name of the fluence array in illumination filter outputs.
-FLUENCE_ARRAY = "fluence"
-
-#: Lights the shader takes (each as kind, x, y, z in a float array uniform).
+#: Lights the shader takes: two 4-channel transmittance textures.
 MAX_LIGHTS = 8
 
-# --- GLSL ----------------------------------------------------------------------------------------
-# Declarations: placed before the transfer-function helpers; the tag is kept for VTK's own code.
-SHADER_DEC = """//VTK::Shading::Dec
-// vtkillum: illumination-volume shading (vtkillum/mappers/illuminated_volume_mapper.py)
-#define IL_MAX_LIGHTS %(max_lights)d
-const float IL_GRADIENT_EPS = %(gradient_eps).9g;
-vec3 il_voxel;                 // one voxel in texture coordinates
-vec3 il_texToLocal;            // texture-coordinate offset -> local-frame length (dims * spacing)
-vec3 il_view;                  // unit vector towards the camera (local frame)
-vec3 il_light[IL_MAX_LIGHTS];  // directional: unit vector towards the light; point: position
-int il_kind[IL_MAX_LIGHTS];
+#: Default near-field march in transmittance-grid cells; equals
+#: ``vtkillum.core.raycast.RAYCAST_OPTIONS["near_cells"]`` (kept here so that the OpenGL
+#: path imports no warp; a test checks they agree).
+NEAR_CELLS = 2.0
 
-float il_scalar(vec3 tc)
-{
-  // Normalised data value (0..1 over the data range), as the transfer-function tables use.
-  return texture3D(in_volume[0], tc).r * in_volume_scale[0].r + in_volume_bias[0].r;
+#: Ports of the mapper (= indices of ``in_volume[]`` in the shader).
+OPTICS_PORT, DATA_PORT, DIRECT_PORT_A, DIRECT_PORT_B, SCATTERED_PORT = range(5)
+
+#: Entries per row of the optics image (the 4096-entry tables are stored as 64 × 64).
+OPTICS_ROW = 64
+
+#: The custom uniforms the GLSL reads (all in the volume's local frame, world units).
+UNIFORMS = {
+    "il_origin": "vec3: the data's first point (world)",
+    "il_axis0": "vec3: first column of the data's direction matrix (world -> local)",
+    "il_axis1": "vec3: second column",
+    "il_axis2": "vec3: third column",
+    "il_extent": "vec3: size of the box, (dims - 1) * spacing",
+    "il_spacing": "vec3: data spacing (central differences of the Phong normal)",
+    "il_tableLo": "float: data value of optics-table entry 0",
+    "il_tableScale": "float: table entries per data unit",
+    "il_tableSize": "int: entries of the optics table",
+    "il_albedo": "float: single-scattering albedo",
+    "il_g": "float: Henyey-Greenstein anisotropy",
+    "il_exposure": "float: factor on the radiance written to the frame buffer",
+    "il_shading": "vec4: ka, kd, ks, shininess (illumination.py)",
+    "il_gradEps": "float: gradient magnitude below which there is no normal (data units/world)",
+    "il_numLights": "int: lights (Phong directions)",
+    "il_numDirect": "int: lights with a transmittance channel (0: no direct light)",
+    "il_lights": "float[4 * MAX_LIGHTS]: per light kind (0 directional, 1 point), then the "
+                 "travel direction or the position (local)",
+    "il_lightRGB": "float[3 * MAX_LIGHTS]: per light RGB irradiance or intensity",
+    "il_lightRadius": "float[MAX_LIGHTS]: source radius of point lights (irradiance "
+                      "I / max(d, r)^2; vtkillum.core.lights.resolved_radius)",
+    "il_near": "float: length of the exact near-field march (world units)",
+    "il_hasScattered": "int: 1 when a scattered fluence is bound",
+    "il_jitter": "int: 0 samples at step midpoints; n > 0 jitters the first sample per pixel "
+                 "(n seeds the hash)",
 }
 
-// Phong factor S = ka + kd mean|n.l| + ks mean max(n.h, 0)^shininess (illumination.py).
-float il_phong(vec3 tc)
+# --- GLSL ----------------------------------------------------------------------------------------
+# Layout: where this mapper keeps its data. Values come back from VTK's normalised textures
+# as mix(range.lo, range.hi, v * scale + bias), with in_scalarsRange indexed 4 * port + c.
+GLSL_LAYOUT_DEC = """//VTK::Shading::Dec
+// vtkillum: illumination-volume shading (vtkillum/mappers/illuminated_volume_mapper.py)
+// --- layout: this mapper's textures (another host replaces this block) ---
+#define IL_MAX_LIGHTS %(max_lights)d
+
+// World position -> the volume's local frame [0, il_extent].
+vec3 il_toLocal(vec3 w)
+{
+  vec3 q = w - il_origin;
+  return vec3(dot(q, il_axis0), dot(q, il_axis1), dot(q, il_axis2));
+}
+
+vec3 il_dirToLocal(vec3 w)
+{
+  return vec3(dot(w, il_axis0), dot(w, il_axis1), dot(w, il_axis2));
+}
+
+// Texture coordinate of local position p on a point-centred grid of n points over
+// [0, extent] (clamped to the box, like the warp samplers).
+vec3 il_gridTex(vec3 p, vec3 n)
+{
+  return (clamp(p / il_extent, 0.0, 1.0) * (n - 1.0) + 0.5) / n;
+}
+
+// A value from VTK's texture of port `port`, component c: VTK either normalises it
+// (v * scale + bias in [0, 1] over in_scalarsRange) or leaves it raw (scale 1, bias 0).
+float il_unpack(float texel, float scale, float bias, vec2 range)
+{
+  float v = texel * scale + bias;
+  return (scale == 1.0 && bias == 0.0) ? v : mix(range.x, range.y, v);
+}
+
+// Data value (data units) at local position p, trilinear.
+float il_scalar(vec3 p)
+{
+  vec3 n = vec3(textureSize(in_volume[%(data)d], 0));
+  return il_unpack(texture3D(in_volume[%(data)d], il_gridTex(p, n)).r,
+                   in_volume_scale[%(data)d].r, in_volume_bias[%(data)d].r,
+                   in_scalarsRange[%(data4)d]);
+}
+
+// Component c (0-2 colour, 3 sigma_t) of optics-table entry i; entry i's four values sit
+// at x = 4 (i %% OPTICS_ROW) + c, y = i / OPTICS_ROW of a one-component image.
+float il_opticsValue(int i, int c)
+{
+  int w = textureSize(in_volume[%(opt)d], 0).x / 4;
+  return il_unpack(texelFetch(in_volume[%(opt)d], ivec3(4 * (i %% w) + c, i / w, 0), 0).r,
+                   in_volume_scale[%(opt)d].r, in_volume_bias[%(opt)d].r,
+                   in_scalarsRange[%(opt4)d]);
+}
+
+// Continuous table index of data value s (clamped: constant outside the table).
+float il_tableCoord(float s)
+{
+  return clamp((s - il_tableLo) * il_tableScale, 0.0, float(il_tableSize - 1));
+}
+
+// sigma_t (1/world units) of data value s: linear between table entries (lookup_sigma_t).
+float il_sigmaT(float s)
+{
+  float x = il_tableCoord(s);
+  int i = min(int(x), il_tableSize - 2);
+  return mix(il_opticsValue(i, 3), il_opticsValue(i + 1, 3), x - float(i));
+}
+
+// Colour (rgb) and sigma_t (a) of data value s (lookup_color, lookup_sigma_t).
+vec4 il_optics(float s)
+{
+  float x = il_tableCoord(s);
+  int i = min(int(x), il_tableSize - 2);
+  vec4 a = vec4(il_opticsValue(i, 0), il_opticsValue(i, 1), il_opticsValue(i, 2),
+                il_opticsValue(i, 3));
+  vec4 b = vec4(il_opticsValue(i + 1, 0), il_opticsValue(i + 1, 1), il_opticsValue(i + 1, 2),
+                il_opticsValue(i + 1, 3));
+  return mix(a, b, x - float(i));
+}
+
+// Light l's cached transmittance T_grid,l at local position p, trilinear.
+float il_gridTransmittance(int l, vec3 p)
+{
+  if (l < 4)
+  {
+    vec3 n = vec3(textureSize(in_volume[%(ta)d], 0));
+    return il_unpack(texture3D(in_volume[%(ta)d], il_gridTex(p, n))[l],
+                     in_volume_scale[%(ta)d][l], in_volume_bias[%(ta)d][l],
+                     in_scalarsRange[%(ta4)d + l]);
+  }
+  int c = l - 4;
+  vec3 n = vec3(textureSize(in_volume[%(tb)d], 0));
+  return il_unpack(texture3D(in_volume[%(tb)d], il_gridTex(p, n))[c],
+                   in_volume_scale[%(tb)d][c], in_volume_bias[%(tb)d][c],
+                   in_scalarsRange[%(tb4)d + c]);
+}
+
+// Scattered fluence phi_s (RGB) at local position p, trilinear.
+vec3 il_scatteredFluence(vec3 p)
+{
+  vec3 n = vec3(textureSize(in_volume[%(sc)d], 0));
+  vec4 t = texture3D(in_volume[%(sc)d], il_gridTex(p, n));
+  return vec3(
+    il_unpack(t.x, in_volume_scale[%(sc)d].x, in_volume_bias[%(sc)d].x, in_scalarsRange[%(sc4)d]),
+    il_unpack(t.y, in_volume_scale[%(sc)d].y, in_volume_bias[%(sc)d].y,
+              in_scalarsRange[%(sc4)d + 1]),
+    il_unpack(t.z, in_volume_scale[%(sc)d].z, in_volume_bias[%(sc)d].z,
+              in_scalarsRange[%(sc4)d + 2]));
+}
+"""
+
+# The convention (vtkillum.core.illumination, raycast.cached_direct_light, phong_factor):
+# depends only on the five layout functions above and the uniforms of UNIFORMS.
+GLSL_SHADING_DEC = """
+// --- shading: the phase-aware illumination-volume convention (host independent) ---
+#define IL_PI 3.14159265358979
+vec3 il_dir;    // unit ray direction, local frame (set per ray)
+float il_step;  // sample spacing, world units (set per ray)
+
+// Henyey-Greenstein, normalised to 1 over the sphere (warp_common.hg_phase).
+float il_hg(float cosTheta, float g)
+{
+  float denom = 1.0 + g * g - 2.0 * g * cosTheta;
+  return (1.0 - g * g) / (4.0 * IL_PI * denom * sqrt(denom));
+}
+
+// Unit vector from p towards light l, its distance (1e30: directional) and the RGB
+// irradiance at p: E, or I / max(d, r)^2 for a point light of source radius r
+// (warp_common.light_incidence).
+void il_incidence(int l, vec3 p, out vec3 toLight, out float dist, out vec3 irradiance)
+{
+  vec3 v = vec3(il_lights[4 * l + 1], il_lights[4 * l + 2], il_lights[4 * l + 3]);
+  vec3 rgb = vec3(il_lightRGB[3 * l], il_lightRGB[3 * l + 1], il_lightRGB[3 * l + 2]);
+  if (il_lights[4 * l] < 0.5)
+  {
+    toLight = -v;
+    dist = 1.0e30;
+    irradiance = rgb;
+  }
+  else
+  {
+    vec3 d = v - p;
+    dist = max(length(d), 1.0e-20);
+    toLight = d / dist;
+    float r = max(dist, il_lightRadius[l]);
+    irradiance = rgb / (r * r);
+  }
+}
+
+// Distance from p (inside the box) along unit w to the box's exit.
+float il_boxExit(vec3 p, vec3 w)
+{
+  float t1 = 1.0e30;
+  for (int a = 0; a < 3; ++a)
+  {
+    if (abs(w[a]) >= 1.0e-12)
+    {
+      float ta = -p[a] / w[a];
+      float tb = (il_extent[a] - p[a]) / w[a];
+      t1 = min(t1, max(ta, tb));
+    }
+  }
+  return t1;
+}
+
+// exp(-integral of sigma_t) from p along unit w over min(dist, box exit): equal segments
+// no longer than il_step, each sampled at fraction xi (warp_common.shadow_transmittance).
+float il_shadowMarch(vec3 p, vec3 w, float dist, float xi)
+{
+  float len = min(il_boxExit(p, w), dist);
+  if (len <= 0.0)
+  {
+    return 1.0;
+  }
+  int n = int(ceil(len / il_step));
+  float h = len / float(n);
+  float tau = 0.0;
+  for (int k = 0; k < n; ++k)
+  {
+    tau += il_sigmaT(il_scalar(p + ((float(k) + xi) * h) * w));
+  }
+  return exp(-tau * h);
+}
+
+// T_l(p): exact over the first il_near towards the light, then the grid
+// (raycast.cached_transmittance).
+float il_cachedTransmittance(int l, vec3 p, vec3 w, float dist)
+{
+  float near = min(il_near, dist);
+  float t = 1.0;
+  if (near > 0.0)
+  {
+    t = il_shadowMarch(p, w, near, 0.5);
+  }
+  vec3 q = p + near * w;
+  if (near < dist && all(greaterThanEqual(q, vec3(0.0))) && all(lessThanEqual(q, il_extent)))
+  {
+    t *= il_gridTransmittance(l, q);
+  }
+  return t;
+}
+
+// sum_l p_HG(w_l . d) T_l(p) E_l(p) for a ray travelling along d (raycast.cached_direct_light).
+vec3 il_directLight(vec3 p, vec3 d)
+{
+  vec3 acc = vec3(0.0);
+  for (int l = 0; l < il_numDirect; ++l)
+  {
+    vec3 w;
+    float dist;
+    vec3 e;
+    il_incidence(l, p, w, dist, e);
+    acc += (il_hg(dot(w, d), il_g) * il_cachedTransmittance(l, p, w, dist)) * e;
+  }
+  return acc;
+}
+
+// Unit data gradient facing the viewer, or 0 where it vanishes (warp_common.view_normal).
+vec3 il_normal(vec3 p, vec3 d)
+{
+  vec3 sp = il_spacing;
+  vec3 grad = vec3(
+    (il_scalar(p + vec3(sp.x, 0.0, 0.0)) - il_scalar(p - vec3(sp.x, 0.0, 0.0))) / (2.0 * sp.x),
+    (il_scalar(p + vec3(0.0, sp.y, 0.0)) - il_scalar(p - vec3(0.0, sp.y, 0.0))) / (2.0 * sp.y),
+    (il_scalar(p + vec3(0.0, 0.0, sp.z)) - il_scalar(p - vec3(0.0, 0.0, sp.z))) / (2.0 * sp.z));
+  float glen = length(grad);
+  if (glen <= il_gradEps)
+  {
+    return vec3(0.0);
+  }
+  vec3 n = grad / glen;
+  return dot(n, d) > 0.0 ? -n : n;
+}
+
+// S = ka + kd mean|n.w_l| + ks mean max(n.h_l, 0)^shininess (raycast.phong_factor).
+float il_phong(vec3 p, vec3 d)
 {
   float ka = il_shading.x;
   float kd = il_shading.y;
@@ -114,31 +436,21 @@ float il_phong(vec3 tc)
   {
     return ka;
   }
-  vec3 sp = in_cellSpacing[0];
-  vec3 grad = vec3(
-    il_scalar(tc + vec3(il_voxel.x, 0.0, 0.0)) - il_scalar(tc - vec3(il_voxel.x, 0.0, 0.0)),
-    il_scalar(tc + vec3(0.0, il_voxel.y, 0.0)) - il_scalar(tc - vec3(0.0, il_voxel.y, 0.0)),
-    il_scalar(tc + vec3(0.0, 0.0, il_voxel.z)) - il_scalar(tc - vec3(0.0, 0.0, il_voxel.z))
-  ) / (2.0 * sp);
-  float glen = length(grad);
-  // Normalised units: the data range is 1, so the threshold is GRADIENT_EPS / min spacing.
-  if (glen <= IL_GRADIENT_EPS / min(sp.x, min(sp.y, sp.z)))
+  vec3 n = il_normal(p, d);
+  if (dot(n, n) == 0.0)
   {
     return ka + kd;
   }
-  vec3 n = grad / glen;
-  if (dot(n, il_view) < 0.0)
-  {
-    n = -n;
-  }
-  vec3 p = (tc - in_texMin[0]) * il_texToLocal;
   float diff = 0.0;
   float spec = 0.0;
-  for (int i = 0; i < il_numLights; ++i)
+  for (int l = 0; l < il_numLights; ++l)
   {
-    vec3 l = il_kind[i] == 0 ? il_light[i] : normalize(il_light[i] - p);
-    diff += abs(dot(n, l));
-    vec3 h = l + il_view;
+    vec3 w;
+    float dist;
+    vec3 e;
+    il_incidence(l, p, w, dist, e);
+    diff += abs(dot(n, w));
+    vec3 h = w - d;
     float hlen = length(h);
     if (hlen > 0.0)
     {
@@ -147,60 +459,82 @@ float il_phong(vec3 tc)
   }
   return ka + (kd * diff + ks * spec) / float(il_numLights);
 }
+
+// J / sigma_t at p for a ray along d:
+// albedo color [sum_l p T_l E_l + phi_s / 4 pi] S.
+vec3 il_source(vec3 p, vec3 d, vec3 color)
+{
+  vec3 light = il_directLight(p, d);
+  if (il_hasScattered != 0)
+  {
+    light += il_scatteredFluence(p) / (4.0 * IL_PI);
+  }
+  return (il_albedo * il_phong(p, d)) * color * light;
+}
 """
 
-# Per ray, before the loop: frames and lights in the volume's local frame.
-SHADER_INIT = """//VTK::Shading::Init
-  // g_dataPos is a texel coordinate ((i + 0.5) / n at point i); the local frame spans
-  // [0, (n - 1) spacing], so a texture offset d is a local offset d * n * spacing.
-  il_voxel = (in_texMax[0] - in_texMin[0]) * in_cellStep[0];
-  il_texToLocal = in_cellSpacing[0] / il_voxel;
-  il_view = -normalize(g_dirStep * il_texToLocal);
+# Per ray, before the loop (//VTK::Shading::Init; the tag is kept for VTK's own code).
+# g_dataPos is in the texture coordinates of the multi-volume's box; VTK starts one step
+# (g_rayJitter = g_dirStep with VTK's jittering off) inside it. The first sample goes to
+# fraction xi of the first step: 1/2 (the warp caster's jitter=False), or with il_jitter a
+# per-pixel hash in [0, 1) (pcg2d, Jarzynski & Olano 2020), which turns the rings of
+# deterministic steps through sharp surfaces into noise without repeating per tile.
+GLSL_RAY_INIT = """//VTK::Shading::Init
   {
-    mat4 il_worldToTex = in_cellToPoint[0] *
-      inverse(in_volumeMatrix[0] * in_textureDatasetMatrix[0]);
-    for (int i = 0; i < il_numLights; ++i)
+    mat4 il_texToWorld = in_volumeMatrix[0] * in_textureDatasetMatrix[0];
+    vec3 il_stepWorld = (il_texToWorld * vec4(g_dirStep, 0.0)).xyz;
+    il_step = length(il_stepWorld);
+    il_dir = il_dirToLocal(il_stepWorld / il_step);
+    float il_xi = 0.5;
+    if (il_jitter != 0)
     {
-      vec3 v = vec3(il_lights[4 * i + 1], il_lights[4 * i + 2], il_lights[4 * i + 3]);
-      il_kind[i] = int(il_lights[4 * i] + 0.5);
-      if (il_kind[i] == 0)
-      {
-        // travel direction (world) -> unit vector towards the light (local)
-        il_light[i] = -normalize((il_worldToTex * vec4(v, 0.0)).xyz * il_texToLocal);
-      }
-      else
-      {
-        il_light[i] = ((il_worldToTex * vec4(v, 1.0)).xyz - in_texMin[0]) * il_texToLocal;
-      }
+      uvec2 v = uvec2(gl_FragCoord.xy) + uvec2(uint(il_jitter) * 1664525u, 1013904223u);
+      v = v * 1664525u + 1013904223u;
+      v.x += v.y * 1664525u;
+      v.y += v.x * 1664525u;
+      v = v ^ (v >> 16u);
+      v.x += v.y * 1664525u;
+      v.y += v.x * 1664525u;
+      v = v ^ (v >> 16u);
+      il_xi = float(v.x >> 8u) * (1.0 / 16777216.0);
     }
+    g_dataPos += il_xi * g_dirStep - g_rayJitter;
   }
 """
 
-# The composite step: replaces VTK's classification + front-to-back blending.
-SHADER_IMPL = """
+# Per sample (//VTK::Shading::Impl): replaces VTK's classification and blending. Samples
+# outside the data's box (a host whose bounding box is larger) are empty, as in the warp caster.
+GLSL_SAMPLE = """
     if (!g_skip)
     {
-      vec4 il_sample = texture3D(in_volume[0], g_dataPos) * in_volume_scale[0] +
-        in_volume_bias[0];
-      // Opacity-corrected for the sample distance by VTK: 1 - exp(-sigma_t * step).
-      float il_alpha = computeOpacity(il_sample, 0);
-      if (il_alpha > 0.0)
+      vec3 il_p = il_toLocal((in_volumeMatrix[0] * in_textureDatasetMatrix[0] *
+        vec4(g_dataPos, 1.0)).xyz);
+      vec3 il_tol = 1.0e-5 * il_extent;
+      bool il_inside = all(greaterThanEqual(il_p, -il_tol)) &&
+        all(lessThanEqual(il_p, il_extent + il_tol));
+      vec4 il_opt = il_inside ? il_optics(il_scalar(il_p)) : vec4(0.0);
+      if (il_opt.a > 0.0)
       {
-        vec3 il_color = texture2D(in_colorTransferFunc_0[0], vec2(il_sample.r, 0.0)).rgb;
-        vec3 il_phi = vec3(
-          mix(in_scalarsRange[1].x, in_scalarsRange[1].y, il_sample.g),
-          mix(in_scalarsRange[2].x, in_scalarsRange[2].y, il_sample.b),
-          mix(in_scalarsRange[3].x, in_scalarsRange[3].y, il_sample.a));
-        vec3 il_source = (il_sourceScale * il_phong(g_dataPos)) * il_color * il_phi;
-        g_fragColor.rgb += (1.0 - g_fragColor.a) * il_alpha * il_source;
+        float il_alpha = 1.0 - exp(-il_opt.a * il_step);
+        vec3 il_src = il_exposure * il_source(il_p, il_dir, il_opt.rgb);
+        g_fragColor.rgb += ((1.0 - g_fragColor.a) * il_alpha) * il_src;
         g_fragColor.a += (1.0 - g_fragColor.a) * il_alpha;
       }
     }
 """
 
 
-class IlluminatedVolume(vtkVolume):
-    """A ``vtkVolume`` rendered with an illumination volume by VTK's GPU ray caster.
+def glsl_layout_dec(max_lights: int = MAX_LIGHTS) -> str:
+    """:data:`GLSL_LAYOUT_DEC` with this mapper's port numbers filled in."""
+    ports = {"data": DATA_PORT, "opt": OPTICS_PORT, "ta": DIRECT_PORT_A, "tb": DIRECT_PORT_B,
+             "sc": SCATTERED_PORT}
+    values = {"max_lights": int(max_lights), **ports}
+    values.update({f"{k}4": 4 * v for k, v in ports.items()})
+    return GLSL_LAYOUT_DEC % values
+
+
+class IlluminatedVolume(vtkMultiVolume):
+    """A ``vtkMultiVolume`` rendered with an illumination volume by VTK's GPU ray caster.
 
     Parameters
     ----------
@@ -208,22 +542,30 @@ class IlluminatedVolume(vtkVolume):
         The scalar field (also ``pyvista.ImageData``). Point data, one component.
         A pipeline connection keeps following its producer (new data, time steps).
     scene : Scene, optional
-        Transfer function, opacity unit distance, albedo, lights (for the Phong
-        directions and the default fluence), ``shading`` and step size (the mapper's
-        sample distance). Default ``Scene()`` (its defaults resolved on ``data``).
+        Transfer function, opacity unit distance, albedo, anisotropy ``g``, lights (at
+        most :data:`MAX_LIGHTS`; used unless the illumination carries its own),
+        ``shading`` and step size (the mapper's sample distance). Default ``Scene()``
+        (its defaults resolved on ``data``).
     illumination : optional
-        The fluence; see :meth:`set_illumination`.
+        See :meth:`set_illumination`; default ``None`` (unshadowed direct light).
     array_name : str, optional
         Point array to render; default the active scalars.
     exposure : float
         Factor on the radiance before it reaches the (8-bit, linear) frame buffer.
+    near_cells : float
+        Length of the exact near-field march in transmittance-grid cells (default
+        :data:`NEAR_CELLS`, the warp caster's; 0 reads the grid at the sample).
+    jitter : bool
+        Offset each pixel's first sample by a hash in [0, 1) of a step (default True):
+        noise instead of wood-grain rings at sharp surfaces. ``False``: samples at step
+        midpoints, as the warp caster with ``jitter=False``.
 
     Notes
     -----
     Radiance is written linearly (no gamma), premultiplied, over the renderer's
-    background, like VTK's own ray caster; with ``exposure = 1`` a pixel's value is the
-    radiance in the lights' irradiance units per steradian, clipped to [0, 1].
-    The camera is VTK's; the scene's camera is not used.
+    background; with ``exposure = 1`` a pixel's value is the radiance in the lights'
+    irradiance units per steradian, clipped to [0, 1]. The camera is VTK's; the
+    scene's camera is not used.
 
     Examples
     --------
@@ -232,34 +574,53 @@ class IlluminatedVolume(vtkVolume):
     """
 
     def __init__(self, data, scene: Scene | None = None, illumination=None,
-                 array_name: str | None = None, exposure: float = 1.0) -> None:
+                 array_name: str | None = None, exposure: float = 1.0,
+                 near_cells: float = NEAR_CELLS, jitter: bool = True) -> None:
         super().__init__()
-        self.combiner = ScalarFluenceImage()
-        self.combiner.SetArrayName(array_name)
-        connect_input(self.combiner, 0, data, "data")
+        self.inputs = IlluminationInputs()
+        self.inputs.SetArrayName(array_name)
+        connect_input(self.inputs, 0, data, "data")
         # The scene's defaults need the data's range and spacing: bring the input up to date.
-        self.combiner.GetInputAlgorithm(0, 0).Update(self.combiner.GetInputConnection(0, 0)
-                                                    .GetIndex())
+        self.inputs.GetInputAlgorithm(0, 0).Update(self.inputs.GetInputConnection(0, 0)
+                                                  .GetIndex())
         self.mapper = vtkOpenGLGPUVolumeRayCastMapper()
-        self.mapper.SetInputConnection(self.combiner.GetOutputPort())
         self.mapper.SetBlendModeToComposite()
         self.mapper.AutoAdjustSampleDistancesOff()
         self.mapper.SetUseJittering(0)
+        # Port 0 first: its update refreshes the images of ports 1-4 in the same render.
+        self.mapper.SetInputConnection(OPTICS_PORT, self.inputs.GetOutputPort())
+        for port, image in ((DATA_PORT, self.inputs.data_image),
+                            (DIRECT_PORT_A, self.inputs.direct_images[0]),
+                            (DIRECT_PORT_B, self.inputs.direct_images[1]),
+                            (SCATTERED_PORT, self.inputs.scattered_image)):
+            self.mapper.SetInputDataObject(port, image)
         self.SetMapper(self.mapper)
-        prop = vtkVolumeProperty()
-        prop.IndependentComponentsOn()
-        self.SetProperty(prop)
+        self.volumes = []
+        for port in range(5):
+            volume = vtkVolume()
+            prop = vtkVolumeProperty()
+            # vtkMultiVolume takes 1-component inputs as independent, 4-component as not.
+            prop.SetIndependentComponents(port in (OPTICS_PORT, DATA_PORT))
+            prop.SetInterpolationTypeToLinear()
+            prop.ShadeOff()
+            volume.SetProperty(prop)
+            self.SetVolume(volume, port)
+            self.volumes.append(volume)
         shader = self.GetShaderProperty()
-        values = {"max_lights": MAX_LIGHTS, "gradient_eps": GRADIENT_EPS}
-        shader.AddFragmentShaderReplacement("//VTK::Shading::Dec", True, SHADER_DEC % values,
-                                            False)
-        shader.AddFragmentShaderReplacement("//VTK::Shading::Init", True, SHADER_INIT, False)
-        shader.AddFragmentShaderReplacement("//VTK::Shading::Impl", True, SHADER_IMPL, False)
+        shader.AddFragmentShaderReplacement("//VTK::Shading::Dec", True,
+                                            glsl_layout_dec() + GLSL_SHADING_DEC, False)
+        shader.AddFragmentShaderReplacement("//VTK::Shading::Init", True, GLSL_RAY_INIT, False)
+        shader.AddFragmentShaderReplacement("//VTK::Shading::Impl", True, GLSL_SAMPLE, False)
+        self.inputs.uniforms = shader.GetFragmentCustomUniforms()
         self._exposure = 1.0
-        self._scene = None
-        self.set_scene(scene if scene is not None else Scene())
         self.exposure = exposure
+        self.jitter = jitter
+        self._scene = None
+        self._ready = False
+        self.near_cells = near_cells
+        self.set_scene(scene if scene is not None else Scene())
         self.set_illumination(illumination)
+        self._ready = True
 
     # --- scene ----------------------------------------------------------------------------------
     @property
@@ -268,34 +629,33 @@ class IlluminatedVolume(vtkVolume):
         return self._scene
 
     def set_scene(self, scene: Scene) -> None:
-        """Take transfer function, unit distance, albedo, lights, shading and step size.
+        """Take transfer function, unit distance, albedo, ``g``, lights, shading and step size.
 
         Data-dependent defaults (transfer-function ramp, unit distance = mean spacing,
         step = half the smallest spacing) are resolved on the current data.
         """
         if not isinstance(scene, Scene):
             raise TypeError(f"scene must be a vtkillum Scene, got {type(scene).__name__}")
-        shading = shading_terms(scene.shading)
+        shading_terms(scene.shading)
         if len(scene.lights) > MAX_LIGHTS:
             raise ValueError(
                 f"the OpenGL mapper takes at most {MAX_LIGHTS} lights, the scene has "
                 f"{len(scene.lights)}; render with the compute path (ComputeVolumeRenderer)"
             )
         grid = self._grid_summary()
-        apply_scene_to_volume_property(scene, grid, self.GetProperty(), component=0)
+        apply_scene_to_volume_property(scene, grid, self.volumes[DATA_PORT].GetProperty())
         self.mapper.SetSampleDistance(scene.resolved_step_size(grid))
         self._scene = scene
-        self.combiner.SetLights(scene.lights)
-        uniforms = self.GetShaderProperty().GetFragmentCustomUniforms()
-        uniforms.SetUniform4f("il_shading", [float(v) for v in shading])
-        kinds, vecs, _ = pack_lights(scene.lights)
-        packed = np.zeros((MAX_LIGHTS, 4), dtype=np.float64)
-        packed[: len(kinds), 0] = np.where(kinds == DIRECTIONAL, 0.0, 1.0)
-        packed[: len(kinds), 1:] = vecs
-        uniforms.SetUniformi("il_numLights", len(kinds))
-        uniforms.SetUniform1fv("il_lights", 4 * MAX_LIGHTS, packed.reshape(-1).tolist())
-        self._update_source_scale()
+        self.inputs.set_scene(scene)
         self.Modified()
+        if self._ready:
+            self.check()
+
+    @property
+    def lights(self) -> list:
+        """The lights the last update shades with (the illumination's, else the scene's)."""
+        self.check()
+        return list(self.inputs.lights)
 
     @property
     def exposure(self) -> float:
@@ -308,33 +668,56 @@ class IlluminatedVolume(vtkVolume):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"exposure must be a positive number, got {value}")
         self._exposure = value
-        self._update_source_scale()
+        self.GetShaderProperty().GetFragmentCustomUniforms().SetUniformf("il_exposure", value)
+        self.Modified()
 
-    def _update_source_scale(self) -> None:
-        if self._scene is None:
-            return
-        scale = self._scene.albedo * self._exposure / (4.0 * math.pi)
-        self.GetShaderProperty().GetFragmentCustomUniforms().SetUniformf("il_sourceScale", scale)
+    @property
+    def jitter(self) -> bool:
+        """Whether each pixel's first sample is offset by a hash (see the class docstring)."""
+        return self._jitter
+
+    @jitter.setter
+    def jitter(self, value: bool) -> None:
+        self._jitter = bool(value)
+        self.GetShaderProperty().GetFragmentCustomUniforms().SetUniformi(
+            "il_jitter", int(self._jitter))
+        self.Modified()
+
+    @property
+    def near_cells(self) -> float:
+        """Exact near-field march in transmittance-grid cells (0: read the grid at the sample)."""
+        return self.inputs.near_cells
+
+    @near_cells.setter
+    def near_cells(self, value: float) -> None:
+        value = float(value)
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"near_cells must be a non-negative number of light-grid cells, "
+                             f"got {value}")
+        self.inputs.set_near_cells(value)
         self.Modified()
 
     # --- illumination ----------------------------------------------------------------------------
     def set_illumination(self, source) -> None:
-        """Set where the fluence comes from.
+        """Set where the light comes from.
 
         Parameters
         ----------
         source : IlluminationVolume, ndarray, vtkImageData, vtkAlgorithmOutput, vtkAlgorithm or None
-            * :class:`~vtkillum.core.illumination.IlluminationVolume` (or an
-              ``(nx, ny, nz, 3)`` array covering the data's box): used as is; call
-              ``set_illumination`` again after editing it in place.
-            * image data with a point array ``fluence`` (RGB, or grey with one
-              component) covering the same box as the data at any resolution, or a
+            * :class:`~vtkillum.core.illumination.IlluminationVolume` (per-light
+              transmittance for the scene's lights and/or scattered fluence; an
+              ``(nx, ny, nz, 3)`` array is a scattered fluence) covering the data's box:
+              used as is; call ``set_illumination`` again after editing it in place.
+            * image data covering the same box as the data (any resolution) with the
+              point arrays of :mod:`vtkillum.io.illumination_arrays` (``transmittance``
+              and ``scattered_fluence``, or only ``fluence``, taken as an isotropic
+              scattered fluence) and, optionally, the lights as field data; or a
               pipeline connection producing it (e.g. an illumination filter's output
-              port): followed through the pipeline, so new outputs, time steps and
-              edits (``array.Modified()``) re-upload the texture on the next render.
-            * ``None``: unshadowed light, ``φ = Σ E_l + Σ I_l / d_l²`` over the scene's lights.
+              port): followed through the pipeline, so new outputs, time steps and edits
+              (``array.Modified()``) re-upload the textures on the next render.
+            * ``None``: unshadowed direct light, ``T_l = 1`` (with the phase function).
         """
-        self.combiner.SetIllumination(source)
+        self.inputs.set_illumination(source)
         self.Modified()
         self.check()
 
@@ -342,50 +725,71 @@ class IlluminatedVolume(vtkVolume):
         """Render time step ``time``: requested from the data and the illumination pipelines.
 
         Later renders keep asking for that time; each new time re-executes the
-        pipeline and re-uploads the texture, a time already shown does not.
+        pipeline and re-uploads the textures, a time already shown does not.
         """
-        self.combiner.UpdateTimeStep(float(time))
+        self.inputs.UpdateTimeStep(float(time))
         self.Modified()
         self.check()
 
     def check(self) -> None:
-        """Bring the combined input up to date and raise the error it met, if any.
+        """Bring the inputs up to date and raise the error they met, if any.
 
-        Errors inside the pipeline (a fluence grid that does not cover the data, a
-        missing ``fluence`` array, ...) are otherwise only printed when VTK renders.
+        Errors inside the pipeline (an illumination grid that does not cover the data,
+        missing arrays, too many lights, ...) are otherwise only printed when VTK renders.
         """
-        self.combiner.Update()
-        if self.combiner.last_error is not None:
-            raise self.combiner.last_error
+        self.inputs.Update()
+        if self.inputs.last_error is not None:
+            raise self.inputs.last_error
 
     # --- helpers -------------------------------------------------------------------------------
     def _grid_summary(self) -> GridSummary:
-        image = self.combiner.GetInputDataObject(0, 0)
-        scalars = rendered_point_array(image, self.combiner.GetArrayName())
+        image = self.inputs.GetInputDataObject(0, 0)
+        scalars = rendered_point_array(image, self.inputs.GetArrayName())
         return GridSummary(image, scalars)
 
 
-class ScalarFluenceImage(VTKPythonAlgorithmBase):
-    """Stack the rendered scalar and the RGB fluence into one 4-component image.
+class IlluminationInputs(VTKPythonAlgorithmBase):
+    """Lay the data, the optical model and an illumination volume out as textures.
 
     Input port 0: the data (``vtkImageData``, point scalars or ``ArrayName``). Input
-    port 1 (optional): image data with a point array ``fluence`` covering the same box,
-    at any resolution. Without port 1 the fluence is the numpy illumination volume set
-    with :meth:`SetIllumination`, or else the unshadowed fluence of the lights.
+    port 1 (optional): image data with illumination arrays covering the same box, at
+    any resolution (:mod:`vtkillum.io.illumination_arrays`). Without port 1 the
+    illumination is the object set with :meth:`set_illumination`, or else unshadowed.
 
-    The output has the data's geometry and one float32 point array
-    :data:`COMBINED_ARRAY` ``(scalar, φr, φg, φb)`` as active scalars. Time requests
-    reach both inputs; port 1 is always requested whole.
+    Output port 0: the colour and σt tables (``64 × m × 2`` points, 4 float32
+    components, stretched over the data's box). The other textures are images kept
+    as attributes and refreshed only when their source changed: :attr:`data_image`
+    (the scalar as float32), :attr:`direct_images` (two images of 4 transmittance
+    channels each) and :attr:`scattered_image` (``φ_s`` RGB + 0). The shader uniforms
+    (:data:`UNIFORMS`) are written to :attr:`uniforms` (a ``vtkUniforms``). Time
+    requests reach both inputs; port 1 is always requested whole.
     """
 
     def __init__(self) -> None:
         VTKPythonAlgorithmBase.__init__(self, nInputPorts=2, inputType="vtkImageData",
                                         nOutputPorts=1, outputType="vtkImageData")
-        self._array_name = None
-        self._illumination = None
-        self._lights = []
+        self.data_image = vtkImageData()
+        self.direct_images = (vtkImageData(), vtkImageData())
+        self.scattered_image = vtkImageData()
+        _empty_start_image(self.data_image, 1)
+        for image in (*self.direct_images, self.scattered_image):
+            _empty_start_image(image)
+        #: vtkUniforms receiving the parameters (set by the volume).
+        self.uniforms = None
         #: The error of the last RequestData, or None.
         self.last_error = None
+        #: Lights of the last update (the illumination's or the scene's).
+        self.lights = []
+        #: IlluminationVolume of the last update (None: unshadowed).
+        self.illumination = None
+        self.near_cells = NEAR_CELLS
+        self._array_name = None
+        self._scene = Scene()
+        self._illumination = None
+        self._illumination_version = 0
+        self._data_key = None
+        self._light_key = None
+        self._volume = None
 
     def FillInputPortInformation(self, port, info):
         info.Set(vtkAlgorithm.INPUT_REQUIRED_DATA_TYPE(), "vtkImageData")
@@ -397,18 +801,23 @@ class ScalarFluenceImage(VTKPythonAlgorithmBase):
     def SetArrayName(self, name: str | None) -> None:
         if name != self._array_name:
             self._array_name = name
+            self._data_key = None
             self.Modified()
 
     def GetArrayName(self) -> str | None:
         return self._array_name
 
-    def SetLights(self, lights) -> None:
-        """Lights for the unshadowed default fluence (used only without an illumination)."""
-        self._lights = list(lights)
-        if self._illumination is None and self.GetNumberOfInputConnections(1) == 0:
+    def set_scene(self, scene: Scene) -> None:
+        """Optical model, anisotropy, shading and default lights of the next update."""
+        self._scene = scene
+        self.Modified()
+
+    def set_near_cells(self, value: float) -> None:
+        if value != self.near_cells:
+            self.near_cells = float(value)
             self.Modified()
 
-    def SetIllumination(self, source) -> None:
+    def set_illumination(self, source) -> None:
         """An IlluminationVolume/array, image data, a pipeline connection, or None."""
         if source is None or isinstance(source, (IlluminationVolume, np.ndarray)):
             if isinstance(source, np.ndarray):
@@ -418,73 +827,240 @@ class ScalarFluenceImage(VTKPythonAlgorithmBase):
         else:
             connect_input(self, 1, source, "illumination")
             self._illumination = None
+        self._illumination_version += 1
         self.Modified()
 
     # --- pipeline ----------------------------------------------------------------------------
+    def RequestInformation(self, request, inInfo, outInfo):
+        info = outInfo.GetInformationObject(0)
+        rows = -(-TABLE_SIZE // OPTICS_ROW)
+        info.Set(SDDP.WHOLE_EXTENT(), (0, 4 * OPTICS_ROW - 1, 0, rows - 1, 0, 1), 6)
+        return 1
+
     def RequestUpdateExtent(self, request, inInfo, outInfo):
-        # The fluence grid has its own extent: always ask for all of it.
-        if self.GetNumberOfInputConnections(1):
-            info = inInfo[1].GetInformationObject(0)
-            info.Set(SDDP.UPDATE_EXTENT(), info.Get(SDDP.WHOLE_EXTENT()), 6)
+        # The output grid is not the inputs': always ask for all of both.
+        for port in range(self.GetNumberOfInputPorts()):
+            if self.GetNumberOfInputConnections(port):
+                info = inInfo[port].GetInformationObject(0)
+                info.Set(SDDP.UPDATE_EXTENT(), info.Get(SDDP.WHOLE_EXTENT()), 6)
         return 1
 
     def RequestData(self, request, inInfo, outInfo):
         # VTK swallows exceptions raised in a pipeline pass: keep the error for the caller
-        # (IlluminatedVolume re-raises it) and report it on VTK's output window.
+        # (IlluminatedVolume.check re-raises it) and report it on VTK's output window.
         self.last_error = None
         try:
-            self._combine(inInfo, outInfo)
+            fimage = vtkImageData.GetData(inInfo[1]) if self.GetNumberOfInputConnections(1) \
+                else None
+            self._update(vtkImageData.GetData(inInfo[0]), fimage, vtkImageData.GetData(outInfo))
         except (TypeError, ValueError) as err:
             self.last_error = err
-            vtkOutputWindow.GetInstance().DisplayErrorText(f"ScalarFluenceImage: {err}\n")
+            vtkOutputWindow.GetInstance().DisplayErrorText(f"IlluminationInputs: {err}\n")
             return 0
         return 1
 
-    def _combine(self, inInfo, outInfo) -> None:
-        image = vtkImageData.GetData(inInfo[0])
-        rendered_point_array(image, self._array_name)  # clear errors for missing/multi-component arrays
-        volume = volume_from_image_data(image, self._array_name, association="points")
-        if self.GetNumberOfInputConnections(1):
-            fluence = _fluence_from_image(vtkImageData.GetData(inInfo[1]), volume, image)
-        elif self._illumination is not None:
-            il = self._illumination
-            if isinstance(il, np.ndarray):
-                il = IlluminationVolume.for_volume(volume, il)
-            il.check_matches(volume)
-            fluence = il.fluence
+    def _update(self, image, fimage, out) -> None:
+        array = rendered_point_array(image, self._array_name)
+        key = (image.GetAddressAsString("vtkImageData"), image.GetMTime(), array.GetMTime(),
+               array.GetName())
+        refresh_data = key != self._data_key
+        if refresh_data:
+            volume = volume_from_image_data(image, self._array_name, association="points")
+            if min(volume.dims) < 2:
+                raise ValueError(f"the data must have at least 2 points along every axis, got "
+                                 f"{volume.dims}")
+            self._volume = volume
+        volume = self._volume
+        scene = self._scene
+
+        # The illumination and its lights.
+        if fimage is not None:
+            check_covers(fimage, volume)
+            illumination = illumination_from_image(fimage, volume)
+            lights = lights_from_field(fimage) or list(scene.lights)
+            light_key = ("image", fimage.GetAddressAsString("vtkImageData"), fimage.GetMTime())
         else:
-            fluence = unshadowed_fluence(volume, self._lights)
-        if fluence.shape[:3] != volume.dims:
-            fluence = resample_points(fluence, volume.dims)
-        combined = np.empty(volume.dims + (4,), dtype=np.float32)
-        combined[..., 0] = volume.scalars
-        combined[..., 1:] = fluence
-        out = vtkImageData.GetData(outInfo)
-        out.CopyStructure(image)
-        add_point_array(out, COMBINED_ARRAY, combined, set_active=True)
+            illumination = self._illumination
+            if isinstance(illumination, np.ndarray):
+                illumination = IlluminationVolume.for_volume(volume, illumination)
+            lights = list(scene.lights)
+            light_key = ("object", self._illumination_version)
+        if len(lights) > MAX_LIGHTS:
+            raise ValueError(f"the OpenGL mapper takes at most {MAX_LIGHTS} lights, the "
+                             f"illumination has {len(lights)}; render with the compute path "
+                             "(ComputeVolumeRenderer)")
+        if illumination is not None:
+            illumination.check_matches(volume, lights)
+        light_key = (*light_key, len(lights))
+
+        if refresh_data:
+            _set_image(self.data_image, image_like(volume), "scalars", volume.scalars)
+        if refresh_data or light_key != self._light_key:
+            self._set_light_images(volume, illumination, len(lights))
+        self._data_key = key
+        self._light_key = light_key
+        self.illumination = illumination
+        self.lights = lights
+
+        # Optical model: re-made on every execution (it is small).
+        tf = scene.resolved_transfer_function(volume)
+        unit = scene.resolved_unit_distance(volume)
+        sigma, color, lo, hi = tf.lookup_tables(unit, volume.value_range)
+        optics = optics_rows(color, sigma)
+        out.ShallowCopy(image_like(volume, shape=optics.shape))
+        add_point_array(out, "optics", optics, set_active=True)
+        if self.uniforms is not None:
+            values = shading_uniforms(volume, scene, lights, illumination, self.near_cells,
+                                      (lo, hi, len(sigma)))
+            set_uniforms(self.uniforms, values)
+
+    def _set_light_images(self, volume, illumination, n_lights: int) -> None:
+        if illumination is None:  # unshadowed: T = 1 for every light
+            transmittance = np.ones((n_lights, 2, 2, 2), np.float32)
+            scattered = None
+        else:
+            transmittance, scattered = illumination.transmittance, illumination.scattered
+        # Placeholders cover the data's box too: the ray caster marches the union of all
+        # inputs' boxes.
+        placeholder = np.zeros((2, 2, 2, 4), np.float32)
+        for half, target in enumerate(self.direct_images):
+            channels = None if transmittance is None else transmittance[4 * half: 4 * half + 4]
+            if channels is None or len(channels) == 0:
+                _set_image(target, image_like(volume, shape=(2, 2, 2)), "unused", placeholder)
+                continue
+            packed = np.zeros(channels.shape[1:] + (4,), np.float32)
+            packed[..., : len(channels)] = np.moveaxis(channels, 0, -1)
+            _set_image(target, image_like(volume, shape=packed.shape[:3]), "transmittance",
+                       packed)
+        if scattered is None:
+            _set_image(self.scattered_image, image_like(volume, shape=(2, 2, 2)), "unused",
+                       placeholder)
+        else:
+            packed = np.zeros(scattered.shape[:3] + (4,), np.float32)
+            packed[..., :3] = scattered
+            _set_image(self.scattered_image, image_like(volume, shape=packed.shape[:3]),
+                       "scattered_fluence", packed)
 
 
-def unshadowed_fluence(volume: Volume, lights) -> np.ndarray:
-    """Fluence of the lights without any attenuation at the grid points, ``(nx, ny, nz, 3)``.
+# --- uniforms --------------------------------------------------------------------------------------
+def shading_uniforms(volume: Volume, scene: Scene, lights, illumination, near_cells: float,
+                     table: tuple) -> dict:
+    """Values of the uniforms of :data:`UNIFORMS` for a volume, scene and lights.
 
-    Directional lights contribute their irradiance, point lights ``I / d²``
-    (``d`` clamped to a tenth of the smallest spacing so a light on a grid point stays finite).
+    Parameters
+    ----------
+    volume : Volume
+        The data (local frame, spacing, value range).
+    scene : Scene
+        Albedo, anisotropy, shading.
+    lights : sequence of lights
+        The lights shaded with (at most :data:`MAX_LIGHTS`).
+    illumination : IlluminationVolume or None
+        ``None``: unshadowed direct light for every light.
+    near_cells : float
+        Near-field march in cells of the transmittance grid.
+    table : (lo, hi, size)
+        Data range and entry count of the optics table.
+
+    Returns
+    -------
+    dict
+        ``name -> value`` (floats, ints, lists), for :func:`set_uniforms`.
     """
-    phi = np.zeros(volume.dims + (3,), dtype=np.float64)
-    points = None
-    for light in lights:
-        if light.kind == DIRECTIONAL:
-            phi += light.irradiance
-            continue
-        if points is None:
-            idx = np.stack(np.meshgrid(*(np.arange(n) for n in volume.dims), indexing="ij"), -1)
-            points = (idx * volume.spacing) @ volume.direction.T + volume.origin
-        d2 = np.maximum(((points - light.position) ** 2).sum(-1), (0.1 * volume.spacing.min()) ** 2)
-        phi += light.intensity / d2[..., None]
-    return phi.astype(np.float32)
+    lo, hi, size = table
+    ka, kd, ks, shininess = shading_terms(scene.shading)
+    kinds, vecs, rgb = pack_lights(lights, volume.direction, volume.origin)
+    packed = np.zeros((MAX_LIGHTS, 4), np.float64)
+    colours = np.zeros((MAX_LIGHTS, 3), np.float64)
+    radii = np.zeros(MAX_LIGHTS, np.float64)
+    packed[: len(kinds), 0] = np.where(kinds == DIRECTIONAL, 0.0, 1.0)
+    packed[: len(kinds), 1:] = vecs
+    colours[: len(kinds)] = rgb
+    radii[: len(kinds)] = [resolved_radius(light, volume) for light in lights]
+    if illumination is None:
+        n_direct, near, has_scattered = len(lights), 0.0, 0
+    else:
+        n_direct = illumination.n_lights
+        has_scattered = int(illumination.scattered is not None)
+        near = 0.0
+        if illumination.transmittance is not None:
+            spacing = illumination.extent / (np.asarray(illumination.transmittance.shape[1:]) - 1)
+            near = float(near_cells) * float(spacing.max())
+    axes = np.asarray(volume.direction, np.float64)
+    return {
+        "il_origin": [float(v) for v in volume.origin],
+        "il_axis0": [float(v) for v in axes[:, 0]],
+        "il_axis1": [float(v) for v in axes[:, 1]],
+        "il_axis2": [float(v) for v in axes[:, 2]],
+        "il_extent": [float(v) for v in volume.extent],
+        "il_spacing": [float(v) for v in volume.spacing],
+        "il_tableLo": float(lo),
+        "il_tableScale": float((size - 1) / (hi - lo)),
+        "il_tableSize": int(size),
+        "il_albedo": float(scene.albedo),
+        "il_g": float(scene.anisotropy),
+        "il_shading": [float(ka), float(kd), float(ks), float(shininess)],
+        "il_gradEps": float(gradient_threshold(volume)),
+        "il_numLights": len(kinds),
+        "il_numDirect": int(n_direct),
+        "il_lights": packed.reshape(-1).tolist(),
+        "il_lightRGB": colours.reshape(-1).tolist(),
+        "il_lightRadius": radii.tolist(),
+        "il_near": float(near),
+        "il_hasScattered": has_scattered,
+    }
 
 
-# --- module helpers -----------------------------------------------------------------------------
+def set_uniforms(uniforms, values: dict) -> None:
+    """Write :func:`shading_uniforms`' values to a ``vtkUniforms``."""
+    for name, value in values.items():
+        if isinstance(value, int):
+            uniforms.SetUniformi(name, value)
+        elif isinstance(value, float):
+            uniforms.SetUniformf(name, value)
+        elif len(value) == 3 and name not in ("il_lights", "il_lightRGB", "il_lightRadius"):
+            uniforms.SetUniform3f(name, value)
+        elif name == "il_shading":
+            uniforms.SetUniform4f(name, value)
+        else:
+            uniforms.SetUniform1fv(name, len(value), value)
+
+
+# --- host helpers ----------------------------------------------------------------------------------
+def optics_rows(color: np.ndarray, sigma_t: np.ndarray) -> np.ndarray:
+    """The colour and σt tables as a one-component ``(4 OPTICS_ROW, rows, 2)`` float32 image.
+
+    Component ``c`` (0–2 colour, 3 σt) of entry ``i`` sits at
+    ``(4 (i % OPTICS_ROW) + c, i // OPTICS_ROW)`` in both z slices. (One component:
+    VTK's multi-volume normalises the textures of all inputs only when input 0 has
+    independent components, i.e. one component here.)
+    """
+    n = int(sigma_t.shape[0])
+    rows = -(-n // OPTICS_ROW)
+    flat = np.zeros((rows * OPTICS_ROW, 4), dtype=np.float32)
+    flat[:n, :3] = color
+    flat[:n, 3] = sigma_t
+    grid = flat.reshape(rows, OPTICS_ROW * 4).T  # [4 * (i % row) + c, i // row]
+    return np.ascontiguousarray(np.repeat(grid[:, :, None], 2, axis=2))
+
+
+def _set_image(target: vtkImageData, geometry: vtkImageData, name: str, values) -> None:
+    """Give ``target`` the geometry of ``geometry`` and ``values`` as its active scalars."""
+    target.Initialize()
+    target.CopyStructure(geometry)
+    add_point_array(target, name, np.asarray(values, dtype=np.float32), set_active=True)
+    target.Modified()
+
+
+def _empty_start_image(image: vtkImageData, components: int = 4) -> None:
+    """A 2×2×2 zero image, so the mapper has scalars before the first update."""
+    image.Initialize()
+    image.SetDimensions(2, 2, 2)
+    array = numpy_to_vtk(np.zeros((8, components), dtype=np.float32), deep=True)
+    array.SetName("empty")
+    image.GetPointData().SetScalars(array)
+
+
 def _as_fluence_array(array: np.ndarray) -> np.ndarray:
     a = np.asarray(array, dtype=np.float32)
     if a.ndim != 4 or a.shape[-1] != 3:
@@ -492,43 +1068,18 @@ def _as_fluence_array(array: np.ndarray) -> np.ndarray:
     return a
 
 
-def _fluence_from_image(fimage, volume: Volume, image) -> np.ndarray:
-    """The ``fluence`` point array of ``fimage``, ``(nx, ny, nz, 3)``, checked against the data."""
-    if fimage is None or fimage.GetNumberOfPoints() == 0:
-        raise ValueError("the illumination input produced no image; check its pipeline")
-    pd = fimage.GetPointData()
-    array = pd.GetArray(FLUENCE_ARRAY)
-    if array is None:
-        names = [pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())]
-        raise ValueError(
-            f"the illumination image has no point array {FLUENCE_ARRAY!r} (it has {names}); "
-            "connect an illumination filter's output or name the RGB fluence array 'fluence'"
-        )
-    if array.GetNumberOfComponents() not in (1, 3):
-        raise ValueError(f"the fluence array must have 1 (grey) or 3 (RGB) components, got "
-                         f"{array.GetNumberOfComponents()}")
-    # Same box: same direction, same first and last points (any resolution).
-    dims = np.array(fimage.GetDimensions())
-    spacing = np.array(fimage.GetSpacing(), dtype=np.float64)
-    direction = direction_matrix(fimage)
-    first = first_point(fimage.GetOrigin(), fimage.GetExtent(), spacing, direction)
-    last = first + direction @ ((dims - 1) * spacing)
-    data_last = volume.origin + volume.direction @ volume.extent
-    tol = 1e-5 * float(np.linalg.norm(volume.extent)) + 1e-9
-    if (min(dims) < 2 or not np.allclose(direction, volume.direction, atol=1e-6)
-            or np.abs(first - volume.origin).max() > tol or np.abs(last - data_last).max() > tol):
-        raise ValueError(
-            f"the illumination image (first point {first.tolist()}, last {last.tolist()}) does "
-            f"not cover the data's box (first {volume.origin.tolist()}, last "
-            f"{data_last.tolist()}) with the same orientation; compute it from the same data"
-        )
-    values = point_array(fimage, FLUENCE_ARRAY)
-    if values.ndim == 3:
-        values = np.repeat(values[..., None], 3, axis=-1)
-    values = np.asarray(values, dtype=np.float32)
-    if not np.all(np.isfinite(values)) or values.min() < 0:
-        raise ValueError("the fluence contains negative, NaN or Inf values")
-    return values
-
-
-__all__ = ["IlluminatedVolume", "ScalarFluenceImage", "unshadowed_fluence", "COMBINED_ARRAY"]
+__all__ = [
+    "GLSL_LAYOUT_DEC",
+    "GLSL_RAY_INIT",
+    "GLSL_SAMPLE",
+    "GLSL_SHADING_DEC",
+    "MAX_LIGHTS",
+    "NEAR_CELLS",
+    "UNIFORMS",
+    "IlluminatedVolume",
+    "IlluminationInputs",
+    "glsl_layout_dec",
+    "optics_rows",
+    "set_uniforms",
+    "shading_uniforms",
+]

@@ -1,12 +1,14 @@
-"""How the mappers take their inputs: any image source, and the one point array they render."""
+"""How the mappers take their inputs: any image source, the one point array they render, and
+the check that an illumination image covers the data."""
 
 from __future__ import annotations
 
+import numpy as np
 from vtkmodules.vtkCommonDataModel import vtkImageData
 from vtkmodules.vtkCommonExecutionModel import vtkAlgorithm, vtkAlgorithmOutput
 
 from vtkillum.core.volume import Volume
-from vtkillum.io.convert import image_data_from_volume
+from vtkillum.io.convert import direction_matrix, first_point, image_data_from_volume
 
 
 def connect_input(algorithm, port: int, source, what: str) -> None:
@@ -46,3 +48,23 @@ def rendered_point_array(image, array_name):
             "illuminated mapper renders one (extract it, e.g. vtkImageExtractComponents)"
         )
     return array
+
+
+def check_covers(fimage, volume: Volume) -> None:
+    """Raise unless the illumination image ``fimage`` covers ``volume``'s box (any resolution)."""
+    if fimage is None or fimage.GetNumberOfPoints() == 0:
+        raise ValueError("the illumination input produced no image; check its pipeline")
+    dims = np.array(fimage.GetDimensions())
+    spacing = np.array(fimage.GetSpacing(), dtype=np.float64)
+    direction = direction_matrix(fimage)
+    first = first_point(fimage.GetOrigin(), fimage.GetExtent(), spacing, direction)
+    last = first + direction @ ((dims - 1) * spacing)
+    data_last = volume.origin + volume.direction @ volume.extent
+    tol = 1e-5 * float(np.linalg.norm(volume.extent)) + 1e-9
+    if (min(dims) < 2 or not np.allclose(direction, volume.direction, atol=1e-6)
+            or np.abs(first - volume.origin).max() > tol or np.abs(last - data_last).max() > tol):
+        raise ValueError(
+            f"the illumination image (first point {first.tolist()}, last {last.tolist()}) does "
+            f"not cover the data's box (first {volume.origin.tolist()}, last "
+            f"{data_last.tolist()}) with the same orientation; compute it from the same data"
+        )

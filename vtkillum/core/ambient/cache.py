@@ -92,7 +92,9 @@ class AmbientState:
     table : PreintegrationTable or None
         The preintegration table used.
     table_slice : wp.array2d(float32) or None
-        ``L̃o(θ, r σ̃t)`` at the scene's ``g``.
+        ``L̃o(θ, r σ̃t)`` at the scene's ``g`` (the paper's gather).
+    scattered_slice : wp.array2d(float32) or None
+        Its scattered part ``M(θ, r σ̃t)`` at the scene's ``g`` (the centred gather).
     radius : float
         Sphere radius in world units.
     recomputed : list of str
@@ -120,6 +122,7 @@ class AmbientState:
     timings: dict = field(default_factory=dict)
     occupied: object = None
     textures: AmbientTextures | None = None
+    scattered_slice: object = None
 
 
 class AmbientScatteringCache:
@@ -174,6 +177,7 @@ class AmbientScatteringCache:
         self._scalars_texture = None  # scalars and σ̃t, two channels (data_texture)
         self._sigma_tilde_texture = None
         self._table_texture = None
+        self._scattered_texture = None
         self._table_texture_key = None
         self._optics_texture = None
 
@@ -241,14 +245,17 @@ class AmbientScatteringCache:
         state.lights = self._lights
         state.table = table
         state.table_slice = dtable.g_slice
+        state.scattered_slice = dtable.scattered_slice
         if self._radiance.texture is not None:
             texture_key = (dtable, dtable.g)
-            if texture_key != self._table_texture_key:  # the slice changed: one small copy
+            if texture_key != self._table_texture_key:  # the slices changed: small copies
                 self._table_texture = texture_from(dtable.g_slice, self._table_texture)
+                self._scattered_texture = texture_from(dtable.scattered_slice,
+                                                       self._scattered_texture)
                 self._table_texture_key = texture_key
             state.textures = AmbientTextures(self._scalars_texture, self._sigma_tilde_texture,
                                              self._radiance.texture, self._table_texture,
-                                             self._optics_texture)
+                                             self._optics_texture, self._scattered_texture)
         return state
 
     def _hardware_texture(self, n_lights: int, cache_scale: float, cache_shape):

@@ -7,7 +7,9 @@ keeps, so a ``g`` edit does no host work and no allocation. The blend is the one
 :meth:`~vtkillum.core.ambient.table.PreintegrationTable.g_slice` (geometric in ``g``,
 in double precision, linear where an entry is 0) and
 :meth:`~vtkillum.core.ambient.table.PreintegrationTable.transmittance_slice` (linear,
-single precision), so the slices equal the host's to float rounding.
+single precision), so the slices equal the host's to float rounding. The scattered part
+``M`` of the table (:attr:`~vtkillum.core.ambient.table.PreintegrationTable.scattered`), which
+the centred gather reads instead of ``L̃o``, is sliced the same way, blended like ``L̃o``.
 """
 
 from __future__ import annotations
@@ -36,6 +38,8 @@ class DeviceTable:
         The host table (axes, ``sigma_max``).
     g_slice : wp.array2d(float32)
         ``L̃o(θ, r σ̃t)`` at the ``g`` of the last :meth:`set_g`, ``(n_theta, n_sigma)``.
+    scattered_slice : wp.array2d(float32)
+        The scattered part ``M(θ, r σ̃t)`` at that ``g``, ``(n_theta, n_sigma)``.
     transmittance_slice : wp.array(float32)
         ``T̃(r σ̃t)`` at that ``g``, ``(n_sigma,)``.
     g : float or None
@@ -49,20 +53,25 @@ class DeviceTable:
         self.device = resolve_device(device)
         nt, ns, _ = table.shape
         self._radiance = wp.array(table.radiance, dtype=wp.float32, device=self.device)
+        self._scattered = wp.array(table.scattered, dtype=wp.float32, device=self.device)
         self._transmittance = wp.array(table.transmittance, dtype=wp.float32, device=self.device)
         self.g_slice = wp.empty((nt, ns), dtype=wp.float32, device=self.device)
+        self.scattered_slice = wp.empty((nt, ns), dtype=wp.float32, device=self.device)
         self.transmittance_slice = wp.empty(ns, dtype=wp.float32, device=self.device)
         self.g = None
 
     def set_g(self, g: float) -> None:
-        """Fill :attr:`g_slice` and :attr:`transmittance_slice` at anisotropy ``g`` (clamped)."""
+        """Fill :attr:`g_slice`, :attr:`scattered_slice` and :attr:`transmittance_slice` at
+        anisotropy ``g`` (clamped)."""
         k, w = self.table.g_bracket(g)
         k1 = min(k + 1, self.table.g.size - 1)
         nt, ns, _ = self.table.shape
-        wp.launch(g_slice_kernel, dim=(nt, ns),
-                  inputs=[self._radiance, self._transmittance, k, k1, wp.float64(w),
-                          float(np.float32(1 - w)), float(np.float32(w)), self.g_slice,
-                          self.transmittance_slice], device=self.device)
+        for source, target in ((self._radiance, self.g_slice),
+                               (self._scattered, self.scattered_slice)):
+            wp.launch(g_slice_kernel, dim=(nt, ns),
+                      inputs=[source, self._transmittance, k, k1, wp.float64(w),
+                              float(np.float32(1 - w)), float(np.float32(w)), target,
+                              self.transmittance_slice], device=self.device)
         self.g = float(g)
 
 

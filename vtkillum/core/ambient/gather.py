@@ -1,43 +1,73 @@
 """Ambient ray casting (Ament et al. 2013, section 4.2.3, Algorithm 1, eqs. 18–21).
 
-One primary ray per pixel marches through the volume; at every sample ``x'``
+One primary ray per pixel marches through the volume. Two estimators share the kernel
+(``mode``); both use the tube-marched radiance cache ``L̃d,j``, the ambient extinction
+``σ̃t`` and the preintegration table at the scene's ``g``, with ``ω`` the direction
+towards the camera, ``ω_j`` light ``j``'s travel direction at ``x'``,
+``θ_j = arccos(ω · ω_j)``, ``τ = r σ̃t(x')`` and ``σs = Λ · color · σt`` (DESIGN.md); there
+is no emission term, and the returned alpha is ``1 - T`` along the whole primary ray.
 
-    J̃ += T(x_o, x_c) · σs(x') ⊙ L̃(x', ω, r) · Δt                       (eq. 20)
-    L̃(x', ω, r) = Σ_j L̃d,j(x_j) · L̃o(θ_j, r σ̃t(x'), g)                 (eq. 21)
+``"centred"`` (default)
+    The in-scattered radiance at the sphere's *centre* ``x'``, attenuated to the camera
+    from ``x'`` like every other method::
 
-with ``ω`` the direction towards the camera, ``ω_j`` light ``j``'s travel
-direction at ``x'``, ``θ_j = arccos(ω · ω_j)``, ``x_j = x' - r ω_j`` the point
-where the light enters the sphere around ``x'``, ``L̃d,j`` the tube-marched
-radiance cache and ``L̃o`` the preintegration table at the scene's ``g``. The
-transmittance to the camera is taken from ``x_o = x' + r ω``, the sphere's exit
-point towards the viewer (Algorithm 1 lines 5 and 20–22: the attenuation inside
-the sphere is already in the table). ``σs = Λ · color · σt`` (DESIGN.md), there
-is no emission term (Algorithm 1 "without emission"), and the returned alpha is
-``1 - T`` along the whole primary ray (not shifted).
+        J̃ += T(x', x_c) (1 - exp(-σt Δt)) Λ color ⊙ L̃(x', ω)
+        L̃(x', ω) = Σ_j L̃d,j(x_j) [p(θ_j) T_j(x_j, x') + M(θ_j, τ, g)]
+
+    with ``x_j = x' + min(r, d_j) (-ω_j)`` where light ``j`` enters the sphere (not past a
+    point light at distance ``d_j``), ``T_j`` the transmittance of the real medium from
+    ``x_j`` to ``x'`` (a short shadow ray of ``r``, sampled at the step ``Δt``; midpoint,
+    or a random offset per sample with jitter) and ``M = L̃o - U`` the table's *scattered*
+    part (:attr:`~vtkillum.core.ambient.table.PreintegrationTable.scattered`): ``U``, the
+    part of ``L̃o`` that crossed the sphere without an interaction, is the light of eq.
+    11's boundary scattered at the far side and carried back across the whole sphere;
+    its place is taken by the exact unscattered light at the centre, ``p · T_j``. In
+    optically thin regions (``M → 0``) this is exact single scattering. ``M`` is used as
+    in-scattered radiance at the centre: in a thick homogeneous medium the image is then
+    ``Λ M``, the table's exit radiance from a sphere whose boundary light carried its
+    own factor ``Λ`` (eq. 11 leaves it out).
+``"paper"``
+    Algorithm 1 as published::
+
+        J̃ += T(x_o, x_c) · σs(x') ⊙ L̃(x', ω, r) · Δt                       (eq. 20)
+        L̃(x', ω, r) = Σ_j L̃d,j(x_j) · L̃o(θ_j, r σ̃t(x'), g)                 (eq. 21)
+
+    with ``x_j = x' - r ω_j`` and the transmittance taken from ``x_o = x' + r ω``, the
+    sphere's exit point towards the viewer (lines 5 and 20–22: "the attenuation inside
+    the sphere is already in the table"). ``L̃o`` is the radiance *leaving* a sphere,
+    already integrated over its diameter, and the gather integrates it again as a source
+    density while the first ``r`` of matter along each ray is not attenuated at all: in
+    an optically thick medium the image is ``(1 + r σt) Λ L̃o``, so it grows linearly with
+    ``r`` (2-7 times the path tracer's energy on thick clouds for ``r = 2-8`` voxels), and
+    on shells thinner than ``r`` the pixel follows the optical depth of the interpolated
+    shell instead of saturating, which draws the voxel grid's terraces as rings and
+    bands (``builtin:ct:96``). Its unscattered term also darkens back-scattered light by
+    ``exp(-2 τ |cos θ|)``. Kept to reproduce the paper; see ``docs/ambient_scattering.md``
+    for the comparison with the path tracer.
 
 Sampling follows the project's ray caster: samples at ``t0 + (k + ξ) Δt`` inside
 the box with a per-pixel jitter ``ξ`` (or ``ξ = 0``), early termination once the
-(shifted) opacity exceeds ``early_termination``, and empty samples (``σt = 0``)
-skip the table and cache look-ups (section 6: "the extra texture access can be
-avoided in empty regions"). Blocks of the volume that are surely empty
-(:mod:`~vtkillum.core.ambient.empty_space`) are leapt over once the shifted
-point ``x_o`` has left all matter seen so far behind, which changes no pixel.
+opacity (``"paper"``: the shifted opacity) exceeds ``early_termination``, and empty
+samples (``σt = 0``) skip the table and cache look-ups (section 6: "the extra texture
+access can be avoided in empty regions"). Blocks of the volume that are surely empty
+(:mod:`~vtkillum.core.ambient.empty_space`) are leapt over (``"paper"``: once the shifted
+point ``x_o`` has left all matter seen so far behind), which changes no pixel.
 
 Speed without changing the result
 ---------------------------------
 * Each warp of 32 threads shades a tile of :data:`TILE` pixels (4 wide, 8 high) rather
   than 32 pixels of one row: its rays stay together through the volume, share cache
   lines and end at similar depths.
-* When the radius is a whole number ``m`` of steps (as with the defaults in voxels),
-  ``x_o`` of sample ``k`` *is* sample ``k - m``, so its ``σt`` is taken from a delay line
+* ``"paper"``: when the radius is a whole number ``m`` of steps (as with the defaults in
+  voxels), ``x_o`` of sample ``k`` *is* sample ``k - m``, so its ``σt`` is taken from a delay line
   of the last :data:`DELAY` samples instead of a second trilinear look-up (samples leapt
   over as empty, or before the box, count as 0, as the look-up would give).
 
 Hardware filtering (optional, CUDA)
 -----------------------------------
 With ``textures`` (:class:`~vtkillum.core.ambient.textures.AmbientTextures`) the data
-scalars, ``σ̃t``, the (half-precision) radiance cache, the table slice ``L̃o`` and the
-transfer function's colour/``σt`` tables (one RGBA 1D texture) are sampled by the GPU's texture units (one fetch per sample instead of eight, or four, loads;
+scalars, ``σ̃t``, the (half-precision) radiance cache, the table slice (``M`` or ``L̃o``) and
+the transfer function's colour/``σt`` tables (one RGBA 1D texture) are sampled by the GPU's texture units (one fetch per sample instead of eight, or four, loads;
 see :mod:`~vtkillum.core.ambient.textures` for the accuracy: within 2e-3 of the maximum on
 average). The gradient of the optional specular term is
 still taken from the scalar array. Without ``textures`` (and always on the CPU) every
@@ -46,8 +76,9 @@ sample is the exact software trilinear interpolation.
 Optional terms, as in the paper's comparisons (Figs. 6d, 6e)
 ------------------------------------------------------------
 * Specular highlights: ``ks · max(n·h, 0)^shininess / (4π)`` is added to each
-  light's ``L̃o`` (a Phong lobe on top of the scattering lobe, driven by the same
-  distributed light ``L̃d,j(x_j)``), with ``n`` the normalised central-difference
+  light's phase function (``"centred"``: attenuated like the unscattered light,
+  ``p · T_j``) or to its ``L̃o`` (``"paper"``), driven by the same distributed light
+  ``L̃d,j(x_j)``, with ``n`` the normalised central-difference
   gradient flipped towards the viewer and ``h`` the half vector; no highlight
   where the gradient vanishes.
 * SAT-based ambient occlusion: an ambient light of fluence
@@ -82,6 +113,7 @@ from vtkillum.core.warp_common import (
     CameraParams,
     Lights,
     Medium,
+    hg_phase,
     inside_box,
     light_incidence,
     view_normal,
@@ -97,6 +129,9 @@ TILE_H = wp.constant(TILE[1])
 #: Longest delay line (in samples) for reusing ``σt`` at ``x_o``; longer radii sample it.
 DELAY = 64
 DelayLine = wp.types.vector(length=DELAY, dtype=wp.float32)
+#: Estimators of the gather (see the module docstring).
+GATHER_MODES = {"centred": 0, "paper": 1}
+CENTRED = wp.constant(0)
 
 
 def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, camera: CameraParams,
@@ -104,7 +139,7 @@ def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, cam
            seed: int = 0, early_termination: float = 0.999, specular: float = 0.0,
            shininess: float = 32.0, grad_eps: float = 0.0, ambient_occlusion: float = 0.0,
            device: str | None = None, progress=None, occupied=None, spacing=None,
-           textures: AmbientTextures | None = None):
+           textures: AmbientTextures | None = None, mode: str = "centred"):
     """Render one image by ambient ray casting.
 
     Parameters
@@ -120,7 +155,10 @@ def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, cam
     camera : CameraParams
         Camera in the local frame; gives the image size.
     table : ndarray (n_theta, n_sigma) or wp.array2d(float32)
-        ``L̃o`` at the scene's ``g`` over θ in [0, π] × ``r σ̃t`` in [0, sigma_max].
+        At the scene's ``g`` over θ in [0, π] × ``r σ̃t`` in [0, sigma_max]: the scattered
+        part ``M`` of the table (``mode="centred"``,
+        :meth:`~vtkillum.core.ambient.table.PreintegrationTable.scattered_slice`) or ``L̃o``
+        itself (``mode="paper"``, :meth:`~vtkillum.core.ambient.table.PreintegrationTable.g_slice`).
     sigma_max : float
         Optical radius of the table's last column.
     radius : float
@@ -152,6 +190,9 @@ def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, cam
         Sample scalars, ``σ̃t`` and the cache from these textures (hardware filtering,
         CUDA only; :attr:`AmbientState.textures <vtkillum.core.ambient.cache.AmbientState>`)
         instead of ``medium.scalars``, ``sigma_tilde`` and ``cache.data``.
+    mode : {"centred", "paper"}
+        The estimator (see the module docstring): ``"centred"`` (default) or the paper's
+        Algorithm 1 as published (``"paper"``).
 
     Returns
     -------
@@ -163,7 +204,7 @@ def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, cam
     radiance, alpha, samples = gather_device(
         medium, sigma_tilde, cache, lights, camera, table, sigma_max, radius, step, jitter, seed,
         early_termination, specular, shininess, grad_eps, ambient_occlusion, device, progress,
-        occupied, spacing, textures)
+        occupied, spacing, textures, mode)
     height, width = radiance.shape
     rad = radiance.numpy().astype(np.float32).reshape(height, width, 3)
     return rad, alpha.numpy().astype(np.float32), float(samples.numpy().mean())
@@ -174,12 +215,15 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
                   jitter: bool = True, seed: int = 0, early_termination: float = 0.999,
                   specular: float = 0.0, shininess: float = 32.0, grad_eps: float = 0.0,
                   ambient_occlusion: float = 0.0, device: str | None = None, progress=None,
-                  occupied=None, spacing=None, textures: AmbientTextures | None = None):
+                  occupied=None, spacing=None, textures: AmbientTextures | None = None,
+                  mode: str = "centred"):
     """:func:`gather` without the download: warp arrays radiance (H, W) vec3, alpha, samples.
 
     The device is synchronised before returning (for timing the kernel alone).
     """
     device = resolve_device(device)
+    if mode not in GATHER_MODES:
+        raise ValueError(f"gather mode must be one of {sorted(GATHER_MODES)}, got {mode!r}")
     if occupied is None:  # one block covering everything, marked occupied: no skipping
         occupied = wp.ones((1, 1, 1), dtype=wp.int32, device=device)
         block = np.full(3, 1.0e30)
@@ -198,7 +242,8 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
             raise ValueError("gather: hardware-filtered textures need a CUDA device; on the CPU "
                              "pass textures=None (the exact software path)")
         kernel = ambient_gather_texture
-        table = textures.table if textures.table is not None else texture_from(table)
+        given = textures.scattered if mode == "centred" else textures.table
+        table = given if given is not None else texture_from(table)
         optics = textures.optics if textures.optics is not None else optics_texture(medium)
         # textures.scalars holds σ̃t too (sigma_tilde=0 selects that overload)
         sources = [textures.scalars, 0, textures.radiance, optics]
@@ -207,7 +252,8 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
               float(step), int(bool(jitter)), int(seed), float(early_termination),
               float(specular), float(shininess), float(grad_eps), float(ambient_occlusion),
               occupied, wp.vec3(*block.astype(np.float32)),
-              wp.vec3(*(1.0 / block).astype(np.float32)), delay_samples(radius, step)]
+              wp.vec3(*(1.0 / block).astype(np.float32)), delay_samples(radius, step),
+              GATHER_MODES[mode]]
     width, height = int(camera.width), int(camera.height)
     # every pixel is written: no need to clear
     radiance = wp.empty((height, width), dtype=wp.vec3, device=device)
@@ -269,6 +315,22 @@ def sigma_t_from(m: Medium, scalars: Any, optics: Any, p: wp.vec3):
     if not inside_box(p, m.extent):
         return 0.0
     return fetch_optics(optics, m, fetch_data(scalars, m.inv_spacing, p)[0])[3]
+
+
+@wp.func
+def segment_transmittance(m: Medium, scalars: Any, optics: Any, p: wp.vec3, w: wp.vec3,
+                          length: float, step: float, xi: float):
+    """Transmittance of the real medium from ``p`` along unit ``w`` over ``length`` (world
+    units): equal segments no longer than ``step``, each sampled at fraction ``xi`` (0.5: the
+    midpoint rule); ``σt`` as :func:`sigma_t_from` (0 outside the volume)."""
+    if length <= 0.0:
+        return 1.0
+    n = int(wp.ceil(length / step))
+    h = length / float(n)
+    tau = float(0.0)
+    for q in range(n):
+        tau += sigma_t_from(m, scalars, optics, p + ((float(q) + xi) * h) * w)
+    return wp.exp(-tau * h)
 
 
 @wp.func
@@ -340,6 +402,7 @@ def ambient_gather_kernel(
     block: wp.vec3,
     inv_block: wp.vec3,
     delay: int,
+    mode: int,
     row0: int,
     row_end: int,
     tiles_x: int,
@@ -355,7 +418,8 @@ def ambient_gather_kernel(
     ``step`` and ``radius`` in world units, ``σ`` in 1/world units; ``occupied`` flags the
     blocks of size ``block`` (world units, ``inv_block`` its reciprocal) that may hold
     matter (:mod:`~vtkillum.core.ambient.empty_space`); ``delay`` is
-    :func:`delay_samples` (-1: sample ``σt`` at ``x_o``). Writes the gathered radiance
+    :func:`delay_samples` (-1: sample ``σt`` at ``x_o``; ``"paper"`` only); ``mode`` is
+    :data:`GATHER_MODES`' value of the estimator. Writes the gathered radiance
     ``J̃`` and ``alpha = 1 - T`` at ``[row, col]``. Generic: ``scalars``, ``sigma_tilde``,
     ``radiance_src``, ``optics`` and ``table`` are ``m.scalars``, the σ̃t array,
     ``cache.data``, ``m.sigma_table`` and the table slice array
@@ -382,14 +446,17 @@ def ambient_gather_kernel(
             xi = wp.randf(state)
         n = sample_count(t0, t1, step, xi)
         stop_t = 1.0 - stop_alpha
+        # The paper attenuates from x_o = x' + r ω, r closer to the camera; the centred
+        # estimator from x' itself.
+        shift = wp.where(mode == CENTRED, 0.0, radius)
         t_matter = float(-1.0e30)  # position of the last sample with sigma_t > 0
         recent = DelayLine()  # sigma_t of sample k at [k % DELAY] (0: leapt over or none yet)
         k = int(0)
         while k < n:
             t = t0 + (float(k) + xi) * step
             p = o + t * d
-            if t - radius > t_matter:
-                # x_o has left all matter behind: leap over a surely empty block
+            if t - shift > t_matter:
+                # (x_o has) left all matter behind: leap over a surely empty block
                 bi = wp.clamp(int(wp.floor(p[0] * inv_block[0])), 0, occupied.shape[0] - 1)
                 bj = wp.clamp(int(wp.floor(p[1] * inv_block[1])), 0, occupied.shape[1] - 1)
                 bk = wp.clamp(int(wp.floor(p[2] * inv_block[2])), 0, occupied.shape[2] - 1)
@@ -419,31 +486,54 @@ def ambient_gather_kernel(
                 for li in range(lights.count):
                     to_light, dist, e = light_incidence(lights, li, p)
                     # cos θ_j = ω · ω_j with ω = -d (to the camera), ω_j = -to_light (travel).
-                    lobe = lookup_table(table, table_size, wp.dot(d, to_light), tau_amb,
-                                        sigma_max)
+                    cos_theta = wp.dot(d, to_light)
+                    lobe = lookup_table(table, table_size, cos_theta, tau_amb, sigma_max)
+                    spec = float(0.0)
                     if specular > 0.0 and wp.length_sq(normal) > 0.0:
                         h = wp.normalize(to_light - d)
-                        lobe += specular * wp.pow(wp.max(wp.dot(normal, h), 0.0), shininess) / (
+                        spec = specular * wp.pow(wp.max(wp.dot(normal, h), 0.0), shininess) / (
                             4.0 * wp.pi)
-                    # at x_j = x' - r ω_j
-                    ld = fetch_radiance(radiance_src, cache, lights, li, radius,
-                                        p + radius * to_light)
-                    light += lobe * ld
+                    if mode == CENTRED:
+                        # x_j = x' - r ω_j (not past a point light): the light entering the
+                        # sphere; the unscattered part reaches x' through the real medium.
+                        seg = wp.min(radius, dist)
+                        seg_xi = float(0.5)
+                        if jitter != 0:
+                            seg_xi = wp.randf(state)
+                        ld = fetch_radiance(radiance_src, cache, lights, li, radius,
+                                            p + seg * to_light)
+                        direct = segment_transmittance(m, scalars, optics, p, to_light, seg,
+                                                       step, seg_xi)
+                        light += ((hg_phase(cos_theta, m.g) + spec) * direct + lobe) * ld
+                    else:
+                        # at x_j = x' - r ω_j
+                        ld = fetch_radiance(radiance_src, cache, lights, li, radius,
+                                            p + radius * to_light)
+                        light += (lobe + spec) * ld
                     e_sum += e
                 if ambient_occlusion > 0.0:
                     light += (ambient_occlusion * wp.exp(-tau_amb) / (4.0 * wp.pi)) * e_sum
-                colour += (trans_out * step * m.albedo * sig) * wp.cw_mul(col, light)
+                if mode == CENTRED:
+                    # the step's own attenuation integrated exactly, as the ray caster does
+                    colour += (trans * (1.0 - wp.exp(-sig * step)) * m.albedo) * wp.cw_mul(
+                        col, light)
+                else:
+                    colour += (trans_out * step * m.albedo * sig) * wp.cw_mul(col, light)
             trans *= wp.exp(-sig * step)
-            t_out = t - radius  # x_o = x' + r ω lies r closer to the camera
-            if delay > 0:
-                sig_out = recent[(k - delay + DELAY) % DELAY]  # sample k - delay, at x_o
-                recent[k % DELAY] = sig
-                if t_out > 0.0:
-                    trans_out *= wp.exp(-sig_out * step)
-            elif t_out > 0.0:
-                trans_out *= wp.exp(-sigma_t_from(m, scalars, optics, o + t_out * d) * step)
-            if trans_out < stop_t:
-                break
+            if mode == CENTRED:
+                if trans < stop_t:
+                    break
+            else:
+                t_out = t - radius  # x_o = x' + r ω lies r closer to the camera
+                if delay > 0:
+                    sig_out = recent[(k - delay + DELAY) % DELAY]  # sample k - delay, at x_o
+                    recent[k % DELAY] = sig
+                    if t_out > 0.0:
+                        trans_out *= wp.exp(-sig_out * step)
+                elif t_out > 0.0:
+                    trans_out *= wp.exp(-sigma_t_from(m, scalars, optics, o + t_out * d) * step)
+                if trans_out < stop_t:
+                    break
             k += 1
     radiance[row, c] = colour
     alpha[row, c] = 1.0 - trans

@@ -54,6 +54,17 @@ decreases with ``σ̃t``, grows with ``g``, and for ``Λ = 0`` equals ``e^(-2σ�
 so for absorbing media tube marching with step ``2r`` is exactly Beer–Lambert. :mod:`~vtkillum.core.ambient.tube_march`
 uses it in place of ``L̃o(0, ·)`` in eq. 16.
 
+Scattered part (for the centred gather)
+---------------------------------------
+Paths that cross the sphere without an interaction contribute the analytic
+``U(θ, σ̃t, g) = p(cos θ; g) exp(-(2 + max(0, -2 cos θ)) σ̃t)`` (:func:`unscattered`):
+light of the boundary condition, scattered at the far side, carried back across the whole
+sphere. :attr:`PreintegrationTable.scattered` is ``M = L̃o - U`` (clipped at 0 where
+Monte-Carlo noise makes it negative; ``M = 0`` at ``σ̃t = 0``): the light that scattered
+inside the sphere. The centred gather of :mod:`~vtkillum.core.ambient.gather` uses ``M``
+and computes the unscattered light at the sphere's centre itself. Nothing is stored:
+``M`` is derived from ``L̃o`` when a table is loaded.
+
 Storage
 -------
 ``.npz`` files hold the axes, the albedo, the sample count, the seed and
@@ -214,22 +225,29 @@ class PreintegrationTable:
         is linear. ``g`` outside the table's range is clamped to it.
         :class:`~vtkillum.core.ambient.device_table.DeviceTable` computes the same on a device.
         """
-        k, w = self.g_bracket(g)
-        if self.g.size == 1:
-            return self.radiance[:, :, 0].copy()
-        a = self.radiance[:, :, k].astype(np.float64)
-        b = self.radiance[:, :, k + 1].astype(np.float64)
-        if w <= 0.0:
-            return a.astype(np.float32)
-        if w >= 1.0:
-            return b.astype(np.float32)
-        positive = (a > 0) & (b > 0)
-        out = (1 - w) * a + w * b
-        with np.errstate(divide="ignore"):
-            geo = np.exp((1 - w) * np.log(np.where(positive, a, 1.0))
-                         + w * np.log(np.where(positive, b, 1.0)))
-        out[positive] = geo[positive]
-        return out.astype(np.float32)
+        return _blend_slices(self.radiance, *self.g_bracket(g))
+
+    @property
+    def scattered(self) -> np.ndarray:
+        """The scattered part ``M = L̃o - U`` of every entry, ``(n_theta, n_sigma, n_g)``
+        float32, clipped at 0 (Monte-Carlo noise), with ``M(θ, 0, g) = 0`` exactly.
+
+        ``U`` is the unscattered term (:func:`unscattered`): light of the eq. 11 boundary
+        that crosses the sphere without an interaction. The centred gather
+        (:mod:`~vtkillum.core.ambient.gather`) uses ``M`` and computes the unscattered
+        light itself, exactly, at the sphere's centre.
+        """
+        if getattr(self, "_scattered", None) is None:
+            th, sg, gg = np.meshgrid(self.theta, self.sigma, self.g, indexing="ij")
+            m = np.maximum(self.radiance.astype(np.float64) - unscattered(th, sg, gg), 0.0)
+            m[:, 0, :] = 0.0
+            self._scattered = m.astype(np.float32)
+        return self._scattered
+
+    def scattered_slice(self, g: float) -> np.ndarray:
+        """:attr:`scattered` at anisotropy ``g``: ``(n_theta, n_sigma)`` float32, blended between
+        the tabulated ``g`` as :meth:`g_slice` blends ``L̃o`` (geometric where both are > 0)."""
+        return _blend_slices(self.scattered, *self.g_bracket(g))
 
     def transmittance_slice(self, g: float) -> np.ndarray:
         """Front transmittance ``T̃(σ̃t)`` at anisotropy ``g``: ``(n_sigma,)`` float32.
@@ -457,6 +475,44 @@ def generate_table(albedo: float = 0.9, n_theta: int = 256, n_sigma: int = 256, 
     }
     return PreintegrationTable(mean, rel, th, sg, gg, float(albedo), int(done), passed,
                                passed_se, int(seed), info)
+
+
+def unscattered(theta, sigma, g):
+    """The unscattered term ``U`` of ``L̃o``: eq. 11's boundary radiance carried across the
+    unit sphere without an interaction.
+
+    The path from the surface point at ``θ`` through the centre leaves at the antipode
+    ``xs`` (``zs = -cos θ``) after a chord of 2, where the boundary condition is
+    ``exp(-d σ̃t) p(cos θ; g)`` with ``d = max(0, 2 zs)``:
+    ``U = p(cos θ; g) exp(-(2 + max(0, -2 cos θ)) σ̃t)``. Arrays broadcast.
+    """
+    theta = np.asarray(theta, dtype=np.float64)
+    sigma = np.asarray(sigma, dtype=np.float64)
+    g = np.asarray(g, dtype=np.float64)
+    c = np.cos(theta)
+    denom = 1.0 + g * g - 2.0 * g * c
+    phase = (1.0 - g * g) / (4.0 * np.pi * denom * np.sqrt(denom))
+    return phase * np.exp(-(2.0 + np.maximum(0.0, -2.0 * c)) * sigma)
+
+
+def _blend_slices(values: np.ndarray, k: int, w: float) -> np.ndarray:
+    """Slices ``k`` and ``k + 1`` of ``values (n_theta, n_sigma, n_g)`` blended at fraction ``w``
+    (geometric where both entries are > 0, linear elsewhere), float32."""
+    if values.shape[2] == 1:
+        return values[:, :, 0].astype(np.float32)
+    a = values[:, :, k].astype(np.float64)
+    b = values[:, :, k + 1].astype(np.float64)
+    if w <= 0.0:
+        return a.astype(np.float32)
+    if w >= 1.0:
+        return b.astype(np.float32)
+    positive = (a > 0) & (b > 0)
+    out = (1 - w) * a + w * b
+    with np.errstate(divide="ignore"):
+        geo = np.exp((1 - w) * np.log(np.where(positive, a, 1.0))
+                     + w * np.log(np.where(positive, b, 1.0)))
+    out[positive] = geo[positive]
+    return out.astype(np.float32)
 
 
 def _progress_reporter(progress, total: int, label: str):

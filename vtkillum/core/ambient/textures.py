@@ -75,6 +75,9 @@ class AmbientTextures:
     optics : wp.Texture1D or None
         The transfer function's colour (RGB) and ``σt`` (A) tables (:func:`optics_texture`;
         None: the gather makes one from the medium).
+    scattered : wp.Texture2D or None
+        The table's scattered part ``M`` at the scene's ``g`` (the centred gather's table;
+        None: the gather makes one from the array it is given).
     """
 
     scalars: object
@@ -82,6 +85,7 @@ class AmbientTextures:
     radiance: object
     table: object = None
     optics: object = None
+    scattered: object = None
 
 
 def hardware_filtering_available(device: str) -> bool:

@@ -1,0 +1,488 @@
+"""Photon tracing (Jönsson et al. 2012, section 3.2, eqs. 6–7) into a retraceable photon map.
+
+A photon leaves a light (:mod:`~vtkillum.core.photon.emission`) and walks through the
+volume (local frame, world units):
+
+1. **Free path** (eq. 6). A threshold ``τ* = -ln(1 - u)`` is drawn and the optical
+   depth is ray-marched from where the photon enters the box: the distance to the box
+   exit is split into equal steps no longer than ``step`` (world units), each with σt
+   of the data value at a jittered point of the step (offset ``ξ`` per flight); the
+   interaction lies where the accumulated depth reaches ``τ*`` (exactly, within the
+   step, for the step's σt). A photon that reaches the box exit escapes. (The paper's
+   inversion method; the path tracer uses delta tracking instead.)
+2. **Store** the interaction (:mod:`~vtkillum.core.photon.storage`): position, incoming
+   travel direction, incoming RGB flux ``Φ``, the data value of the step, the
+   Historygram ``H`` (eq. 9: the data bins of every value the photon sampled so far,
+   ancestors included), the random-number state, the order ``k`` (1 for light that has
+   not scattered yet).
+3. **Scattering order**: after its ``S_n``-th interaction the photon stops
+   (``max_order``; ``S_n = 1`` gives single scattering; 0 leaves the walk to the
+   roulette).
+4. **Russian roulette** (eq. 7): the photon scatters with probability
+   ``q = max_c Λ color_c(s)`` (``σs/σt`` for a grey medium) and then carries
+   ``Φ Λ color(s) / q``, so that coloured media need no spectral sampling; otherwise it
+   is absorbed.
+5. **Direction**: Henyey–Greenstein importance sampling of the new direction (or the
+   optional BRDF of surface-like samples, :mod:`~vtkillum.core.photon.material`).
+
+Every random number of photon ``p`` comes from one PCG stream seeded by
+``(seed, p)``, consumed in a fixed order; the state after each interaction is stored,
+so a photon retraced from interaction ``j`` repeats exactly what a trace from scratch
+would do past ``j`` under the same optical properties (the basis of the "incremental
+== full recompute" guarantee of the Historygrams).
+
+A walk that goes on past :data:`MAX_VERTICES` interactions (albedo ~1 without escape) is
+cut there and counted (``PhotonMap.stats["capped"]``), never silently.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import warp as wp
+
+from vtkillum.core.device import init_warp
+from vtkillum.core.photon.emission import Emitters, emit_photon
+from vtkillum.core.photon.historygram import bin_scale, data_bin
+from vtkillum.core.photon.material import (
+    SurfaceParams,
+    no_surface,
+    sample_scattering,
+    surface_normal,
+)
+from vtkillum.core.photon.storage import (
+    ABSORBED,
+    CAPPED,
+    ESCAPED,
+    ORDER_LIMIT,
+    OVERFLOW,
+    Interactions,
+    allocate,
+    check_fits,
+    compact,
+    exclusive_scan,
+    select,
+)
+from vtkillum.core.transfer_function import TABLE_SIZE
+from vtkillum.core.warp_common import (
+    Medium,
+    lookup_color,
+    lookup_sigma_t,
+    make_medium,
+    ray_box,
+    sample_scalar,
+    uniform,
+)
+
+init_warp()
+
+#: Safety cap on the interactions of one photon (counted in ``stats["capped"]``).
+MAX_VERTICES = 10_000
+#: Scratch slots per photon in the first tracing round when ``S_n`` is unbounded.
+FIRST_ROUND_SLOTS = 8
+#: Largest scratch slots per work item in later rounds.
+MAX_ROUND_SLOTS = 4096
+
+
+@wp.struct
+class TraceParams:
+    """What a tracing launch needs besides the medium and the lights.
+
+    ``seed``: the photon map's seed (photon ``p`` uses ``rand_init(seed, p)``);
+    ``step``: longest ray-marching step (world units); ``max_order``: ``S_n`` (0:
+    unbounded); ``max_vertices``: safety cap; ``capacity``: scratch slots per work item;
+    ``bin_lo``, ``bin_scale``: the data binning of the Historygrams.
+    """
+
+    seed: int
+    step: float
+    max_order: int
+    max_vertices: int
+    capacity: int
+    bin_lo: float
+    bin_scale: float
+
+
+def photon_tables(transfer_function, unit_distance: float, value_range, size: int = TABLE_SIZE):
+    """σt and colour tables sampled at ``size`` values spanning exactly the data range.
+
+    The kernels only ever look up values inside the data range (trilinear interpolation
+    stays within it), so tables over that range alone keep the same entries through any
+    transfer-function edit, and :func:`~vtkillum.core.photon.historygram.query_mask` can
+    compare them entry by entry.
+
+    Returns
+    -------
+    sigma : ndarray (size,) float32
+    color : ndarray (size, 3) float32
+    lo, hi : float
+    """
+    lo, hi = (float(v) for v in value_range)
+    if hi <= lo:
+        hi = lo + 1.0
+    v = np.linspace(lo, hi, size)
+    return (transfer_function.sigma_t(v, unit_distance).astype(np.float32),
+            transfer_function.color(v).astype(np.float32), lo, hi)
+
+
+def photon_medium(volume, transfer_function, unit_distance: float, albedo: float, g: float,
+                  device: str):
+    """A :class:`Medium` whose tables are :func:`photon_tables` (returned as well)."""
+    sigma, color, lo, hi = photon_tables(transfer_function, unit_distance, volume.value_range)
+    m = make_medium(volume, transfer_function, unit_distance, albedo, g, device)
+    m.sigma_table = wp.array(sigma, dtype=wp.float32, device=device)
+    m.color_table = wp.array(color, dtype=wp.vec3, device=device)
+    m.table_lo = float(lo)
+    m.table_scale = float((len(sigma) - 1) / (hi - lo))
+    m.majorant = float(sigma.max()) * 1.0001 + 1e-12
+    return m, (sigma, color)
+
+
+class PhotonMap:
+    """``N`` photon paths and their stored interactions on one device.
+
+    Parameters
+    ----------
+    n_photons : int
+        Photons traced from the lights (paths); at least 1.
+    device : str
+        Warp device.
+    seed : int
+        Seed of the photons' random streams (already mixed with the pass number).
+    max_order : int
+        ``S_n``: interactions stored per path at most (0: unbounded, roulette only).
+    step : float
+        Longest ray-marching step of the free-path sampling, world units.
+    memory_limit_mb : float, optional
+        Cap on the memory the map may use (default: what the device has free).
+    surface : SurfaceParams, optional
+        Surface-like materials (:mod:`~vtkillum.core.photon.material`); default off.
+
+    Attributes
+    ----------
+    start, count : wp.array(int32) (N,)
+        Each path's interactions are ``interactions[start[p] : start[p] + count[p]]``.
+    path_hist : wp.array(uint64) (N,)
+        Historygram of everything the path used, including the flight after its last
+        interaction (how it escaped) -- a path whose mask misses the query is valid.
+    end : wp.array(int32) (N,)
+        Why each path ended (:data:`~vtkillum.core.photon.storage.END_NAMES`).
+    interactions : Interactions
+    total : int
+        Stored interactions.
+    stats : dict
+        Of the last trace/retrace: ``photons`` traced, ``interactions_added``, ``rounds``,
+        ``capped``, ``ms``.
+    """
+
+    def __init__(self, n_photons: int, device: str, seed: int = 0, max_order: int = 0,
+                 step: float = 1.0, memory_limit_mb: float | None = None,
+                 surface: SurfaceParams | None = None) -> None:
+        self.n_photons = int(n_photons)
+        if self.n_photons < 1:
+            raise ValueError(f"photons must be a positive number, got {n_photons!r}")
+        self.device = device
+        self.seed = int(seed)
+        self.max_order = int(max_order)
+        self.step = float(step)
+        self.memory_limit_mb = memory_limit_mb
+        self.surface = no_surface() if surface is None else surface
+        self.first_slots = (self.max_order if 0 < self.max_order <= FIRST_ROUND_SLOTS
+                            else FIRST_ROUND_SLOTS)
+        check_fits(self.n_photons, min(self.first_slots, 2), self.first_slots, device,
+                   memory_limit_mb)
+        n = self.n_photons
+        self.start = wp.zeros(n, dtype=wp.int32, device=device)
+        self.count = wp.zeros(n, dtype=wp.int32, device=device)
+        self.path_hist = wp.zeros(n, dtype=wp.uint64, device=device)
+        self.path_chist = wp.zeros(n, dtype=wp.uint64, device=device)
+        self.end = wp.zeros(n, dtype=wp.int32, device=device)
+        self.interactions: Interactions = allocate(1, device)
+        self.total = 0
+        self.stats: dict = {}
+
+    # --- tracing ---------------------------------------------------------------------------------
+    def trace(self, medium: Medium, emitters: Emitters, value_range) -> dict:
+        """Trace every photon from its light (discarding what was stored)."""
+        self.count.zero_()
+        self.start.zero_()
+        self.total = 0
+        photons = wp.empty(self.n_photons, dtype=wp.int32, device=self.device)
+        wp.launch(iota_kernel, dim=self.n_photons, inputs=[photons], device=self.device)
+        restart = wp.full(self.n_photons, -1, dtype=wp.int32, device=self.device)
+        return self.retrace(medium, emitters, value_range, photons, restart)
+
+    def retrace(self, medium: Medium, emitters: Emitters, value_range, photons: wp.array,
+                restart: wp.array) -> dict:
+        """Retrace ``photons`` from their interaction ``restart`` (buffer index; -1: the light).
+
+        Each listed photon keeps its interactions up to and including ``restart`` and gets
+        a new tail traced from there with the stored random state; all other photons keep
+        theirs. ``photons`` must be increasing and unique.
+        """
+        t0 = time.perf_counter()
+        device = self.device
+        lo, scale = bin_scale(value_range)
+        traced = int(photons.shape[0])
+        counters = wp.zeros(2, dtype=wp.int32, device=device)  # added, capped
+        rounds = 0
+        slots = self.first_slots
+        while photons.shape[0] > 0:
+            n_work = int(photons.shape[0])
+            if rounds > 0:
+                slots = int(min(MAX_ROUND_SLOTS,
+                                max(self.first_slots, self.n_photons * self.first_slots // n_work)))
+            params = TraceParams()
+            params.seed = self.seed
+            params.step = self.step
+            params.max_order = self.max_order
+            params.max_vertices = MAX_VERTICES
+            params.capacity = slots
+            params.bin_lo = lo
+            params.bin_scale = scale
+            scratch = _allocate_checked(n_work * slots, device, self.memory_limit_mb,
+                                        self.n_photons)
+            work_count = wp.zeros(n_work, dtype=wp.int32, device=device)
+            work_hist = wp.zeros(n_work, dtype=wp.uint64, device=device)
+            work_chist = wp.zeros(n_work, dtype=wp.uint64, device=device)
+            work_end = wp.zeros(n_work, dtype=wp.int32, device=device)
+            wp.launch(trace_kernel, dim=n_work,
+                      inputs=[medium, emitters, params, self.surface, photons, restart,
+                              self.interactions,
+                              scratch, work_count, work_hist, work_chist, work_end],
+                      device=device)
+            keep = wp.clone(self.count)
+            new_count = wp.clone(self.count)
+            wp.launch(new_counts_kernel, dim=n_work,
+                      inputs=[photons, restart, self.start, work_count, work_end, keep,
+                              new_count, counters], device=device)
+            new_start = wp.empty(self.n_photons, dtype=wp.int32, device=device)
+            new_total = exclusive_scan(new_count, new_start)
+            _check_total(new_total, self.total, self.n_photons, device, self.memory_limit_mb)
+            new = compact(self.interactions, self.total, self.start, keep, new_start, scratch,
+                          slots, photons, work_count, new_total, device)
+            del scratch
+            next_flag = wp.zeros(n_work, dtype=wp.int32, device=device)
+            next_restart = wp.zeros(n_work, dtype=wp.int32, device=device)
+            wp.launch(finish_paths_kernel, dim=n_work,
+                      inputs=[photons, work_hist, work_chist, work_end, new_start, new_count,
+                              self.path_hist, self.path_chist, self.end, next_flag,
+                              next_restart],
+                      device=device)
+            self.interactions, self.start, self.count, self.total = new, new_start, new_count, \
+                new_total
+            work_idx, restart = select(next_flag, next_restart, device)
+            finished = photons
+            photons = wp.empty(work_idx.shape[0], dtype=wp.int32, device=device)
+            if work_idx.shape[0] > 0:
+                wp.launch(gather_int_kernel, dim=work_idx.shape[0],
+                          inputs=[work_idx, finished, photons], device=device)
+            rounds += 1
+        added, capped = (int(c) for c in counters.numpy())
+        self.stats = {"photons": traced, "interactions_added": added, "rounds": rounds,
+                      "capped": capped, "total": self.total,
+                      "ms": 1e3 * (time.perf_counter() - t0)}
+        return self.stats
+
+    # --- inspection ------------------------------------------------------------------------------
+    def numpy(self) -> dict:
+        """Copies of all interaction fields and path tables as numpy arrays (tests, debugging)."""
+        n = self.total
+        it = self.interactions
+        out = {name: getattr(it, name).numpy()[:n].copy() for name in
+               ("pos", "dir", "flux", "value", "hist", "chist", "rng", "order", "owner")}
+        out.update(start=self.start.numpy().copy(), count=self.count.numpy().copy(),
+                   path_hist=self.path_hist.numpy().copy(),
+                   path_chist=self.path_chist.numpy().copy(), end=self.end.numpy().copy())
+        return out
+
+
+def _allocate_checked(n: int, device: str, limit_mb, n_photons: int) -> Interactions:
+    from vtkillum.core.photon.storage import INTERACTION_BYTES, free_bytes
+
+    need = max(n, 1) * INTERACTION_BYTES
+    if need > free_bytes(device, limit_mb):
+        check_fits(n_photons, n / max(n_photons, 1), 0, device, limit_mb)
+    return allocate(n, device)
+
+
+def _check_total(new_total: int, old_total: int, n_photons: int, device: str, limit_mb) -> None:
+    from vtkillum.core.photon.storage import INTERACTION_BYTES, free_bytes
+
+    if new_total >= 2**31 - 1:
+        raise MemoryError(f"{new_total:,} photon interactions exceed the 32-bit index range; "
+                          f"use fewer photons (at most about {n_photons * 2**31 // new_total:,})")
+    if new_total * INTERACTION_BYTES > free_bytes(device, limit_mb):
+        check_fits(n_photons, new_total / n_photons, 0, device, limit_mb)
+
+
+# --- kernels -------------------------------------------------------------------------------------
+@wp.kernel
+def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, sp: SurfaceParams,
+                 work_photon: wp.array(dtype=wp.int32),
+                 work_restart: wp.array(dtype=wp.int32), stored: Interactions,
+                 scratch: Interactions, work_count: wp.array(dtype=wp.int32),
+                 work_hist: wp.array(dtype=wp.uint64), work_chist: wp.array(dtype=wp.uint64),
+                 work_end: wp.array(dtype=wp.int32)):
+    """Trace one photon path (or its tail) into scratch.
+
+    ``wp.tid()`` indexes the work list: photon ``work_photon[w]`` restarts at stored
+    interaction ``work_restart[w]`` (-1: emitted afresh) and writes up to ``tp.capacity``
+    interactions to ``scratch[w * capacity ...]``. Positions in the local frame (world
+    units), flux in the lights' power units. Writes the number written, the path's
+    Historygrams at its end and why it ended (``OVERFLOW``: scratch full, to be continued
+    from the last interaction written).
+    """
+    w = wp.tid()
+    p = work_photon[w]
+    j = work_restart[w]
+    base = w * tp.capacity
+    n = int(0)
+    x = wp.vec3(0.0)
+    d = wp.vec3(0.0, 0.0, 1.0)
+    phi = wp.vec3(0.0)
+    H = wp.uint64(0)
+    C = wp.uint64(0)
+    order = int(0)
+    s = float(0.0)
+    state = wp.uint32(0)
+    scatter = int(0)
+    if j < 0:
+        state = wp.rand_init(tp.seed, p)
+        x, d, phi, state = emit_photon(em, state)
+    else:
+        x = stored.pos[j]
+        d = stored.dir[j]
+        phi = stored.flux[j]
+        s = stored.value[j]
+        H = stored.hist[j]
+        C = stored.chist[j]
+        state = stored.rng[j]
+        order = stored.order[j]
+        scatter = 1
+    end = int(ESCAPED)
+    while True:
+        if scatter != 0:
+            if tp.max_order > 0 and order >= tp.max_order:
+                end = ORDER_LIMIT
+                break
+            if order >= tp.max_vertices:
+                end = CAPPED
+                break
+            C = C | data_bin(s, tp.bin_lo, tp.bin_scale)
+            a = m.albedo * lookup_color(m, s)
+            q = wp.max(a[0], wp.max(a[1], a[2]))
+            u, state = uniform(state)
+            if u >= q:
+                end = ABSORBED
+                break
+            phi = wp.cw_mul(phi, a) / q
+            u1, state = uniform(state)
+            u2, state = uniform(state)
+            surf, normal = surface_normal(m, sp, x, s)
+            d, weight = sample_scattering(d, m.g, surf, normal, sp, u1, u2)
+            if surf != 0:
+                phi = phi * weight
+        scatter = 1
+        box = ray_box(x, d, m.extent)
+        t0 = wp.max(box[0], 0.0)
+        t1 = box[1]
+        if t1 <= t0:
+            end = ESCAPED
+            break
+        u, state = uniform(state)
+        tau_star = -wp.log(1.0 - u)
+        xi, state = uniform(state)
+        length = t1 - t0
+        steps = wp.max(int(wp.ceil(length / tp.step)), 1)
+        h = length / float(steps)
+        tau = float(0.0)
+        tc = float(-1.0)
+        for i in range(steps):
+            sv = sample_scalar(m.scalars, m.inv_spacing, x + (t0 + (float(i) + xi) * h) * d)
+            H = H | data_bin(sv, tp.bin_lo, tp.bin_scale)
+            sig = lookup_sigma_t(m, sv)
+            if sig > 0.0 and tau + sig * h >= tau_star:
+                tc = t0 + float(i) * h + (tau_star - tau) / sig
+                s = sv
+                break
+            tau += sig * h
+        if tc < 0.0:
+            end = ESCAPED
+            break
+        x = x + tc * d
+        order += 1
+        k = base + n
+        scratch.pos[k] = x
+        scratch.dir[k] = d
+        scratch.flux[k] = phi
+        scratch.value[k] = s
+        scratch.hist[k] = H
+        scratch.chist[k] = C
+        scratch.rng[k] = state
+        scratch.order[k] = order
+        scratch.owner[k] = p
+        n += 1
+        if n >= tp.capacity:
+            end = OVERFLOW
+            break
+    work_count[w] = n
+    work_hist[w] = H
+    work_chist[w] = C
+    work_end[w] = end
+
+
+@wp.kernel
+def new_counts_kernel(work_photon: wp.array(dtype=wp.int32), work_restart: wp.array(dtype=wp.int32),
+                      start: wp.array(dtype=wp.int32), work_count: wp.array(dtype=wp.int32),
+                      work_end: wp.array(dtype=wp.int32), keep: wp.array(dtype=wp.int32),
+                      new_count: wp.array(dtype=wp.int32), counters: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` indexes the work list: the photon keeps its interactions up to the restart
+    and gains the ones just traced (counted in ``counters[0]``; capped paths in
+    ``counters[1]``)."""
+    w = wp.tid()
+    p = work_photon[w]
+    j = work_restart[w]
+    kept = int(0)
+    if j >= 0:
+        kept = j - start[p] + 1
+    keep[p] = kept
+    new_count[p] = kept + work_count[w]
+    wp.atomic_add(counters, 0, work_count[w])
+    if work_end[w] == CAPPED:
+        wp.atomic_add(counters, 1, 1)
+
+
+@wp.kernel
+def finish_paths_kernel(work_photon: wp.array(dtype=wp.int32), work_hist: wp.array(dtype=wp.uint64),
+                        work_chist: wp.array(dtype=wp.uint64), work_end: wp.array(dtype=wp.int32),
+                        new_start: wp.array(dtype=wp.int32), new_count: wp.array(dtype=wp.int32),
+                        path_hist: wp.array(dtype=wp.uint64),
+                        path_chist: wp.array(dtype=wp.uint64), end: wp.array(dtype=wp.int32),
+                        next_flag: wp.array(dtype=wp.int32), next_restart: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` indexes the work list: record how each path ended; paths whose scratch
+    overflowed continue from their last interaction in the next round."""
+    w = wp.tid()
+    p = work_photon[w]
+    path_hist[p] = work_hist[w]
+    path_chist[p] = work_chist[w]
+    end[p] = work_end[w]
+    if work_end[w] == OVERFLOW:
+        next_flag[w] = 1
+        next_restart[w] = new_start[p] + new_count[p] - 1
+
+
+@wp.kernel
+def iota_kernel(out: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` indexes ``out``: ``out[i] = i``."""
+    i = wp.tid()
+    out[i] = i
+
+
+@wp.kernel
+def gather_int_kernel(idx: wp.array(dtype=wp.int32), src: wp.array(dtype=wp.int32),
+                      out: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` indexes ``idx``: ``out[i] = src[idx[i]]``."""
+    i = wp.tid()
+    out[i] = src[idx[i]]
