@@ -52,6 +52,7 @@ from vtkillum_paraview.glue import (
     TRANSMITTANCE,
 )
 from vtkillum_paraview.shaders import (
+    LATE_DEC,
     LIGHT_STRIDE,
     MAX_LIGHTS,
     SHADING_DEC,
@@ -60,6 +61,10 @@ from vtkillum_paraview.shaders import (
 )
 
 _views: dict = {}  # view global id -> ViewHook
+
+#: Light-grid cells marched exactly towards each light before the transmittance grid is
+#: read (``vtkillum.core.raycast``'s ``near_cells``).
+NEAR_CELLS = 2.0
 
 #: Jitter the rays' start per pixel (VTK's ``UseJittering``): thin, dense layers (a skull
 #: under a narrow opacity peak) then show fine noise instead of the concentric "wood-grain"
@@ -99,11 +104,17 @@ def illumination_of(data) -> dict | None:
     name = scalars.GetValue(0) if scalars is not None and scalars.GetNumberOfValues() else ""
     if not name and pd.GetScalars() is not None:
         name = pd.GetScalars().GetName()
-    rows = vtk_to_numpy(lights).reshape(-1, 7) if lights is not None and \
-        lights.GetNumberOfTuples() else np.zeros((0, 7))
+    rows = np.zeros((0, 8))
+    if lights is not None and lights.GetNumberOfTuples():
+        width = lights.GetNumberOfComponents()  # 8: with the source radius; 7: without
+        raw = vtk_to_numpy(lights).reshape(-1, width)
+        rows = np.zeros((len(raw), 8))
+        rows[:, : min(width, 8)] = raw[:, :8]
     albedo, anisotropy, unit, exposure = (render.GetValue(i) for i in range(4))
+    light_spacing = render.GetValue(4) if render.GetNumberOfTuples() > 4 else 0.0
     return {"scalars": name, "lights": rows, "albedo": albedo, "anisotropy": anisotropy,
-            "unit_distance": unit, "exposure": exposure, "transmittance": transmittance,
+            "unit_distance": unit, "exposure": exposure, "light_spacing": light_spacing,
+            "transmittance": transmittance,
             "scattered": scattered, "fluence": fluence}
 
 
@@ -246,6 +257,8 @@ class IlluminatedVolume:
         shader.AddFragmentShaderReplacement("//VTK::CustomUniforms::Dec", True, UNIFORMS_DEC,
                                             False)
         shader.AddFragmentShaderReplacement("//VTK::Shading::Dec", True, SHADING_DEC, False)
+        shader.AddFragmentShaderReplacement("//VTK::ComputeVolumetricShadow::Dec", True,
+                                            LATE_DEC, False)
         shader.AddFragmentShaderReplacement("//VTK::Shading::Impl", True, SHADING_IMPL, False)
         self.textures = {name: _Texture() for name in ("il_T0", "il_T1", "il_S")}
         self._data_key = None
@@ -371,19 +384,24 @@ class IlluminatedVolume:
         linear = m[:3, :3] @ direction
         normal_matrix = np.linalg.inv(linear).T
         uniforms.SetUniform1fv("il_texToWorld", 16, tex_to_world.reshape(-1).tolist())
+        uniforms.SetUniform1fv("il_worldToTex", 16,
+                               np.linalg.inv(tex_to_world).reshape(-1).tolist())
         uniforms.SetUniform1fv("il_normalMatrix", 9, normal_matrix.reshape(-1).tolist())
         uniforms.SetUniform3f("il_texel", (1.0 / dims).tolist())
         uniforms.SetUniform3f("il_spacing", spacing.tolist())
 
         lights = np.zeros((MAX_LIGHTS, LIGHT_STRIDE))
         rows = info["lights"][:MAX_LIGHTS]
-        for i, (kind, x, y, z, r, g, b) in enumerate(rows):
+        half_voxel = 0.5 * float(spacing.min())
+        for i, (kind, x, y, z, r, g, b, radius) in enumerate(rows):
             if kind < 0.5:  # travel direction -> unit vector towards the light (world)
                 d = -(m[:3, :3] @ np.array([x, y, z]))
                 d = d / (np.linalg.norm(d) or 1.0)
+                radius = 0.0
             else:
                 d = (m @ np.array([x, y, z, 1.0]))[:3]
-            lights[i] = [kind, *d, r, g, b]
+                radius = radius if radius > 0 else half_voxel  # (vtkillum.core.lights)
+            lights[i] = [kind, *d, r, g, b, radius]
         if len(info["lights"]) > MAX_LIGHTS:
             _warn(f"vtkIllum: the render view uses the first {MAX_LIGHTS} of "
                   f"{len(info['lights'])} lights")
@@ -397,7 +415,6 @@ class IlluminatedVolume:
         else:
             shading = [1.0, 0.0, 0.0, 1.0]
         uniforms.SetUniform4f("il_shading", [float(v) for v in shading])
-        min_distance2 = (0.1 * float(spacing.min())) ** 2
         camera = renderer.GetActiveCamera()
         parallel = bool(camera.GetParallelProjection())
         if parallel:
@@ -405,8 +422,11 @@ class IlluminatedVolume:
         else:
             cam = np.array(camera.GetPosition())
         uniforms.SetUniform3f("il_camera", cam.tolist())
+        # near: two cells of the grid the transmittance was computed on (world units)
+        near = NEAR_CELLS * info["light_spacing"] if info["light_spacing"] > 0 \
+            else NEAR_CELLS * float(spacing.max())
         uniforms.SetUniform4f("il_params", [info["albedo"] * info["exposure"], info["anisotropy"],
-                                            min_distance2, 1.0 if parallel else 0.0])
+                                            near, 1.0 if parallel else 0.0])
         self._mirror_mapper()
 
     def _mirror_mapper(self) -> None:

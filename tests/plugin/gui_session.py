@@ -38,7 +38,8 @@ sys.path.insert(0, str(ROOT / "paraview_plugin"))
 from vtkillum_paraview import x11
 
 LABELS = ["vtkIllum Optical Properties", "vtkIllum Light Transmittance",
-          "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction"]
+          "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction",
+          "vtkIllum Photon Density"]
 VIEW_SIZE = [400, 400]
 summary = {"steps": [], "filters": {}, "errors": []}
 
@@ -86,11 +87,11 @@ def step_setup():
     with x11.Display() as display:  # room for the panels and the view
         display.move_resize(display.find_window("ParaView 5"), 0, 0, 1600, 1000)
     simple.LoadPlugin(str(PLUGIN), ns=globals())
-    from vtkillum.data.procedural import ct_phantom
-    from vtkillum.io.convert import image_data_from_volume
+    import numpy as np
     from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
 
-    import numpy as np
+    from vtkillum.data.procedural import ct_phantom
+    from vtkillum.io.convert import image_data_from_volume
 
     phantom = ct_phantom(96)
     # A CT's partial-volume blur (about two voxels): the phantom's materials meet within one
@@ -181,10 +182,10 @@ def step_grab_1():
 
 def step_bad_light():
     lt = state["proxies"]["vtkIllum Light Transmittance"]
-    lt.Lights = [2, 1, 0, 0, 1, 1, 1]
+    lt.Lights = [2, 1, 0, 0, 1, 1, 1, 0]
     lt.UpdatePipeline()
     summary["bad_light_error"] = lt.GetClientSideObject().GetLastError()
-    lt.Lights = [0, 1, -1, -1, 1, 1, 1]
+    lt.Lights = [0, 1, -1, -1, 1, 1, 1, 0]
     lt.UpdatePipeline()
     summary["good_light_error"] = lt.GetClientSideObject().GetLastError()
     log("bad light")
@@ -232,7 +233,7 @@ def step_ct():
                                        FileName=[str(OUT / "ct_phantom.vti")])
     lit = constructor("vtkIllum Light Transmittance")(Input=reader)
     # A key light from the front left and above, a dim blue fill light from the right.
-    lit.Lights = [0, 0.6, 0.9, -0.5, 1.0, 0.96, 0.9, 0, -0.9, 0.2, 0.1, 0.25, 0.27, 0.35]
+    lit.Lights = [0, 0.6, 0.9, -0.5, 1.0, 0.96, 0.9, 0, 0, -0.9, 0.2, 0.1, 0.25, 0.27, 0.35, 0]
     simple.SetActiveSource(lit)
     v = view()
     display = simple.Show(lit, v)

@@ -15,7 +15,7 @@ from PIL import Image
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
-import test_gui  # noqa: E402
+import test_gui
 
 
 def main(argv=None) -> int:

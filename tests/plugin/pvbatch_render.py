@@ -14,7 +14,8 @@ compares, and judges the other pictures.
 4. The display colours by ``fluence``: ParaView's own volume is drawn again.
 5. The baked RGBA route (OutputRGBA, ShowIlluminated) of two filters in one view:
    each keeps its own opacity function.
-6. Convection-Diffusion Light (scattering on) and Ambient Extinction render too.
+6. Convection-Diffusion Light (scattering on), Ambient Extinction and Photon Density
+   render too.
 """
 
 import json
@@ -28,20 +29,20 @@ OUT.mkdir(parents=True, exist_ok=True)
 ROOT = Path(__file__).resolve().parents[2]
 simple._DisableFirstRenderCameraReset()  # the camera is the scene's, see shot()
 simple.LoadPlugin(str(ROOT / "paraview_plugin" / "vtkillum_plugin.py"), ns=globals())
-import vtkillum_plugin as plugin  # noqa: E402
-from vtkillum_paraview import display as _display  # noqa: E402
+import vtkillum_plugin as plugin
+from vtkillum_paraview import display as _display
 
 _display.JITTER = False  # sampled exactly as ParaView's own mapper and the VTK reference
-from vtkmodules.vtkIOXML import vtkXMLImageDataWriter  # noqa: E402
+from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
 
-from vtkillum.data.procedural import smoke_plume  # noqa: E402
-from vtkillum.io.convert import image_data_from_volume  # noqa: E402
+from vtkillum.data.procedural import smoke_plume
+from vtkillum.io.convert import image_data_from_volume
 
 SIZE = [200, 200]
 SHAPE = (24, 24, 36)
 OPACITY = [0.0, 0.0, 0.5, 0.0, 0.05, 0.0, 0.5, 0.0, 0.35, 0.4, 0.5, 0.0, 1.0, 0.9, 0.5, 0.0]
 COLORS = [0.0, 1.0, 1.0, 1.0, 0.5, 1.0, 0.8, 0.6, 1.0, 0.9, 0.9, 1.0]
-LIGHT = [0, 1.0, 0.4, -0.5, 1.0, 1.0, 1.0]
+LIGHT = [0, 1.0, 0.4, -0.5, 1.0, 1.0, 1.0, 0]
 CAMERA = {"position": [0.3, -6.5, 1.8], "focal_point": [0.0, 0.0, 1.4], "view_up": [0, 0, 1],
           "view_angle": 30.0}
 record = {"camera": CAMERA, "opacity": OPACITY, "colors": COLORS, "light": LIGHT, "size": SIZE}
@@ -126,7 +127,7 @@ shot(view, "pv_opacity_edit.png")
 record["misses_after_opacity_edit"] = obj.GetCacheStatistics().misses - stats_before
 lut.RGBPoints = record["colors"]
 opacity.Points = record["opacity"]
-lit.Lights = [0, -1.0, 0.4, -0.5, 1.0, 1.0, 1.0]
+lit.Lights = [0, -1.0, 0.4, -0.5, 1.0, 1.0, 1.0, 0]
 shot(view, "pv_light_moved.png")
 lit.Lights = LIGHT
 
@@ -162,11 +163,13 @@ record["rgba_opacity_functions_differ"] = (
 simple.Delete(view)
 
 # --- 6: the other methods ------------------------------------------------------------------------------
-for label in ("ConvectionDiffusionLight", "AmbientExtinction"):
+for label in ("ConvectionDiffusionLight", "AmbientExtinction", "PhotonDensity"):
     proxy = globals()[f"vtkIllum{label}"](Input=reader)
     proxy.Lights = LIGHT
     if label == "ConvectionDiffusionLight":
         proxy.Scattering = [0.02, 0.02, 0.02]
+    if label == "PhotonDensity":
+        proxy.Photons = 20000
     view = new_view()
     simple.Show(proxy, view)
     shot(view, f"pv_{label}.png")

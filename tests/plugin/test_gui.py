@@ -30,7 +30,8 @@ pytestmark = [
 
 SCRIPT = Path(__file__).with_name("gui_session.py")
 LABELS = ["vtkIllum Optical Properties", "vtkIllum Light Transmittance",
-          "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction"]
+          "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction",
+          "vtkIllum Photon Density"]
 
 
 def run_gui(out: Path, shim: Path, timeout: float = 420.0):
