@@ -61,6 +61,7 @@ from vtkillum_paraview.shaders import (
 )
 
 _views: dict = {}  # view global id -> ViewHook
+_warned: list = []
 
 #: Light-grid cells marched exactly towards each light before the transmittance grid is
 #: read (``vtkillum.core.raycast``'s ``near_cells``).
@@ -73,8 +74,37 @@ NEAR_CELLS = 2.0
 JITTER = True
 
 
+#: VTK versions whose GPU ray-caster shader template :mod:`.shaders` is written for
+#: (ParaView 5.11 ships VTK 9.2). Elsewhere the render view keeps ParaView's own volume
+#: (a shader that does not compile would draw nothing) unless VTKILLUM_PARAVIEW_DISPLAY=1.
+SUPPORTED_VTK = ((9, 2),)
+
+
+def enabled() -> bool:
+    """Whether illumination is drawn in render views here (see :data:`SUPPORTED_VTK`).
+
+    ``VTKILLUM_PARAVIEW_DISPLAY=0`` switches it off (ParaView's own volume, e.g. to
+    compare), ``=1`` on whatever the VTK version.
+    """
+    import os
+
+    from vtkmodules.vtkCommonCore import vtkVersion
+
+    choice = os.environ.get("VTKILLUM_PARAVIEW_DISPLAY", "").strip()
+    if choice in ("0", "1"):
+        return choice == "1"
+    return (vtkVersion.GetVTKMajorVersion(), vtkVersion.GetVTKMinorVersion()) in SUPPORTED_VTK
+
+
 def hook_views(view_proxies) -> None:
     """Give every render view among ``view_proxies`` a :class:`ViewHook` (once)."""
+    if not enabled():
+        if not _warned:
+            _warned.append(True)
+            _warn("vtkIllum: this ParaView's VTK is not one the render-view illumination was "
+                  "tested with; showing ParaView's own volume. Switch OutputRGBA on and use "
+                  "vtkillum_plugin.ShowIlluminated, or set VTKILLUM_PARAVIEW_DISPLAY=1 to try.")
+        return
     for gid in [gid for gid, hook in _views.items() if hook.view is None]:
         _views.pop(gid).detach()
     for view in view_proxies:
