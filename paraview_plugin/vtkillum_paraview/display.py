@@ -453,8 +453,9 @@ class IlluminatedVolume:
             cam = np.array(camera.GetPosition())
         uniforms.SetUniform3f("il_camera", cam.tolist())
         # near: two cells of the grid the transmittance was computed on (world units)
-        near = NEAR_CELLS * info["light_spacing"] if info["light_spacing"] > 0 \
-            else NEAR_CELLS * float(spacing.max())
+        cells = float(NEAR_CELLS)  # (read at each render: a module setting)
+        near = cells * info["light_spacing"] if info["light_spacing"] > 0 \
+            else cells * float(spacing.max())
         uniforms.SetUniform4f("il_params", [info["albedo"] * info["exposure"], info["anisotropy"],
                                             near, 1.0 if parallel else 0.0])
         self._mirror_mapper()

@@ -176,5 +176,74 @@ for label in ("ConvectionDiffusionLight", "AmbientExtinction", "PhotonDensity"):
     record[f"swapped_{label}"] = swapped(view)
     simple.Delete(view)
 
+# --- 7: a file written from a filter output, transmittance set to 1: ParaView's own volume ----------
+import numpy as np  # noqa: E402
+from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: E402
+
+lit.UpdatePipeline()
+unlit = lit.GetClientSideObject().GetOutputDataObject(0).NewInstance()
+unlit.DeepCopy(lit.GetClientSideObject().GetOutputDataObject(0))
+vtk_to_numpy(unlit.GetPointData().GetArray("transmittance"))[:] = 1.0
+unlit.GetFieldData().GetArray("vtkillum_render").SetValue(0, 1.0)  # albedo 1: all scatters
+write_vti(unlit, OUT / "unlit.vti")
+white = [0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]
+lut.RGBPoints = white
+_display.NEAR_CELLS = 0.0  # the transmittance from the grid only (here 1), no exact march
+for name, path in (("file_unlit.png", OUT / "unlit.vti"), ("file_plain.png", OUT / "plume.vti")):
+    source = simple.XMLImageDataReader(FileName=[str(path)])
+    view = new_view()
+    shown = simple.Show(source, view)
+    shown.SetRepresentationType("Volume")
+    simple.ColorBy(shown, ("POINTS", "density"))
+    shown.ScalarOpacityUnitDistance = record["unit_distance"]
+    shot(view, name)
+    record[f"swapped_{name}"] = swapped(view)
+    simple.Delete(view)
+lut.RGBPoints = record["colors"]
+_display.NEAR_CELLS = 2.0
+
+# --- 8: a vector array: the filter follows the colour map's Magnitude / component -------------------
+calc = simple.Calculator(Input=reader, ResultArrayName="vec",
+                         Function="density*iHat+0.2*density*jHat+coordsZ*kHat")
+vec = vtkIllumLightTransmittance(Input=calc)  # noqa: F821
+vec.Lights = LIGHT
+vec.Scalars = ["POINTS", "vec"]
+view = new_view()
+vec_display = simple.Show(vec, view)
+shot(view, "vec_magnitude.png")
+t_magnitude = vtk_to_numpy(vec.GetClientSideObject().GetOutputDataObject(0).GetPointData()
+                           .GetArray("transmittance")).copy()
+simple.ColorBy(vec_display, ("POINTS", "vec", "X"))
+shot(view, "vec_x.png")
+t_x = vtk_to_numpy(vec.GetClientSideObject().GetOutputDataObject(0).GetPointData()
+                   .GetArray("transmittance")).copy()
+record["vector"] = {"color_array": list(vec_display.ColorArrayName),
+                    "lut_mode": str(vec.LookupTable.VectorMode),
+                    "transmittance_changed": float(np.abs(t_x - t_magnitude).max()),
+                    "swapped": swapped(view), "error": vec.GetClientSideObject().GetLastError()}
+simple.Delete(view)
+
+# --- 9: errors in ParaView's words ------------------------------------------------------------------
+errors = {}
+probe = vtkIllumLightTransmittance(Input=reader)  # noqa: F821
+probe.Lights = [0, 1, 0, 0, 1, 1, 1, 0, 2, 0, 1, 0, 1, 1, 1, 0]
+probe.UpdatePipeline()
+errors["light_type"] = probe.GetClientSideObject().GetLastError()
+probe.Lights = [0, 0, 0, 0, 1, 1, 1, 0]
+probe.UpdatePipeline()
+errors["light_zero"] = probe.GetClientSideObject().GetLastError()
+probe.Lights = LIGHT
+probe.Albedo = 1.5
+probe.UpdatePipeline()
+errors["albedo"] = probe.GetClientSideObject().GetLastError()
+probe.Albedo = 0.9
+probe.UpdatePipeline()
+errors["fixed"] = probe.GetClientSideObject().GetLastError()
+photon = vtkIllumPhotonDensity(Input=reader)  # noqa: F821
+photon.Radius = -1.0
+photon.UpdatePipeline()
+errors["photon_radius"] = photon.GetClientSideObject().GetLastError()
+record["errors"] = errors
+
 (OUT / "render.json").write_text(json.dumps(record, indent=1))
 print("pvbatch_render: done")

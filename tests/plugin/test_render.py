@@ -155,3 +155,38 @@ def test_rgba_displays_keep_their_own_opacity_function(run):
 def test_no_traceback_in_the_log(run):
     _, _, log = run
     assert "Traceback" not in log
+
+
+def test_a_saved_output_with_unit_transmittance_renders_as_paraviews_own_volume(run):
+    """Same sigma_t, colour and sampling as ParaView's volume mapper: with T = 1 (and white
+    light, Exposure 4 pi) the illuminated volume of a file is ParaView's own picture."""
+    out, record, _ = run
+    assert record["swapped_file_unlit.png"] == 1 and record["swapped_file_plain.png"] == 0
+    ours, plain = image(out, "file_unlit.png"), image(out, "file_plain.png")
+    assert plain.mean() > 0.01
+    difference = np.abs(ours - plain) * 255.0
+    assert difference.mean() < 1.0 and np.percentile(difference, 99) < 4.0
+
+
+def test_a_vector_array_follows_the_colour_maps_component(run):
+    _, record, _ = run
+    vector = record["vector"]
+    assert vector["error"] is None
+    assert vector["color_array"] == ["POINTS", "vec"]
+    assert vector["lut_mode"].strip("'") == "Component"
+    assert vector["transmittance_changed"] > 0.01  # X alone is thinner than the magnitude
+    assert vector["swapped"] == 1
+
+
+def test_errors_name_the_property(run):
+    _, record, log = run
+    errors = record["errors"]
+    assert errors["light_type"] == "Lights row 2: Type must be 0 (directional) or 1 (point), got 2"
+    assert errors["light_zero"] == ("Lights row 1: X Y Z (the direction the light travels) must "
+                                    "not be 0 0 0")
+    assert errors["albedo"].startswith("Albedo must lie in [0, 1]")
+    assert errors["fixed"] is None
+    assert errors["photon_radius"].startswith("Radius must be a positive number of voxels")
+    assert "vtkIllum Light Transmittance: Lights row 2: Type must be 0" in log
+    for name in ("AddLight", "AddDirectionalLight", "SetAlbedo", "Traceback"):
+        assert name not in log, name
