@@ -245,5 +245,14 @@ photon.UpdatePipeline()
 errors["photon_radius"] = photon.GetClientSideObject().GetLastError()
 record["errors"] = errors
 
+# --- 10: progress reported while the kernels run (ParaView's progress bar) ---------------------------
+progress = []
+busy = vtkIllumLightTransmittance(Input=reader)  # noqa: F821
+busy.Lights = LIGHT[:] + [1, 0.0, -3.0, 1.5, 5.0, 5.0, 5.0, 0] + [0, -1, 0.2, -0.4, 1, 1, 1, 0]
+busy.GetClientSideObject().AddObserver(
+    "ProgressEvent", lambda obj, event: progress.append(round(obj.GetProgress(), 4)))
+busy.UpdatePipeline()
+record["progress"] = progress
+
 (OUT / "render.json").write_text(json.dumps(record, indent=1))
 print("pvbatch_render: done")

@@ -190,3 +190,11 @@ def test_errors_name_the_property(run):
     assert "vtkIllum Light Transmittance: Lights row 2: Type must be 0" in log
     for name in ("AddLight", "AddDirectionalLight", "SetAlbedo", "Traceback"):
         assert name not in log, name
+
+
+def test_progress_is_reported_while_the_kernels_run(run):
+    _, record, _ = run
+    progress = record["progress"]
+    inner = sorted({p for p in progress if 0.0 < p < 1.0})
+    assert len(inner) >= 2, progress  # per light / per chunk, not only at start and end
+    assert progress == sorted(progress) and progress[-1] == 1.0
