@@ -1,12 +1,16 @@
 """A session in the real ParaView GUI, driven by ``test_gui.py``.
 
-Run as ``xvfb-run -a paraview --dr --script=gui_session.py`` with the environment of
-``paraview_plugin/pvbatch_env.py`` and ``VTKILLUM_GUI_OUT`` naming an output
-directory. The script runs inside the GUI's Python: it loads the plugin, then plays
-a list of steps, each from a one-shot timer of the render view's interactor, so
-that between two steps the GUI runs its event loop (builds the Properties panel of
-the active source, paints the window) exactly as it does for a user:
+Run as ``xvfb-run -a paraview --dr --script=gui_session.py --test-script=gui_menu.xml``
+with the environment of ``paraview_plugin/pvbatch_env.py`` and ``VTKILLUM_GUI_OUT``
+naming an output directory. The script runs inside the GUI's Python: it loads the
+plugin; then ParaView's test player clicks through ``gui_menu.xml`` (Sources ->
+Wavelet, Apply, Filters -> vtkIllum -> vtkIllum Light Transmittance, Apply) while
+the script plays a list of steps, each from a one-shot timer of the render view's
+interactor, so that between two steps the GUI runs its event loop (builds the
+Properties panel of the active source, paints the window) exactly as it does for a
+user:
 
+0. wait until the filter picked from the menu is shown;
 1. every vtkIllum filter is created on a Wavelet, made active (the Properties
    panel is built for it), shown, a property is changed and applied;
 2. the colour map of the coloured array is edited (a preset applied) and the
@@ -83,13 +87,13 @@ def vtkillum_sources() -> dict:
 state = {}
 
 
-def step_setup():
-    with x11.Display() as display:  # room for the panels and the view
-        display.move_resize(display.find_window("ParaView 5"), 0, 0, 1600, 1000)
+def load_plugin_and_data():
+    """Before the GUI plays ``gui_menu.xml`` (the menu clicks): the plugin and the CT file."""
     simple.LoadPlugin(str(PLUGIN), ns=globals())
     import numpy as np
     from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
 
+    from vtkillum.core.volume import Volume
     from vtkillum.data.procedural import ct_phantom
     from vtkillum.io.convert import image_data_from_volume
 
@@ -102,14 +106,36 @@ def step_setup():
             padded = np.pad(values, [(1, 1) if a == axis else (0, 0) for a in range(3)], "edge")
             lo, hi = (padded.take(range(k, k + values.shape[axis]), axis) for k in (0, 2))
             values = 0.25 * (lo + 2 * values + hi)
-    from vtkillum.core.volume import Volume
-
     phantom = Volume(values.astype(np.float32), phantom.spacing, phantom.origin)
     writer = vtkXMLImageDataWriter()
     writer.SetFileName(str(OUT / "ct_phantom.vti"))
     writer.SetInputData(image_data_from_volume(phantom, "density"))
     writer.Write()
-    wavelet = simple.Wavelet(registrationName="Wavelet1")
+
+
+def step_wait_for_the_menu_clicks():
+    """``gui_menu.xml`` clicks Sources -> Wavelet, Apply, Filters -> vtkIllum -> vtkIllum Light
+    Transmittance, Apply. Wait until that filter is shown (at most a minute)."""
+    clicked = simple.FindSource("vtkIllumLightTransmittance1")
+    shown = clicked is not None and simple.GetDisplayProperties(clicked, view()) is not None \
+        and simple.GetDisplayProperties(clicked, view()).Visibility
+    if not shown and time.monotonic() - state.setdefault("waiting_since", time.monotonic()) < 60:
+        return "again"
+    summary["menu_created"] = clicked.GetXMLLabel() if clicked is not None else None
+    if clicked is not None:
+        simple.Render(view())
+        display = simple.GetDisplayProperties(clicked, view())
+        summary["menu_display"] = {"representation": str(display.Representation).strip("'"),
+                                   "color_array": list(display.ColorArrayName),
+                                   "illuminated_volumes": swapped_volumes(view())}
+        state.setdefault("proxies", {})["vtkIllum Light Transmittance"] = clicked
+    log("menu clicks done")
+
+
+def step_setup():
+    with x11.Display() as display:  # room for the panels and the view
+        display.move_resize(display.find_window("ParaView 5"), 0, 0, 1600, 1000)
+    wavelet = simple.FindSource("Wavelet1") or simple.Wavelet(registrationName="Wavelet1")
     state["wavelet"] = wavelet
     v = view()
     v.ViewSize = VIEW_SIZE
@@ -122,7 +148,7 @@ def step_setup():
 
 def make_create_step(label):
     def step():
-        proxy = constructor(label)(Input=state["wavelet"])
+        proxy = state.get("proxies", {}).get(label) or constructor(label)(Input=state["wavelet"])
         simple.SetActiveSource(proxy)  # the Properties panel is built for it
         display = simple.Show(proxy, view())
         simple.Render(view())
@@ -267,7 +293,7 @@ def step_finish():
         display.request_close(display.find_window("ParaView 5"))
 
 
-STEPS = ([step_setup] + [make_create_step(label) for label in LABELS]
+STEPS = ([step_wait_for_the_menu_clicks, step_setup] + [make_create_step(label) for label in LABELS]
          + [make_edit_step(label) for label in LABELS[1:]]
          + [step_show_one, step_grab_1, step_bad_light, step_save_delete, step_load,
             step_select_loaded, step_grab_2, step_ct, step_grab_ct, step_finish])
@@ -277,10 +303,14 @@ STEPS = ([step_setup] + [make_create_step(label) for label in LABELS]
 def run_next(interactor, event=None):
     if not STEPS or time.monotonic() < state.get("due", 0.0):
         return
-    step = STEPS.pop(0)
+    step = STEPS[0]
     try:
-        step()
+        if step() == "again":  # not ready yet: the same step at the next tick
+            interactor.CreateOneShotTimer(600)
+            return
+        STEPS.pop(0)
     except Exception:  # recorded; the pytest side fails on it
+        STEPS.pop(0)
         summary["errors"].append(f"{step.__name__}: {traceback.format_exc()}")
         log(f"FAILED {step.__name__}")
         if step is not step_finish:
@@ -292,6 +322,7 @@ def run_next(interactor, event=None):
 
 OUT.mkdir(parents=True, exist_ok=True)
 try:
+    load_plugin_and_data()
     _interactor = view().GetRenderWindow().GetInteractor()
     _interactor.AddObserver("TimerEvent", run_next)
     _interactor.CreateOneShotTimer(500)
