@@ -3,7 +3,7 @@
 Writes the steps of :func:`vtkillum.data.procedural.plume_series` as a ``.vti.series``
 file, opens it in ParaView, applies *vtkIllum Light Transmittance* (or
 *Convection-Diffusion Light*) with the plume's recommended transfer function and
-lights, shows the illuminated RGBA volume and plays the animation forward and
+lights, shows the illuminated volume and plays the animation forward and
 back, saving one PNG per frame. Per step it prints the time, the seconds the
 update and render took and the filter's cache hits/misses.
 
@@ -81,10 +81,13 @@ def animate(opts) -> int:
     reader = simple.OpenDataFile(str(out / "plume.vti.series"))
     light = namespace[METHODS[opts.method]](Input=reader)
     light.Scalars = ["POINTS", "density"]
-    light.ScalarOpacityFunction.Points = [v for x, a in zip(tf.scalars, tf.opacity)
-                                          for v in (x, a, 0.5, 0.0)]
-    light.ColorTransferFunction.RGBPoints = [v for x, c in zip(tf.scalars, tf.colors)
-                                             for v in (x, *c)]
+    # One transfer function: the colour map and opacity function of "density" (the ones
+    # the Color Map Editor edits), which the filter and its display share.
+    lut = simple.GetColorTransferFunction("density")
+    lut.AutomaticRescaleRangeMode = "Never"
+    lut.RGBPoints = [v for x, c in zip(tf.scalars, tf.colors) for v in (x, *c)]
+    simple.GetOpacityTransferFunction("density").Points = [
+        v for x, a in zip(tf.scalars, tf.opacity) for v in (x, a, 0.5, 0.0)]
     light.Albedo = scene.albedo
     light.Exposure = opts.exposure
     plugin.SetLights(light, scene.lights)
@@ -94,7 +97,8 @@ def animate(opts) -> int:
     if hasattr(view, "UseColorPaletteForBackground"):
         view.UseColorPaletteForBackground = 0
     view.Background = [0.0, 0.0, 0.0]
-    plugin.ShowIlluminated(light, view)
+    display = simple.Show(light, view)  # a volume lit per sample by the render view
+    display.ScalarOpacityUnitDistance = scene.resolved_unit_distance(series[0][1])
     camera = scene.resolved_camera(series[0][1])
     simple.Render(view)
     view.CameraPosition = list(camera.position)

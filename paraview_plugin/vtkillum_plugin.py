@@ -26,6 +26,7 @@ caster (:mod:`vtkillum_paraview.display`). ``OutputRGBA`` adds the older baked
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 from xml.sax.saxutils import escape
@@ -55,6 +56,7 @@ except ImportError as err:
 from paraview.util.vtkAlgorithm import smdomain, smhint, smproperty, smproxy
 from vtkillum_paraview.glue import DEFAULT_EXPOSURE, ParaViewGlue, light_row
 
+from vtkillum.core.photon.mapper import DIRECT_MODES
 from vtkillum.filters.ambient_extinction import RADIUS_UNITS, AmbientExtinctionFilter
 from vtkillum.filters.base import DEFAULT_CACHE_MB
 from vtkillum.filters.convection_diffusion_light import (
@@ -65,6 +67,7 @@ from vtkillum.filters.convection_diffusion_light import (
 )
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
+from vtkillum.filters.photon_density import PhotonDensityFilter
 from vtkillum.filters.rgba_output import RGBA_ARRAY, RGBA_TYPES, IlluminatedRGBAOutput
 
 paraview_plugin_name = "vtkIllum"
@@ -144,11 +147,12 @@ TRANSFER_FUNCTIONS = """
 
 LIGHTS = """
 <DoubleVectorProperty name="Lights" command="AddLight" clean_command="RemoveAllLights"
-                      repeat_command="1" number_of_elements_per_command="7"
-                      number_of_elements="7" default_values="0 1 -1 -1 1 1 1">
+                      repeat_command="1" number_of_elements_per_command="8"
+                      number_of_elements="8" default_values="0 1 -1 -1 1 1 1 0">
   <Documentation>One row per light, world coordinates: Type (0 directional, 1 point),
   X Y Z (directional: the direction the light travels; point: its position), R G B
-  (directional: irradiance; point: intensity, irradiance = intensity / distance^2).</Documentation>
+  (directional: irradiance; point: intensity, irradiance = intensity / max(distance,
+  radius)^2), Radius (point lights: the size of the source, 0 = half a voxel).</Documentation>
   <Hints>
     <ShowComponentLabels>
       <ComponentLabel component="0" label="Type" />
@@ -158,6 +162,7 @@ LIGHTS = """
       <ComponentLabel component="4" label="R" />
       <ComponentLabel component="5" label="G" />
       <ComponentLabel component="6" label="B" />
+      <ComponentLabel component="7" label="Radius" />
     </ShowComponentLabels>
   </Hints>
 </DoubleVectorProperty>"""
@@ -239,6 +244,12 @@ def _proxy(name: str, label: str, *property_xmls: str):
 
     def decorate(cls):
         cls.paraview_label = label
+        # A value the filter refuses is kept as an error of the next execution, reported
+        # without a traceback (see ParaViewGlue.property_setter).
+        for xml in property_xmls:
+            for command in re.findall(r'\bcommand="(Set\w+)"', xml):
+                if command in dir(cls):
+                    setattr(cls, command, ParaViewGlue.property_setter(getattr(cls, command)))
         cls = smdomain.datatype(dataTypes=["vtkImageData"], composite_data_supported=False)(cls)
         cls = smdomain.xml('<InputArrayDomain name="input_array" attribute_type="point" />')(cls)
         cls = smproperty.input(name="Input", port_index=0)(cls)
@@ -316,6 +327,36 @@ class ConvectionDiffusionLight(IlluminatedRGBAOutput, ParaViewGlue,
         output_xml())
 class AmbientExtinction(IlluminatedRGBAOutput, ParaViewGlue, AmbientExtinctionFilter):
     """Ament et al.'s ambient extinction and radiance cache (the cache is the fluence)."""
+
+
+@_proxy("vtkIllumPhotonDensity", "vtkIllum Photon Density",
+        optical_model_xml(),
+        lighting_xml(),
+        _number("int", "Photons", "SetPhotons", 200000,
+                "Photon paths traced per pass.", lo=1, hi=100000000),
+        _number("double", "Radius", "SetRadius", 2.0,
+                "Photon radius of the first pass, in voxels (x mean spacing).", lo=0.1,
+                hi=64.0),
+        _number("int", "MaxOrder", "SetMaxOrder", 0,
+                "Interactions per photon at most: 1 = single scattering, 0 = unbounded "
+                "(Russian roulette).", lo=0, hi=1000, advanced=True),
+        _number("int", "Passes", "SetPasses", 1,
+                "Progressive passes averaged (radius shrinking).", lo=1, hi=1000, advanced=True),
+        _number("int", "Seed", "SetSeed", 0, "Seed of the photons.", lo=0, hi=2147483646,
+                advanced=True),
+        _boolean("Historygrams", "SetHistorygrams", 1,
+                 "After a colour map or opacity edit retrace only the photons it affects.",
+                 advanced=True),
+        _string_list("DirectLight", "SetDirectLight", DIRECT_MODES, DIRECT_MODES[0],
+                     "exact: transmittance per light (phase function at render time) plus "
+                     "scattered photons; photons: all light from photons (isotropic).",
+                     advanced=True),
+        _number("double", "StepSize", "SetStepSize", 0.0,
+                "Ray-marching step of photon flights and shadow rays (world units); 0: half "
+                "the smallest spacing.", lo=0.0, advanced=True),
+        output_xml(scale_default=1.0))
+class PhotonDensity(IlluminatedRGBAOutput, ParaViewGlue, PhotonDensityFilter):
+    """Jönsson et al.'s volumetric photon mapping gathered onto a light volume."""
 
 
 # === pvpython helpers =================================================================================
@@ -418,6 +459,7 @@ __all__ = [
     "ConvectionDiffusionLight",
     "LightTransmittance",
     "OpticalProperties",
+    "PhotonDensity",
     "SetLights",
     "ShowIlluminated",
     "rgba_opacity_points",

@@ -52,6 +52,7 @@ from vtkillum_paraview.glue import (
     TRANSMITTANCE,
 )
 from vtkillum_paraview.shaders import (
+    LATE_DEC,
     LIGHT_STRIDE,
     MAX_LIGHTS,
     SHADING_DEC,
@@ -60,10 +61,50 @@ from vtkillum_paraview.shaders import (
 )
 
 _views: dict = {}  # view global id -> ViewHook
+_warned: list = []
+
+#: Light-grid cells marched exactly towards each light before the transmittance grid is
+#: read (``vtkillum.core.raycast``'s ``near_cells``).
+NEAR_CELLS = 2.0
+
+#: Jitter the rays' start per pixel (VTK's ``UseJittering``): thin, dense layers (a skull
+#: under a narrow opacity peak) then show fine noise instead of the concentric "wood-grain"
+#: rings that ParaView's own volume rendering shows there. False: sampled exactly as
+#: ParaView's volume mapper (the tests compare pictures that way).
+JITTER = True
+
+
+#: VTK versions whose GPU ray-caster shader template :mod:`.shaders` is written for
+#: (ParaView 5.11 ships VTK 9.2). Elsewhere the render view keeps ParaView's own volume
+#: (a shader that does not compile would draw nothing) unless VTKILLUM_PARAVIEW_DISPLAY=1.
+SUPPORTED_VTK = ((9, 2),)
+
+
+def enabled() -> bool:
+    """Whether illumination is drawn in render views here (see :data:`SUPPORTED_VTK`).
+
+    ``VTKILLUM_PARAVIEW_DISPLAY=0`` switches it off (ParaView's own volume, e.g. to
+    compare), ``=1`` on whatever the VTK version.
+    """
+    import os
+
+    from vtkmodules.vtkCommonCore import vtkVersion
+
+    choice = os.environ.get("VTKILLUM_PARAVIEW_DISPLAY", "").strip()
+    if choice in ("0", "1"):
+        return choice == "1"
+    return (vtkVersion.GetVTKMajorVersion(), vtkVersion.GetVTKMinorVersion()) in SUPPORTED_VTK
 
 
 def hook_views(view_proxies) -> None:
     """Give every render view among ``view_proxies`` a :class:`ViewHook` (once)."""
+    if not enabled():
+        if not _warned:
+            _warned.append(True)
+            _warn("vtkIllum: this ParaView's VTK is not one the render-view illumination was "
+                  "tested with; showing ParaView's own volume. Switch OutputRGBA on and use "
+                  "vtkillum_plugin.ShowIlluminated, or set VTKILLUM_PARAVIEW_DISPLAY=1 to try.")
+        return
     for gid in [gid for gid, hook in _views.items() if hook.view is None]:
         _views.pop(gid).detach()
     for view in view_proxies:
@@ -93,11 +134,17 @@ def illumination_of(data) -> dict | None:
     name = scalars.GetValue(0) if scalars is not None and scalars.GetNumberOfValues() else ""
     if not name and pd.GetScalars() is not None:
         name = pd.GetScalars().GetName()
-    rows = vtk_to_numpy(lights).reshape(-1, 7) if lights is not None and \
-        lights.GetNumberOfTuples() else np.zeros((0, 7))
+    rows = np.zeros((0, 8))
+    if lights is not None and lights.GetNumberOfTuples():
+        width = lights.GetNumberOfComponents()  # 8: with the source radius; 7: without
+        raw = vtk_to_numpy(lights).reshape(-1, width)
+        rows = np.zeros((len(raw), 8))
+        rows[:, : min(width, 8)] = raw[:, :8]
     albedo, anisotropy, unit, exposure = (render.GetValue(i) for i in range(4))
+    light_spacing = render.GetValue(4) if render.GetNumberOfTuples() > 4 else 0.0
     return {"scalars": name, "lights": rows, "albedo": albedo, "anisotropy": anisotropy,
-            "unit_distance": unit, "exposure": exposure, "transmittance": transmittance,
+            "unit_distance": unit, "exposure": exposure, "light_spacing": light_spacing,
+            "transmittance": transmittance,
             "scattered": scattered, "fluence": fluence}
 
 
@@ -240,6 +287,8 @@ class IlluminatedVolume:
         shader.AddFragmentShaderReplacement("//VTK::CustomUniforms::Dec", True, UNIFORMS_DEC,
                                             False)
         shader.AddFragmentShaderReplacement("//VTK::Shading::Dec", True, SHADING_DEC, False)
+        shader.AddFragmentShaderReplacement("//VTK::ComputeVolumetricShadow::Dec", True,
+                                            LATE_DEC, False)
         shader.AddFragmentShaderReplacement("//VTK::Shading::Impl", True, SHADING_IMPL, False)
         self.textures = {name: _Texture() for name in ("il_T0", "il_T1", "il_S")}
         self._data_key = None
@@ -365,19 +414,24 @@ class IlluminatedVolume:
         linear = m[:3, :3] @ direction
         normal_matrix = np.linalg.inv(linear).T
         uniforms.SetUniform1fv("il_texToWorld", 16, tex_to_world.reshape(-1).tolist())
+        uniforms.SetUniform1fv("il_worldToTex", 16,
+                               np.linalg.inv(tex_to_world).reshape(-1).tolist())
         uniforms.SetUniform1fv("il_normalMatrix", 9, normal_matrix.reshape(-1).tolist())
         uniforms.SetUniform3f("il_texel", (1.0 / dims).tolist())
         uniforms.SetUniform3f("il_spacing", spacing.tolist())
 
         lights = np.zeros((MAX_LIGHTS, LIGHT_STRIDE))
         rows = info["lights"][:MAX_LIGHTS]
-        for i, (kind, x, y, z, r, g, b) in enumerate(rows):
+        half_voxel = 0.5 * float(spacing.min())
+        for i, (kind, x, y, z, r, g, b, radius) in enumerate(rows):
             if kind < 0.5:  # travel direction -> unit vector towards the light (world)
                 d = -(m[:3, :3] @ np.array([x, y, z]))
                 d = d / (np.linalg.norm(d) or 1.0)
+                radius = 0.0
             else:
                 d = (m @ np.array([x, y, z, 1.0]))[:3]
-            lights[i] = [kind, *d, r, g, b]
+                radius = radius if radius > 0 else half_voxel  # (vtkillum.core.lights)
+            lights[i] = [kind, *d, r, g, b, radius]
         if len(info["lights"]) > MAX_LIGHTS:
             _warn(f"vtkIllum: the render view uses the first {MAX_LIGHTS} of "
                   f"{len(info['lights'])} lights")
@@ -391,7 +445,6 @@ class IlluminatedVolume:
         else:
             shading = [1.0, 0.0, 0.0, 1.0]
         uniforms.SetUniform4f("il_shading", [float(v) for v in shading])
-        min_distance2 = (0.1 * float(spacing.min())) ** 2
         camera = renderer.GetActiveCamera()
         parallel = bool(camera.GetParallelProjection())
         if parallel:
@@ -399,14 +452,20 @@ class IlluminatedVolume:
         else:
             cam = np.array(camera.GetPosition())
         uniforms.SetUniform3f("il_camera", cam.tolist())
+        # near: two cells of the grid the transmittance was computed on (world units)
+        cells = float(NEAR_CELLS)  # (read at each render: a module setting)
+        near = cells * info["light_spacing"] if info["light_spacing"] > 0 \
+            else cells * float(spacing.max())
         uniforms.SetUniform4f("il_params", [info["albedo"] * info["exposure"], info["anisotropy"],
-                                            min_distance2, 1.0 if parallel else 0.0])
+                                            near, 1.0 if parallel else 0.0])
         self._mirror_mapper()
 
     def _mirror_mapper(self) -> None:
-        """Sampling as ParaView's volume mapper (its defaults; no getters on 5.11's mapper)."""
+        """Sampling as ParaView's volume mapper (its defaults; 5.11's mapper has no getters),
+        jittered if :data:`JITTER`."""
         self.mapper.SetAutoAdjustSampleDistances(1)
         self.mapper.SetLockSampleDistanceToInputSpacing(0)
+        self.mapper.SetUseJittering(1 if JITTER else 0)
 
 
 def _warn(message: str) -> None:

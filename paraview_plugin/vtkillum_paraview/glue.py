@@ -19,8 +19,9 @@ The plugin's classes are ``class X(IlluminatedRGBAOutput, ParaViewGlue, XFilter)
 
   ``transmittance`` (L components, ``T_l`` towards light ``l``), ``scattered_fluence``
   (RGB), ``fluence`` (RGB, ``sum_l T_l E_l + phi_s``), field data ``vtkillum_lights``
-  (L x 7: type, x, y, z, R, G, B) and ``vtkillum_render`` (albedo, anisotropy,
-  opacity unit distance, exposure). Illumination computed on a coarser grid
+  (L x 8: type, x, y, z, R, G, B, source radius; :mod:`vtkillum.io.illumination_arrays`)
+  and ``vtkillum_render`` (albedo, anisotropy, opacity unit distance, exposure, largest
+  spacing of the illumination grid). Illumination computed on a coarser grid
   (``LightVolumeScale`` < 1) is resampled trilinearly onto the data's grid;
 * remembers the last computed illumination, so that settings that only change the
   picture (``Exposure``, ``Gamma``, ``RGBAType``, ``OutputRGBA``) do not recompute it;
@@ -115,37 +116,69 @@ class ParaViewGlue:
         except Exception:  # noqa: BLE001 - on a pvserver there is no client to link
             pass
 
+    # === properties ================================================================================
+    @staticmethod
+    def property_setter(method):
+        """Wrap a property's ``SetX``: a value it refuses becomes an error of the next
+        execution (named after the property, no traceback), not an exception inside
+        ParaView's property push."""
+        import functools
+
+        name = method.__name__[3:]
+
+        @functools.wraps(method)
+        def setter(self, *args):
+            errors = self.__dict__.setdefault("_property_errors", {})
+            try:
+                result = method(self, *args)
+            except (TypeError, ValueError) as err:
+                message = paraview_message(err)
+                errors[name] = message if name in message else f"{name}: {message}"
+                self.Modified()
+                return None
+            if errors.pop(name, None) is not None:
+                self.Modified()
+            return result
+
+        return setter
+
     # === Lights table ===========================================================================
-    def AddLight(self, kind, x, y, z, r, g, b) -> None:
-        """One row of the ``Lights`` table: Type (0 directional, 1 point), X Y Z, R G B."""
+    def AddLight(self, kind, x, y, z, r, g, b, radius=0.0) -> None:
+        """One row of the ``Lights`` table: Type (0 directional, 1 point), X Y Z, R G B, Radius."""
         row = len(self._light_rows) + 1
-        self._light_rows.append((kind, x, y, z, r, g, b))
+        self._light_rows.append((kind, x, y, z, r, g, b, radius))
         if self._light_error is not None:
             self.Modified()
             return
         try:
-            self._add_light_row(row, kind, (x, y, z), (r, g, b))
+            self._add_light_row(row, kind, (x, y, z), (r, g, b), radius)
         except _LightRowError as err:
             self._light_error = str(err)
             self.Modified()
+        except ValueError as err:  # the core's own limits (e.g. values beyond float32)
+            self._light_error = f"Lights row {row}: {err}".replace("light.", "")
+            self.Modified()
 
-    def _add_light_row(self, row, kind, xyz, rgb) -> None:
-        values = [float(v) for v in (kind, *xyz, *rgb)]
+    def _add_light_row(self, row, kind, xyz, rgb, radius) -> None:
+        values = [float(v) for v in (kind, *xyz, *rgb, radius)]
         if not all(math.isfinite(v) for v in values):
             raise _LightRowError(f"Lights row {row}: every column must be a finite number")
         if values[0] not in (0.0, 1.0):
             raise _LightRowError(f"Lights row {row}: Type must be 0 (directional) or 1 (point), "
                                  f"got {kind:g}")
-        if min(values[4:]) < 0:
+        if min(values[4:7]) < 0:
             name = "irradiance" if values[0] == 0 else "intensity"
             raise _LightRowError(f"Lights row {row}: R G B (the {name}) must not be negative")
+        if values[7] < 0:
+            raise _LightRowError(f"Lights row {row}: Radius must not be negative (0: half a "
+                                 "voxel)")
         if values[0] == 0:
             if not any(values[1:4]):
                 raise _LightRowError(f"Lights row {row}: X Y Z (the direction the light travels) "
                                      "must not be 0 0 0")
-            self._add_light(DirectionalLight(values[1:4], values[4:]))
+            self._add_light(DirectionalLight(values[1:4], values[4:7]))
         else:
-            self._add_light(PointLight(values[1:4], values[4:]))
+            self._add_light(PointLight(values[1:4], values[4:7], values[7]))
 
     def RemoveAllLights(self) -> None:
         self._light_rows = []
@@ -155,7 +188,7 @@ class ParaViewGlue:
         super().RemoveAllLights()
 
     def GetLightsTable(self) -> list:
-        """The lights as table rows ``[type, x, y, z, r, g, b]`` (world coordinates)."""
+        """The lights as table rows ``[type, x, y, z, r, g, b, radius]`` (world coordinates)."""
         return [light_row(light) for light in self.GetLights()]
 
     # === ParaView's colour map and opacity function ============================================
@@ -225,6 +258,8 @@ class ParaViewGlue:
     def _execute(self, image, out_info):
         if self._light_error is not None:
             raise ValueError(self._light_error)
+        for message in self.__dict__.get("_property_errors", {}).values():
+            raise ValueError(message)
         name, association = self._selected_array(image)
         if name is None and image.GetPointData().GetScalars() is not None:
             name = image.GetPointData().GetScalars().GetName()  # the default: active scalars
@@ -259,6 +294,10 @@ class ParaViewGlue:
 
     def compute(self, volume, params):
         shape = self.light_grid_shape(volume.dims)
+        # The largest spacing of the grid the illumination is computed on (the render view
+        # marches two of its cells exactly before it reads the transmittance).
+        self._light_spacing = float(max(
+            e / max(n - 1, 1) for e, n in zip(volume.extent, shape)))
         key = self._memo_key(volume, params, shape)
         if self._memo is not None and self._memo[0] == key:
             arrays = self._memo[1]
@@ -287,18 +326,12 @@ class ParaViewGlue:
         if name is not None and pd.GetArray(name) is not None and \
                 not getattr(self, "_output_rgba", False):
             pd.SetActiveScalars(name)
-        fd = output.GetFieldData()
-        if getattr(self, "requires_lights", False):
-            lights = vtkDoubleArray()
-            lights.SetName(LIGHTS_FIELD)
-            lights.SetNumberOfComponents(7)
-            for light in self.GetLights():
-                lights.InsertNextTuple(light_row(light))
-            fd.AddArray(lights)
+        fd = output.GetFieldData()  # (the lights, vtkillum_lights, come from the base class)
         render = vtkDoubleArray()
         render.SetName(RENDER_FIELD)
         for value in (self.GetAlbedo(), self.GetAnisotropy(),
-                      getattr(self, "_resolved_unit_distance", 1.0), self._exposure):
+                      getattr(self, "_resolved_unit_distance", 1.0), self._exposure,
+                      getattr(self, "_light_spacing", 0.0)):
             render.InsertNextValue(float(value))
         fd.AddArray(render)
         scalars = vtkStringArray()
@@ -325,10 +358,11 @@ class ParaViewGlue:
 
 
 def light_row(light) -> list:
-    """``[type, x, y, z, r, g, b]`` of a core light (0 directional, 1 point)."""
+    """``[type, x, y, z, r, g, b, radius]`` of a core light (0 directional, 1 point)."""
     if isinstance(light, PointLight):
-        return [1.0, *map(float, light.position), *map(float, light.intensity)]
-    return [0.0, *map(float, light.direction), *map(float, light.irradiance)]
+        return [1.0, *map(float, light.position), *map(float, light.intensity),
+                float(light.radius)]
+    return [0.0, *map(float, light.direction), *map(float, light.irradiance), 0.0]
 
 
 def convention_arrays(arrays: dict, lights) -> dict:

@@ -10,7 +10,12 @@ Three replacements of the fragment shader of ``vtkOpenGLGPUVolumeRayCastMapper``
     type, but its ``SetUniformi`` (``glUniform1i``) is exactly how a sampler is
     pointed at a texture unit.
 ``//VTK::Shading::Dec`` -> :data:`SHADING_DEC`
-    Phase function, Phong factor and the sample's world position.
+    Phase function, normals, geometry (texture <-> world).
+``//VTK::ComputeVolumetricShadow::Dec`` -> :data:`LATE_DEC` (the tag kept)
+    What needs ``computeOpacity``, declared after ``//VTK::Shading::Dec``: sigma_t and
+    the transmittance towards a light, marched exactly over the first ``near`` (two
+    cells of the light grid) and read from the grid beyond, as
+    :func:`vtkillum.core.raycast.cached_transmittance` does.
 ``//VTK::Shading::Impl`` -> :data:`SHADING_IMPL`
     The composite step, in the project's convention (``DESIGN.md``)::
 
@@ -20,7 +25,8 @@ Three replacements of the fragment shader of ``vtkOpenGLGPUVolumeRayCastMapper``
         A     += (1 - A) alpha
 
     with ``cos theta_l = dot(unit vector towards light l, ray direction camera ->
-    sample)``, ``E_l`` the irradiance (directional) or ``I / d^2`` (point), ``S`` the
+    sample)``, ``E_l`` the irradiance (directional) or ``I / max(d, r)^2`` (point, ``r``
+    its source radius, 0: half the smallest spacing), ``S`` the
     Phong factor ``ka + kd mean|n.l| + ks mean max(n.h, 0)^p`` when the display's
     *Shade* is on (1 otherwise), ``n`` the two-sided normal of the scalar gradient
     (central differences one voxel apart; ``S = ka + kd`` where it vanishes).
@@ -35,8 +41,8 @@ and the camera, so the shader needs none of VTK's internal matrices.
 
 #: Lights the shader takes (two RGBA transmittance textures).
 MAX_LIGHTS = 8
-#: Floats per light in ``il_lights``: type, x, y, z, r, g, b.
-LIGHT_STRIDE = 7
+#: Floats per light in ``il_lights``: type, x, y, z, r, g, b, source radius.
+LIGHT_STRIDE = 8
 
 UNIFORMS_DEC = """
 // vtkillum (paraview_plugin/vtkillum_paraview/shaders.py): custom uniforms, declared here
@@ -45,11 +51,12 @@ uniform sampler3D il_T1;            // transmittance towards lights 4..7
 uniform sampler3D il_S;             // scattered fluence phi_s (mode 0) or fluence (mode 1), RGB
 uniform int il_numLights;
 uniform int il_mode;
-uniform float il_lights[%(nfloats)d];  // per light: type, x, y, z, r, g, b (world)
+uniform float il_lights[%(nfloats)d];  // per light: type, x, y, z, r, g, b, radius (world)
 uniform float il_texToWorld[16];    // row-major affine: texture coordinate -> world
+uniform float il_worldToTex[16];    // its inverse
 uniform float il_normalMatrix[9];   // row-major: local gradient (index axes) -> world normal
 uniform vec4 il_shading;            // ka, kd, ks, shininess
-uniform vec4 il_params;             // albedo * exposure, g, min distance^2, parallel (0/1)
+uniform vec4 il_params;             // albedo * exposure, g, near (world), parallel (0/1)
 uniform vec3 il_camera;             // camera position, or direction of projection if parallel
 uniform vec3 il_texel;              // one voxel in texture coordinates (1 / dims)
 uniform vec3 il_spacing;            // data spacing (world units per voxel along each axis)
@@ -69,6 +76,15 @@ vec3 il_world(vec3 tc)
     dot(vec4(il_texToWorld[8], il_texToWorld[9], il_texToWorld[10], il_texToWorld[11]), p));
 }
 
+vec3 il_tex(vec3 pw, float w)  // world -> texture coordinate (w = 1: point, 0: direction)
+{
+  vec4 p = vec4(pw, w);
+  return vec3(
+    dot(vec4(il_worldToTex[0], il_worldToTex[1], il_worldToTex[2], il_worldToTex[3]), p),
+    dot(vec4(il_worldToTex[4], il_worldToTex[5], il_worldToTex[6], il_worldToTex[7]), p),
+    dot(vec4(il_worldToTex[8], il_worldToTex[9], il_worldToTex[10], il_worldToTex[11]), p));
+}
+
 // Henyey-Greenstein, normalised over the sphere; c = cos(light travel, to camera).
 float il_hg(float c, float g)
 {
@@ -79,6 +95,31 @@ float il_hg(float c, float g)
 float il_scalar(vec3 tc)
 {
   return texture3D(in_volume[0], tc).r * in_volume_scale[0].r + in_volume_bias[0].r;
+}
+
+// Distance (world) from texture point t along texture direction wt to the data's box
+// (the grid points span [0.5 / n, 1 - 0.5 / n]).
+float il_boxExit(vec3 t, vec3 wt)
+{
+  vec3 lo = 0.5 * il_texel;
+  vec3 hi = vec3(1.0) - 0.5 * il_texel;
+  float t1 = 1.0e30;
+  for (int a = 0; a < 3; ++a)
+  {
+    if (abs(wt[a]) >= 1.0e-12)
+    {
+      t1 = min(t1, max((lo[a] - t[a]) / wt[a], (hi[a] - t[a]) / wt[a]));
+    }
+  }
+  return t1;
+}
+
+
+float il_gridT(int i, vec3 tc)
+{
+  vec4 a = texture3D(il_T0, tc);
+  vec4 b = texture3D(il_T1, tc);
+  return i < 4 ? a[min(i, 3)] : b[max(i - 4, 0)];
 }
 
 // Two-sided normal (world) facing the camera direction v_to_cam; false where the gradient
@@ -106,6 +147,51 @@ bool il_normal(vec3 tc, vec3 v_to_cam, out vec3 n)
 }
 """ % {"gradient_eps": 1.0e-5}
 
+LATE_DEC = """//VTK::ComputeVolumetricShadow::Dec
+// vtkillum: helpers that need computeOpacity (declared after //VTK::Shading::Dec in VTK 9.2)
+// sigma_t of a normalised scalar, from VTK's opacity table (corrected for the ray step).
+float il_sigmaT(float s)
+{
+  float a = computeOpacity(vec4(s));
+  return -log(max(1.0 - a, 1.0e-7)) / in_sampleDistance;
+}
+
+// T_l: exact over the first `near` towards the light, then the grid one or two cells on
+// (as vtkillum.core.raycast.cached_transmittance: interpolating the grid across a sharp
+// surface would mix points in front of and behind it).
+float il_nearMarch(vec3 tc, vec3 wt, float len)
+{
+  len = min(len, il_boxExit(tc, wt));
+  if (len <= 0.0)
+  {
+    return 1.0;
+  }
+  int n = int(ceil(len / in_sampleDistance));
+  float h = len / float(n);
+  float tau = 0.0;
+  for (int k = 0; k < n; ++k)
+  {
+    tau += il_sigmaT(il_scalar(tc + ((float(k) + 0.5) * h) * wt));
+  }
+  return exp(-tau * h);
+}
+
+float il_cachedT(int i, vec3 tc, vec3 l_world, float dist)
+{
+  float near = min(il_params.z, dist);
+  vec3 wt = il_tex(l_world, 0.0);  // texture units per world unit along the light
+  float t = near > 0.0 ? il_nearMarch(tc, wt, near) : 1.0;
+  vec3 q = tc + near * wt;
+  vec3 lo = 0.5 * il_texel;
+  vec3 hi = vec3(1.0) - 0.5 * il_texel;
+  if (near < dist && all(greaterThanEqual(q, lo)) && all(lessThanEqual(q, hi)))
+  {
+    t *= il_gridT(i, q);
+  }
+  return t;
+}
+"""
+
 SHADING_IMPL = """
     if (!g_skip)
     {
@@ -129,8 +215,6 @@ SHADING_IMPL = """
         float il_diff = 0.0;
         float il_spec = 0.0;
         vec3 il_L = vec3(0.0);
-        vec4 il_T0v = texture3D(il_T0, g_dataPos);
-        vec4 il_T1v = texture3D(il_T1, g_dataPos);
         for (int i = 0; i < il_numLights; ++i)
         {
           int b = %(stride)d * i;
@@ -138,6 +222,7 @@ SHADING_IMPL = """
           vec3 rgb = vec3(il_lights[b + 4], il_lights[b + 5], il_lights[b + 6]);
           vec3 il_l;   // unit vector towards the light
           vec3 il_E;   // irradiance at the sample
+          float il_dist = 1.0e30;
           if (il_lights[b] < 0.5)
           {
             il_l = xyz;
@@ -145,14 +230,16 @@ SHADING_IMPL = """
           }
           else
           {
+            // a small sphere of the light's radius: I / max(d, r)^2 (vtkillum.core.lights)
             vec3 d = xyz - il_pw;
-            float r2 = max(dot(d, d), il_params.z);
-            il_l = d * inversesqrt(max(dot(d, d), 1e-30));
+            il_dist = sqrt(dot(d, d));
+            float r2 = max(dot(d, d), il_lights[b + 7] * il_lights[b + 7]);
+            il_l = d / max(il_dist, 1e-30);
             il_E = rgb / r2;
           }
-          float il_T = i < 4 ? il_T0v[min(i, 3)] : il_T1v[max(i - 4, 0)];
           if (il_mode == 0)
           {
+            float il_T = il_cachedT(i, g_dataPos, il_l, il_dist);
             il_L += il_hg(dot(il_l, il_ray), il_params.y) * il_T * il_E;
           }
           if (il_hasNormal)

@@ -68,6 +68,8 @@ def _xlib():
     lib.XGetWindowAttributes.argtypes = [ctypes.c_void_p, ctypes.c_ulong, ctypes.c_void_p]
     lib.XFree.argtypes = [ctypes.c_void_p]
     lib.XDestroyImage = None  # a macro in Xlib; the image is freed through XFree below
+    lib.XMoveResizeWindow.argtypes = [ctypes.c_void_p, ctypes.c_ulong, ctypes.c_int,
+                                      ctypes.c_int, ctypes.c_uint, ctypes.c_uint]
     lib.XCloseDisplay.argtypes = [ctypes.c_void_p]
     lib.XFlush.argtypes = [ctypes.c_void_p]
     return lib
@@ -147,6 +149,11 @@ class Display:
         matches = [(self.geometry(w)[2] * self.geometry(w)[3], w)
                    for w, name in self.top_level_windows() if title_part in name]
         return max(matches)[1] if matches else None
+
+    def move_resize(self, window: int, x: int, y: int, width: int, height: int) -> None:
+        """Place and size a top-level window (no window manager runs under Xvfb)."""
+        self.lib.XMoveResizeWindow(self.handle, window, x, y, width, height)
+        self.lib.XFlush(self.handle)
 
     def request_close(self, window: int) -> None:
         """Ask ``window`` to close, as a window manager does (``WM_DELETE_WINDOW``)."""

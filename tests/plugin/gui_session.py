@@ -1,12 +1,16 @@
 """A session in the real ParaView GUI, driven by ``test_gui.py``.
 
-Run as ``xvfb-run -a paraview --dr --script=gui_session.py`` with the environment of
-``paraview_plugin/pvbatch_env.py`` and ``VTKILLUM_GUI_OUT`` naming an output
-directory. The script runs inside the GUI's Python: it loads the plugin, then plays
-a list of steps, each from a one-shot timer of the render view's interactor, so
-that between two steps the GUI runs its event loop (builds the Properties panel of
-the active source, paints the window) exactly as it does for a user:
+Run as ``xvfb-run -a paraview --dr --script=gui_session.py --test-script=gui_menu.xml``
+with the environment of ``paraview_plugin/pvbatch_env.py`` and ``VTKILLUM_GUI_OUT``
+naming an output directory. The script runs inside the GUI's Python: it loads the
+plugin; then ParaView's test player clicks through ``gui_menu.xml`` (Sources ->
+Wavelet, Apply, Filters -> vtkIllum -> vtkIllum Light Transmittance, Apply) while
+the script plays a list of steps, each from a one-shot timer of the render view's
+interactor, so that between two steps the GUI runs its event loop (builds the
+Properties panel of the active source, paints the window) exactly as it does for a
+user:
 
+0. wait until the filter picked from the menu is shown;
 1. every vtkIllum filter is created on a Wavelet, made active (the Properties
    panel is built for it), shown, a property is changed and applied;
 2. the colour map of the coloured array is edited (a preset applied) and the
@@ -38,7 +42,8 @@ sys.path.insert(0, str(ROOT / "paraview_plugin"))
 from vtkillum_paraview import x11
 
 LABELS = ["vtkIllum Optical Properties", "vtkIllum Light Transmittance",
-          "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction"]
+          "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction",
+          "vtkIllum Photon Density"]
 VIEW_SIZE = [400, 400]
 summary = {"steps": [], "filters": {}, "errors": []}
 
@@ -65,6 +70,14 @@ def grab_window(name: str) -> None:
     summary.setdefault("window_grabs", []).append(name)
 
 
+def swapped_volumes(v) -> int:
+    """How many of the view's volumes the plugin draws illuminated."""
+    from vtkillum_paraview import display
+
+    hook = display._views.get(v.GetGlobalID())
+    return 0 if hook is None else len(hook.volumes)
+
+
 def vtkillum_sources() -> dict:
     return {name: proxy for (name, _), proxy in simple.GetSources().items()
             if proxy.GetXMLName().startswith("vtkIllum")}
@@ -74,9 +87,55 @@ def vtkillum_sources() -> dict:
 state = {}
 
 
-def step_setup():
+def load_plugin_and_data():
+    """Before the GUI plays ``gui_menu.xml`` (the menu clicks): the plugin and the CT file."""
     simple.LoadPlugin(str(PLUGIN), ns=globals())
-    wavelet = simple.Wavelet(registrationName="Wavelet1")
+    import numpy as np
+    from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
+
+    from vtkillum.core.volume import Volume
+    from vtkillum.data.procedural import ct_phantom
+    from vtkillum.io.convert import image_data_from_volume
+
+    phantom = ct_phantom(96)
+    # A CT's partial-volume blur (about two voxels): the phantom's materials meet within one
+    # voxel, whose terraces a sharp opacity peak would show as rings.
+    values = phantom.scalars.astype(np.float64)
+    for _ in range(2):
+        for axis in range(3):
+            padded = np.pad(values, [(1, 1) if a == axis else (0, 0) for a in range(3)], "edge")
+            lo, hi = (padded.take(range(k, k + values.shape[axis]), axis) for k in (0, 2))
+            values = 0.25 * (lo + 2 * values + hi)
+    phantom = Volume(values.astype(np.float32), phantom.spacing, phantom.origin)
+    writer = vtkXMLImageDataWriter()
+    writer.SetFileName(str(OUT / "ct_phantom.vti"))
+    writer.SetInputData(image_data_from_volume(phantom, "density"))
+    writer.Write()
+
+
+def step_wait_for_the_menu_clicks():
+    """``gui_menu.xml`` clicks Sources -> Wavelet, Apply, Filters -> vtkIllum -> vtkIllum Light
+    Transmittance, Apply. Wait until that filter is shown (at most a minute)."""
+    clicked = simple.FindSource("vtkIllumLightTransmittance1")
+    shown = clicked is not None and simple.GetDisplayProperties(clicked, view()) is not None \
+        and simple.GetDisplayProperties(clicked, view()).Visibility
+    if not shown and time.monotonic() - state.setdefault("waiting_since", time.monotonic()) < 60:
+        return "again"
+    summary["menu_created"] = clicked.GetXMLLabel() if clicked is not None else None
+    if clicked is not None:
+        simple.Render(view())
+        display = simple.GetDisplayProperties(clicked, view())
+        summary["menu_display"] = {"representation": str(display.Representation).strip("'"),
+                                   "color_array": list(display.ColorArrayName),
+                                   "illuminated_volumes": swapped_volumes(view())}
+        state.setdefault("proxies", {})["vtkIllum Light Transmittance"] = clicked
+    log("menu clicks done")
+
+
+def step_setup():
+    with x11.Display() as display:  # room for the panels and the view
+        display.move_resize(display.find_window("ParaView 5"), 0, 0, 1600, 1000)
+    wavelet = simple.FindSource("Wavelet1") or simple.Wavelet(registrationName="Wavelet1")
     state["wavelet"] = wavelet
     v = view()
     v.ViewSize = VIEW_SIZE
@@ -89,7 +148,7 @@ def step_setup():
 
 def make_create_step(label):
     def step():
-        proxy = constructor(label)(Input=state["wavelet"])
+        proxy = state.get("proxies", {}).get(label) or constructor(label)(Input=state["wavelet"])
         simple.SetActiveSource(proxy)  # the Properties panel is built for it
         display = simple.Show(proxy, view())
         simple.Render(view())
@@ -129,12 +188,16 @@ def step_show_one():
     v.CameraViewUp = [0.0, 0.0, 1.0]
     simple.Render(v)
     simple.SaveScreenshot(str(OUT / "view_before_colour_edit.png"), v, ImageResolution=VIEW_SIZE)
-    executions = lt.GetClientSideObject().GetMTime()
+    misses = lt.GetClientSideObject().GetCacheStatistics().misses
+    summary["illuminated_volumes_in_view"] = swapped_volumes(v)
     lut = simple.GetColorTransferFunction("RTData")
     lut.ApplyPreset("Inferno (matplotlib)", True)
+    simple.GetOpacityTransferFunction("RTData").Points = [37.35, 0.0, 0.5, 0.0, 120.0, 0.0, 0.5, 0.0,
+                                                          200.0, 0.3, 0.5, 0.0, 276.8, 1.0, 0.5, 0.0]
     simple.Render(v)
     simple.SaveScreenshot(str(OUT / "view_after_colour_edit.png"), v, ImageResolution=VIEW_SIZE)
-    summary["colour_edit_changed_filter_mtime"] = lt.GetClientSideObject().GetMTime() != executions
+    summary["recomputed_after_colour_edit"] = \
+        lt.GetClientSideObject().GetCacheStatistics().misses - misses
     log("colour map edited")
 
 
@@ -145,10 +208,10 @@ def step_grab_1():
 
 def step_bad_light():
     lt = state["proxies"]["vtkIllum Light Transmittance"]
-    lt.Lights = [2, 1, 0, 0, 1, 1, 1]
+    lt.Lights = [2, 1, 0, 0, 1, 1, 1, 0]
     lt.UpdatePipeline()
     summary["bad_light_error"] = lt.GetClientSideObject().GetLastError()
-    lt.Lights = [0, 1, -1, -1, 1, 1, 1]
+    lt.Lights = [0, 1, -1, -1, 1, 1, 1, 0]
     lt.UpdatePipeline()
     summary["good_light_error"] = lt.GetClientSideObject().GetLastError()
     log("bad light")
@@ -187,6 +250,42 @@ def step_grab_2():
     log("window grabbed after load")
 
 
+def step_ct():
+    """A CT-like volume with Light Transmittance: the picture of the README."""
+    for proxy in simple.GetSources().values():
+        for v in simple.GetViews():
+            simple.Hide(proxy, v)
+    reader = simple.XMLImageDataReader(registrationName="ct_phantom.vti",
+                                       FileName=[str(OUT / "ct_phantom.vti")])
+    lit = constructor("vtkIllum Light Transmittance")(Input=reader)
+    # A key light from the front left and above, a dim blue fill light from the right.
+    lit.Lights = [0, 0.6, 0.9, -0.5, 1.0, 0.96, 0.9, 0, 0, -0.9, 0.2, 0.1, 0.25, 0.27, 0.35, 0]
+    simple.SetActiveSource(lit)
+    v = view()
+    display = simple.Show(lit, v)
+    lut = simple.GetColorTransferFunction("density")
+    lut.RGBPoints = [0.0, 1.0, 1.0, 1.0, 0.3, 0.95, 0.75, 0.6, 0.5, 0.85, 0.45, 0.4,
+                     0.65, 0.9, 0.8, 0.2, 0.9, 0.95, 0.93, 0.88, 1.0, 0.95, 0.93, 0.88]
+    # Skin faint, the lesion, bone on a ramp as wide as the tissue-bone border.
+    simple.GetOpacityTransferFunction("density").Points = [
+        0.0, 0.0, 0.5, 0.0, 0.12, 0.0, 0.5, 0.0, 0.3, 0.05, 0.5, 0.0, 0.42, 0.0, 0.5, 0.0,
+        0.58, 0.0, 0.5, 0.0, 0.65, 0.4, 0.5, 0.0, 0.7, 0.0, 0.5, 0.0,
+        0.72, 0.0, 0.5, 0.0, 0.9, 0.8, 0.5, 0.0, 1.0, 0.9, 0.5, 0.0]
+    v.ViewSize = [900, 800]
+    v.CameraPosition = [-260.0, -520.0, 110.0]
+    v.CameraFocalPoint = [0.0, 0.0, 0.0]
+    v.CameraViewUp = [0.0, 0.0, 1.0]
+    simple.Render(v)
+    summary["ct"] = {"color_array": list(display.ColorArrayName),
+                     "illuminated_volumes_in_view": swapped_volumes(v)}
+    log("CT phantom shown")
+
+
+def step_grab_ct():
+    grab_window("window_ct.png")
+    log("window grabbed with the CT phantom")
+
+
 def step_finish():
     (OUT / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     (OUT / "done").write_text("the GUI session reached its end\n")
@@ -194,20 +293,24 @@ def step_finish():
         display.request_close(display.find_window("ParaView 5"))
 
 
-STEPS = ([step_setup] + [make_create_step(label) for label in LABELS]
+STEPS = ([step_wait_for_the_menu_clicks, step_setup] + [make_create_step(label) for label in LABELS]
          + [make_edit_step(label) for label in LABELS[1:]]
          + [step_show_one, step_grab_1, step_bad_light, step_save_delete, step_load,
-            step_select_loaded, step_grab_2, step_finish])
+            step_select_loaded, step_grab_2, step_ct, step_grab_ct, step_finish])
 
 
 # === the driver: one step per timer tick, the GUI's event loop in between ====================
 def run_next(interactor, event=None):
     if not STEPS or time.monotonic() < state.get("due", 0.0):
         return
-    step = STEPS.pop(0)
+    step = STEPS[0]
     try:
-        step()
+        if step() == "again":  # not ready yet: the same step at the next tick
+            interactor.CreateOneShotTimer(600)
+            return
+        STEPS.pop(0)
     except Exception:  # recorded; the pytest side fails on it
+        STEPS.pop(0)
         summary["errors"].append(f"{step.__name__}: {traceback.format_exc()}")
         log(f"FAILED {step.__name__}")
         if step is not step_finish:
@@ -219,6 +322,7 @@ def run_next(interactor, event=None):
 
 OUT.mkdir(parents=True, exist_ok=True)
 try:
+    load_plugin_and_data()
     _interactor = view().GetRenderWindow().GetInteractor()
     _interactor.AddObserver("TimerEvent", run_next)
     _interactor.CreateOneShotTimer(500)

@@ -46,8 +46,8 @@ summary = {"paraview": simple.GetParaViewVersion().GetVersion(), "filters": {}, 
 # Plume transfer function: transparent air, wisps, body, core (data in [0, 1]).
 OPACITY = [0.0, 0.0, 0.5, 0.0, 0.02, 0.0, 0.5, 0.0, 0.3, 0.35, 0.5, 0.0, 1.0, 0.95, 0.5, 0.0]
 COLORS = [0.0, 1.0, 1.0, 1.0, 0.5, 1.0, 0.85, 0.7, 1.0, 1.0, 0.7, 0.5]
-LIGHT_A = [0, 1.0, 0.3, -0.6, 1.0, 1.0, 1.0]     # from -x: the camera sees the lit side
-LIGHT_B = [0, -1.0, 0.3, -0.6, 1.0, 1.0, 1.0]    # from +x: the camera sees the shadowed side
+LIGHT_A = [0, 1.0, 0.3, -0.6, 1.0, 1.0, 1.0, 0]   # from -x: the camera sees the lit side
+LIGHT_B = [0, -1.0, 0.3, -0.6, 1.0, 1.0, 1.0, 0]  # from +x: the camera sees the shadowed side
 
 
 def write_vti(volume, path: Path) -> None:
@@ -90,6 +90,8 @@ def configure(proxy, colors=COLORS) -> None:
     proxy.ScalarOpacityFunction = opacity
     if hasattr(proxy, "Lights"):
         proxy.Lights = LIGHT_A
+    if hasattr(proxy, "Photons"):
+        proxy.Photons = 20000  # (CPU)
 
 
 def filter_proxies() -> dict:

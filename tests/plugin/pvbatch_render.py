@@ -14,7 +14,8 @@ compares, and judges the other pictures.
 4. The display colours by ``fluence``: ParaView's own volume is drawn again.
 5. The baked RGBA route (OutputRGBA, ShowIlluminated) of two filters in one view:
    each keeps its own opacity function.
-6. Convection-Diffusion Light (scattering on) and Ambient Extinction render too.
+6. Convection-Diffusion Light (scattering on), Ambient Extinction and Photon Density
+   render too.
 """
 
 import json
@@ -28,17 +29,20 @@ OUT.mkdir(parents=True, exist_ok=True)
 ROOT = Path(__file__).resolve().parents[2]
 simple._DisableFirstRenderCameraReset()  # the camera is the scene's, see shot()
 simple.LoadPlugin(str(ROOT / "paraview_plugin" / "vtkillum_plugin.py"), ns=globals())
-import vtkillum_plugin as plugin  # noqa: E402
-from vtkmodules.vtkIOXML import vtkXMLImageDataWriter  # noqa: E402
+import vtkillum_plugin as plugin
+from vtkillum_paraview import display as _display
 
-from vtkillum.data.procedural import smoke_plume  # noqa: E402
-from vtkillum.io.convert import image_data_from_volume  # noqa: E402
+_display.JITTER = False  # sampled exactly as ParaView's own mapper and the VTK reference
+from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
+
+from vtkillum.data.procedural import smoke_plume
+from vtkillum.io.convert import image_data_from_volume
 
 SIZE = [200, 200]
 SHAPE = (24, 24, 36)
 OPACITY = [0.0, 0.0, 0.5, 0.0, 0.05, 0.0, 0.5, 0.0, 0.35, 0.4, 0.5, 0.0, 1.0, 0.9, 0.5, 0.0]
 COLORS = [0.0, 1.0, 1.0, 1.0, 0.5, 1.0, 0.8, 0.6, 1.0, 0.9, 0.9, 1.0]
-LIGHT = [0, 1.0, 0.4, -0.5, 1.0, 1.0, 1.0]
+LIGHT = [0, 1.0, 0.4, -0.5, 1.0, 1.0, 1.0, 0]
 CAMERA = {"position": [0.3, -6.5, 1.8], "focal_point": [0.0, 0.0, 1.4], "view_up": [0, 0, 1],
           "view_angle": 30.0}
 record = {"camera": CAMERA, "opacity": OPACITY, "colors": COLORS, "light": LIGHT, "size": SIZE}
@@ -123,7 +127,7 @@ shot(view, "pv_opacity_edit.png")
 record["misses_after_opacity_edit"] = obj.GetCacheStatistics().misses - stats_before
 lut.RGBPoints = record["colors"]
 opacity.Points = record["opacity"]
-lit.Lights = [0, -1.0, 0.4, -0.5, 1.0, 1.0, 1.0]
+lit.Lights = [0, -1.0, 0.4, -0.5, 1.0, 1.0, 1.0, 0]
 shot(view, "pv_light_moved.png")
 lit.Lights = LIGHT
 
@@ -159,16 +163,96 @@ record["rgba_opacity_functions_differ"] = (
 simple.Delete(view)
 
 # --- 6: the other methods ------------------------------------------------------------------------------
-for label in ("ConvectionDiffusionLight", "AmbientExtinction"):
+for label in ("ConvectionDiffusionLight", "AmbientExtinction", "PhotonDensity"):
     proxy = globals()[f"vtkIllum{label}"](Input=reader)
     proxy.Lights = LIGHT
     if label == "ConvectionDiffusionLight":
         proxy.Scattering = [0.02, 0.02, 0.02]
+    if label == "PhotonDensity":
+        proxy.Photons = 20000
     view = new_view()
     simple.Show(proxy, view)
     shot(view, f"pv_{label}.png")
     record[f"swapped_{label}"] = swapped(view)
     simple.Delete(view)
+
+# --- 7: a file written from a filter output, transmittance set to 1: ParaView's own volume ----------
+import numpy as np  # noqa: E402
+from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: E402
+
+lit.UpdatePipeline()
+unlit = lit.GetClientSideObject().GetOutputDataObject(0).NewInstance()
+unlit.DeepCopy(lit.GetClientSideObject().GetOutputDataObject(0))
+vtk_to_numpy(unlit.GetPointData().GetArray("transmittance"))[:] = 1.0
+unlit.GetFieldData().GetArray("vtkillum_render").SetValue(0, 1.0)  # albedo 1: all scatters
+write_vti(unlit, OUT / "unlit.vti")
+white = [0.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0, 1.0]
+lut.RGBPoints = white
+_display.NEAR_CELLS = 0.0  # the transmittance from the grid only (here 1), no exact march
+for name, path in (("file_unlit.png", OUT / "unlit.vti"), ("file_plain.png", OUT / "plume.vti")):
+    source = simple.XMLImageDataReader(FileName=[str(path)])
+    view = new_view()
+    shown = simple.Show(source, view)
+    shown.SetRepresentationType("Volume")
+    simple.ColorBy(shown, ("POINTS", "density"))
+    shown.ScalarOpacityUnitDistance = record["unit_distance"]
+    shot(view, name)
+    record[f"swapped_{name}"] = swapped(view)
+    simple.Delete(view)
+lut.RGBPoints = record["colors"]
+_display.NEAR_CELLS = 2.0
+
+# --- 8: a vector array: the filter follows the colour map's Magnitude / component -------------------
+calc = simple.Calculator(Input=reader, ResultArrayName="vec",
+                         Function="density*iHat+0.2*density*jHat+coordsZ*kHat")
+vec = vtkIllumLightTransmittance(Input=calc)  # noqa: F821
+vec.Lights = LIGHT
+vec.Scalars = ["POINTS", "vec"]
+view = new_view()
+vec_display = simple.Show(vec, view)
+shot(view, "vec_magnitude.png")
+t_magnitude = vtk_to_numpy(vec.GetClientSideObject().GetOutputDataObject(0).GetPointData()
+                           .GetArray("transmittance")).copy()
+simple.ColorBy(vec_display, ("POINTS", "vec", "X"))
+shot(view, "vec_x.png")
+t_x = vtk_to_numpy(vec.GetClientSideObject().GetOutputDataObject(0).GetPointData()
+                   .GetArray("transmittance")).copy()
+record["vector"] = {"color_array": list(vec_display.ColorArrayName),
+                    "lut_mode": str(vec.LookupTable.VectorMode),
+                    "transmittance_changed": float(np.abs(t_x - t_magnitude).max()),
+                    "swapped": swapped(view), "error": vec.GetClientSideObject().GetLastError()}
+simple.Delete(view)
+
+# --- 9: errors in ParaView's words ------------------------------------------------------------------
+errors = {}
+probe = vtkIllumLightTransmittance(Input=reader)  # noqa: F821
+probe.Lights = [0, 1, 0, 0, 1, 1, 1, 0, 2, 0, 1, 0, 1, 1, 1, 0]
+probe.UpdatePipeline()
+errors["light_type"] = probe.GetClientSideObject().GetLastError()
+probe.Lights = [0, 0, 0, 0, 1, 1, 1, 0]
+probe.UpdatePipeline()
+errors["light_zero"] = probe.GetClientSideObject().GetLastError()
+probe.Lights = LIGHT
+probe.Albedo = 1.5
+probe.UpdatePipeline()
+errors["albedo"] = probe.GetClientSideObject().GetLastError()
+probe.Albedo = 0.9
+probe.UpdatePipeline()
+errors["fixed"] = probe.GetClientSideObject().GetLastError()
+photon = vtkIllumPhotonDensity(Input=reader)  # noqa: F821
+photon.Radius = -1.0
+photon.UpdatePipeline()
+errors["photon_radius"] = photon.GetClientSideObject().GetLastError()
+record["errors"] = errors
+
+# --- 10: progress reported while the kernels run (ParaView's progress bar) ---------------------------
+progress = []
+busy = vtkIllumLightTransmittance(Input=reader)  # noqa: F821
+busy.Lights = LIGHT[:] + [1, 0.0, -3.0, 1.5, 5.0, 5.0, 5.0, 0] + [0, -1, 0.2, -0.4, 1, 1, 1, 0]
+busy.GetClientSideObject().AddObserver(
+    "ProgressEvent", lambda obj, event: progress.append(round(obj.GetProgress(), 4)))
+busy.UpdatePipeline()
+record["progress"] = progress
 
 (OUT / "render.json").write_text(json.dumps(record, indent=1))
 print("pvbatch_render: done")

@@ -29,8 +29,10 @@ pytestmark = [
 ]
 
 SCRIPT = Path(__file__).with_name("gui_session.py")
+MENU_CLICKS = Path(__file__).with_name("gui_menu.xml")
 LABELS = ["vtkIllum Optical Properties", "vtkIllum Light Transmittance",
-          "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction"]
+          "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction",
+          "vtkIllum Photon Density"]
 
 
 def run_gui(out: Path, shim: Path, timeout: float = 420.0):
@@ -42,7 +44,7 @@ def run_gui(out: Path, shim: Path, timeout: float = 420.0):
     env["XDG_CONFIG_HOME"] = str(out / "config")  # a fresh ParaView configuration
     env.setdefault("QT_QPA_PLATFORM", "xcb")
     command = ["xvfb-run", "-a", "-s", "-screen 0 1600x1000x24", "paraview", "--dr",
-               f"--script={SCRIPT}"]
+               f"--script={SCRIPT}", f"--test-script={MENU_CLICKS}"]
     proc = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
     try:
@@ -113,7 +115,31 @@ def test_a_wrong_light_names_the_row_and_column_without_a_traceback(gui):
 
 def test_window_grabs_show_the_gui(gui):
     out, _, _ = gui
-    for name in ("window_filters.png", "window_after_load.png"):
+    for name in ("window_filters.png", "window_after_load.png", "window_ct.png"):
         shot = image(out / name)
         assert shot.shape[0] > 400 and shot.shape[1] > 600, name
         assert shot.std() > 20.0, f"{name} looks blank"
+
+
+def test_editing_the_colour_map_changes_the_illumination_in_the_gui(gui):
+    out, _, _ = gui
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["illuminated_volumes_in_view"] == 1  # drawn by the plugin, per sample
+    assert summary["recomputed_after_colour_edit"] >= 1  # the filter followed the edit
+    before = image(out / "view_before_colour_edit.png")
+    after = image(out / "view_after_colour_edit.png")
+    assert np.abs(after - before).mean() > 5.0
+    assert summary["ct"]["color_array"] == ["POINTS", "density"]
+    assert summary["ct"]["illuminated_volumes_in_view"] == 1
+
+
+def test_the_menu_entry_creates_an_illuminated_volume(gui):
+    """Filters -> vtkIllum -> vtkIllum Light Transmittance, Apply: clicked by ParaView's
+    test player (the path that crashed 5.11, issue 12)."""
+    out, _, log = gui
+    summary = json.loads((out / "summary.json").read_text())
+    assert "Success =  true" in log or "Success = true" in log, log[-2000:]
+    assert summary["menu_created"] == "vtkIllum Light Transmittance"
+    assert summary["menu_display"]["representation"] == "Volume"
+    assert summary["menu_display"]["color_array"] == ["POINTS", "RTData"]
+    assert summary["menu_display"]["illuminated_volumes"] == 1

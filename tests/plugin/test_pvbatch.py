@@ -28,7 +28,10 @@ pytestmark = [
 
 SCRIPT = Path(__file__).with_name("pvbatch_filters.py")
 ILLUMINATION = ("vtkIllum Light Transmittance", "vtkIllum Convection-Diffusion Light",
-                "vtkIllum Ambient Extinction")
+                "vtkIllum Ambient Extinction", "vtkIllum Photon Density")
+#: Least mean change (of 255) of the picture when the light moves to the other side; the
+#: ambient radiance cache spreads the light over its sphere, so it changes least.
+LIGHT_CHANGE = {"vtkIllum Ambient Extinction": 0.3}
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +96,8 @@ def test_moving_the_light_changes_illuminated_images_only(run):
         a, b = (image(out, name) for name in record["screenshots"])
         change = np.abs(a - b).mean()
         if label in ILLUMINATION:
-            assert change > 1.0, f"{label}: moving the light changed the image by {change:.2f}"
+            least = LIGHT_CHANGE.get(label, 1.0)
+            assert change > least, f"{label}: moving the light changed the image by {change:.2f}"
         else:  # the control: optical properties do not depend on the light
             assert change == 0.0, label
 
