@@ -66,6 +66,8 @@ from vtkillum.filters.convection_diffusion_light import (
     ConvectionDiffusionLightFilter,
 )
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
+from vtkillum.filters.many_lights import _CHOICES as MANY_LIGHTS_CHOICES
+from vtkillum.filters.many_lights import ManyLightsFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
 from vtkillum.filters.photon_density import PhotonDensityFilter
 from vtkillum.filters.rgba_output import RGBA_ARRAY, RGBA_TYPES, IlluminatedRGBAOutput
@@ -359,6 +361,43 @@ class PhotonDensity(IlluminatedRGBAOutput, ParaViewGlue, PhotonDensityFilter):
     """Jönsson et al.'s volumetric photon mapping gathered onto a light volume."""
 
 
+def _choice(name: str, doc: str) -> str:
+    values = MANY_LIGHTS_CHOICES[name][1]
+    return _string_list(name, f"Set{name}", values, values[0], doc, advanced=True)
+
+
+@_proxy("vtkIllumManyLights", "vtkIllum Many Lights",
+        optical_model_xml(),
+        lighting_xml(),
+        _number("int", "Count", "SetCount", 256,
+                "Virtual lights per set (random walks from the lights).", lo=1, hi=100000),
+        _number("double", "VSLRadius", "SetVSLRadius", 2.0,
+                "Radius of the virtual spherical lights, in voxels.", lo=0.01, hi=64.0),
+        _number("double", "VSLRadiusMFP", "SetVSLRadiusMFP", 0.5,
+                "Radius bound in mean free paths at the light (0: no bound).", lo=0.0,
+                advanced=True),
+        _number("int", "AVSMResolution", "SetAVSMResolution", 48,
+                "Texels per cube-map face of each virtual light's shadow map.", lo=2, hi=512,
+                advanced=True),
+        _number("int", "AVSMNodes", "SetAVSMNodes", 8,
+                "Depth samples per shadow-map texel.", lo=2, hi=16, advanced=True),
+        _number("double", "DensityScale", "SetDensityScale", 1.0,
+                "Global density scale (eqs. 7-8 of Weber et al.).", lo=0.0, advanced=True),
+        _number("int", "Seed", "SetSeed", 0, "Seed of the random walks.", lo=0,
+                hi=2147483646, advanced=True),
+        _choice("VirtualLights", "spherical (regularised) or point virtual lights."),
+        _choice("Transmittance", "avsm: cached in adaptive volumetric shadow maps; "
+                "ray-marching: exact."),
+        _choice("AVSMLookup", "Shadow-map lookup: trilinear or point."),
+        _number("double", "StepSize", "SetStepSize", 0.0,
+                "Ray-marching step (world units); 0: half the smallest spacing.", lo=0.0,
+                advanced=True),
+        output_xml(scale_default=0.5))
+class ManyLights(IlluminatedRGBAOutput, ParaViewGlue, ManyLightsFilter):
+    """Weber et al.'s virtual spherical lights gathered onto a light volume (port 0); the
+    virtual lights as points (port 1)."""
+
+
 # === pvpython helpers =================================================================================
 def ShowIlluminated(source, view=None, array: str = RGBA_ARRAY):
     """Show a filter's baked ``illuminated_rgba`` (OutputRGBA on) as a volume.
@@ -458,6 +497,7 @@ __all__ = [
     "CacheStatistics",
     "ConvectionDiffusionLight",
     "LightTransmittance",
+    "ManyLights",
     "OpticalProperties",
     "PhotonDensity",
     "SetLights",
