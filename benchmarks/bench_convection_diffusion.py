@@ -33,9 +33,9 @@ import time
 import numpy as np
 import warp as wp
 
-from vtkillum.core.cd_convection import convect_light, convect_light_iterated
-from vtkillum.core.cd_diffusion import SOLVERS, DiffusionSolver
 from vtkillum.core.convection_diffusion import ConvectionDiffusionSolver
+from vtkillum.core.convection_diffusion.convection import convect_light, convect_light_iterated
+from vtkillum.core.convection_diffusion.diffusion import SOLVERS, DiffusionSolver
 from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.lights import DIRECTIONAL, DirectionalLight, PointLight
@@ -210,7 +210,7 @@ def residual_table(n, device, repeats) -> None:
 
 
 def iterated_table(n, device) -> None:
-    from vtkillum.core.cd_convection import sweep_plan
+    from vtkillum.core.convection_diffusion.convection import sweep_plan
 
     vol = synthetic((2 * n, 2 * n, 2 * n))
     cd = ConvectionDiffusionSolver(light_volume_shape=(n, n, n), device=device)

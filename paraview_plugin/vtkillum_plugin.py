@@ -47,8 +47,7 @@ from paraview.util.vtkAlgorithm import smdomain, smhint, smproperty, smproxy
 from vtkmodules.vtkCommonCore import vtkWeakReference
 from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
 
-from vtkillum.core.cd_convection import SCHEMES
-from vtkillum.core.cd_diffusion import SOLVERS
+from vtkillum.filters.convection_diffusion_light import SCHEMES, SOLVERS
 from vtkillum.filters.ambient_extinction import RADIUS_UNITS, AmbientExtinctionFilter
 from vtkillum.filters.base import DEFAULT_CACHE_MB
 from vtkillum.filters.convection_diffusion_light import (

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from vtkillum.core.camera import Camera
-from vtkillum.core.cd_diffusion import diffuse_dct, diffusion_length_squared
 from vtkillum.core.convection_diffusion import ConvectionDiffusionSolver
+from vtkillum.core.convection_diffusion.diffusion import diffuse_dct, diffusion_length_squared
 from vtkillum.core.lights import DirectionalLight, PointLight
 from vtkillum.core.render import METHODS, render
 from vtkillum.core.scene import Scene

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 from vtkmodules.vtkCommonDataModel import vtkDataObject
 
-from vtkillum.core.cd_convection import SCHEMES
-from vtkillum.core.cd_diffusion import SOLVERS
-from vtkillum.core.convection_diffusion import ConvectionDiffusionSolver, UpdateStats
+from vtkillum.core.convection_diffusion.convection import SCHEMES
+from vtkillum.core.convection_diffusion.diffusion import SOLVERS
+from vtkillum.core.convection_diffusion.solver import ConvectionDiffusionSolver, UpdateStats
 from vtkillum.filters.base import IlluminationFilterBase
 
 #: Default light-volume resolution relative to the data (the paper's choice).
@@ -55,7 +55,7 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         Point lights' source region in world units; 0 (default): two light-grid spacings.
     ConvectionScheme : str
         ``"characteristics"`` (default, short characteristics), ``"exponential"`` or
-        ``"upwind"`` (the paper's eqs. 16–20); see :mod:`vtkillum.core.cd_convection`.
+        ``"upwind"`` (the paper's eqs. 16–20); see :mod:`vtkillum.core.convection_diffusion.convection`.
     ColorTransferFunction, ScalarOpacity, ScalarOpacityUnitDistance, Lights, Device,
     OutputDimensions, InputComponent, NaNPolicy, PassInputArrays, CacheSizeMB
         As in :class:`~vtkillum.filters.base.IlluminationFilterBase`.

@@ -4,15 +4,15 @@ Interactive Volume Visualization", I3D 2013): the ``"convection-diffusion"`` met
 Pipeline (the paper's Fig. 2 and Algorithm 1)
 ---------------------------------------------
 1. **Opacity volume** — extinction ``sigma_t`` on the light grid (default half the
-   data's resolution), footprint-averaged (:mod:`vtkillum.core.cd_opacity`).
+   data's resolution), footprint-averaged (:mod:`~vtkillum.core.convection_diffusion.opacity`).
 2. **Convection per light** — steady transmittance ``T_l`` (short characteristics
    by default, or the paper's upwind scheme), exact in one wavefront-ordered sweep
-   instead of the paper's 4–5 iterations per layer (:mod:`vtkillum.core.cd_convection`).
+   instead of the paper's 4–5 iterations per layer (:mod:`~vtkillum.core.convection_diffusion.convection`).
 3. **Composition** (eq. 22) — ``L0(x) = sum_l T_l(x) E_l(x)`` with ``E_l`` the light's
    RGB irradiance (``I / max(d, r_s)**2`` for point lights): the single-scattering
    fluence of the project's convention (:mod:`vtkillum.core.illumination`).
 4. **Diffusion** (eq. 23) — ``(I - sigma_hat_s laplace) L = L0`` per channel, pure
-   Neumann, multigrid by default (:mod:`vtkillum.core.cd_diffusion`).
+   Neumann, multigrid by default (:mod:`~vtkillum.core.convection_diffusion.diffusion`).
 5. **Rendering** (eq. 24) — :func:`vtkillum.core.raycast.render_illuminated` shades
    with ``L`` and the scene's Phong terms.
 
@@ -44,9 +44,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from vtkillum.core.cd_convection import POINT_KIND, SCHEMES, convect_light
-from vtkillum.core.cd_diffusion import SOLVERS, DiffusionReport, DiffusionSolver
-from vtkillum.core.cd_opacity import light_grid_shape, light_grid_sigma, light_grid_spacing
+from vtkillum.core.convection_diffusion.convection import POINT_KIND, SCHEMES, convect_light
+from vtkillum.core.convection_diffusion.diffusion import SOLVERS, DiffusionReport, DiffusionSolver
+from vtkillum.core.convection_diffusion.opacity import (
+    light_grid_shape,
+    light_grid_sigma,
+    light_grid_spacing,
+)
 from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.lights import pack_lights
@@ -65,69 +69,6 @@ OPTIONS = {
 
 #: Iteration cap of one update when ``iterations`` is 0 ("until the tolerance").
 MAX_ITERATIONS = {"multigrid": 100, "cg": 2000, "gauss-seidel": 20000, "dct": 1}
-
-
-def render_convection_diffusion(volume, scene, width, height, device=None, progress=None,
-                                **options):
-    """Render with a convection–diffusion light volume (registered as ``"convection-diffusion"``).
-
-    Parameters
-    ----------
-    volume : vtkillum.core.volume.Volume
-    scene : vtkillum.core.scene.Scene
-        Transfer function, unit distance, lights, camera, ``shading`` (eq. 24), albedo,
-        and the ``convection_diffusion`` section (defaults of the options below).
-    width, height : int
-        Image size in pixels.
-    device : str, optional
-        Warp device.
-    progress : callable, optional
-        ``progress(fraction)`` from the ray caster.
-    light_volume_scale : float
-        Light-volume resolution relative to the data's (0.5: half).
-    scattering : (3,) float
-        Diffusion coefficient ``sigma_hat_s`` per RGB channel, world units² (the square of
-        the diffusion length); 0 disables diffusion.
-    iterations : int
-        Diffusion iteration budget; 0 iterates until ``tolerance``.
-    solver : str
-        ``"multigrid"``, ``"cg"``, ``"gauss-seidel"`` or ``"dct"``.
-    tolerance : float
-        Relative residual at which the diffusion stops.
-    source_radius : float
-        Point lights' source region (world units); 0: two light-grid spacings (eq. 15).
-    convection_scheme : str
-        ``"characteristics"`` (default), ``"exponential"`` or ``"upwind"`` (the paper's
-        eqs. 16–20); not a scene field.
-    **options
-        Ray-casting options of :func:`vtkillum.core.raycast.render_illuminated`
-        (``step_size``, ``jitter``, ``seed``, ``early_termination``).
-
-    Returns
-    -------
-    vtkillum.core.render.RenderResult
-        ``info["convection_diffusion"]`` holds :meth:`UpdateStats.as_dict`.
-    """
-    from vtkillum.core.raycast import render_illuminated
-
-    cd = dict(scene.options.get("convection_diffusion", {}))
-    for key in OPTIONS:
-        if key in options:
-            cd[key] = options.pop(key)
-    scheme = options.pop("convection_scheme", "characteristics")
-    config = {k: cd.get(k, v) for k, v in OPTIONS.items()}
-    # One solver per volume and configuration, kept with the volume: a new camera (an
-    # interactive window re-rendering) recomputes nothing, an edit only what Algorithm 1 says.
-    solver = volume.derived(
-        "convection_diffusion_solver", (device, scheme, repr(sorted(config.items()))),
-        lambda: ConvectionDiffusionSolver(device=device, convection_scheme=scheme, **config))
-    stats = solver.update(volume, scene.resolved_transfer_function(volume),
-                          scene.resolved_unit_distance(volume), scene.lights,
-                          volume_key=volume.content_key)
-    result = render_illuminated(volume, scene, width, height, device, progress,
-                                illumination=solver.illumination_volume(volume), **options)
-    result.info["convection_diffusion"] = stats.as_dict()
-    return result
 
 
 @dataclass
@@ -191,7 +132,7 @@ class ConvectionDiffusionSolver:
     scattering : (3,) float
         ``sigma_hat_s`` per RGB channel in world units²; 0 = no diffusion.
     solver : str
-        Diffusion solver, one of :data:`vtkillum.core.cd_diffusion.SOLVERS`.
+        Diffusion solver, one of :data:`~vtkillum.core.convection_diffusion.diffusion.SOLVERS`.
     tolerance : float
         Relative residual at which the diffusion is converged.
     iterations : int
@@ -205,7 +146,7 @@ class ConvectionDiffusionSolver:
     convection_scheme : str
         ``"characteristics"`` (default: short characteristics), ``"exponential"``
         (exponentially fitted upwind) or ``"upwind"`` (the paper's eqs. 16–20); see
-        :mod:`vtkillum.core.cd_convection`.
+        :mod:`~vtkillum.core.convection_diffusion.convection`.
     device : str, optional
         Warp device.
     """
