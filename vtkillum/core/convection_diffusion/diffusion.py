@@ -164,7 +164,7 @@ class DiffusionSolver:
 
     # --- public ----------------------------------------------------------------------------
     def solve(self, b: wp.array3d, x: wp.array3d, max_iterations: int = 100,
-              tolerance: float = 1e-4) -> DiffusionReport:
+              tolerance: float = 1e-4, callback=None) -> DiffusionReport:
         """Improve ``x`` in place towards the solution for right-hand side ``b``.
 
         Parameters
@@ -178,6 +178,8 @@ class DiffusionSolver:
         tolerance : float
             Stop once the relative residual is at or below this (or below
             :func:`residual_floor`, whichever is larger).
+        callback : callable, optional
+            ``callback(iteration, residual)`` after every iteration (progress reports).
         """
         self._check(b)
         self._check(x)
@@ -198,13 +200,15 @@ class DiffusionSolver:
             report.iterations = 1
             report.residuals.append(self.residual(x, b, b_norm))
         elif self.method == "cg":
-            self._cg(b, x, b_norm, max_iterations, tolerance, report)
+            self._cg(b, x, b_norm, max_iterations, tolerance, report, callback)
         else:
             step = self._multigrid.vcycle if self.method == "multigrid" else self._gs_sweep
             for _ in range(int(max_iterations)):
                 step(x, b)
                 report.iterations += 1
                 report.residuals.append(self.residual(x, b, b_norm))
+                if callback is not None:
+                    callback(report.iterations, report.residuals[-1])
                 if report.residuals[-1] <= tolerance:
                     break
         report.converged = report.residuals[-1] <= tolerance
@@ -247,7 +251,7 @@ class DiffusionSolver:
                 self._work[name] = wp.empty(self.shape, dtype=wp.vec3, device=self.device)
         return [self._work[n] for n in names]
 
-    def _cg(self, b, x, b_norm, max_iterations, tolerance, report) -> None:
+    def _cg(self, b, x, b_norm, max_iterations, tolerance, report, callback=None) -> None:
         r, z, p, q = self._buffers("r", "z", "p", "q")
         scal = wp.zeros(CG_SCALARS, dtype=wp.float64, device=self.device)
         lines = (self.shape[1], self.shape[2])
@@ -267,6 +271,8 @@ class DiffusionSolver:
             wp.launch(cg_shift_kernel, dim=1, device=self.device, inputs=[scal])
             report.iterations += 1
             report.residuals.append(float(np.max(np.where(b_norm > 0, rr * scale, 0.0))))
+            if callback is not None:
+                callback(report.iterations, report.residuals[-1])
             if report.residuals[-1] <= tolerance:
                 break
         report.residuals[-1] = self.residual(x, b, b_norm)

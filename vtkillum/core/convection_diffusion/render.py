@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from vtkillum.core.convection_diffusion.solver import OPTIONS, ConvectionDiffusionSolver
 
+#: Share of the progress bar for the light volume (the rest is the ray casting).
+LIGHT_PROGRESS_SHARE = 0.3
+
 
 def render_convection_diffusion(volume, scene, width, height, device=None, progress=None,
                                 **options):
@@ -20,16 +23,22 @@ def render_convection_diffusion(volume, scene, width, height, device=None, progr
     device : str, optional
         Warp device.
     progress : callable, optional
-        ``progress(fraction)`` from the ray caster.
+        ``progress(fraction)``: the light volume's stages and diffusion iterations up to
+        :data:`LIGHT_PROGRESS_SHARE`, then the ray caster's tiles.
     light_volume_scale : float
         Light-volume resolution relative to the data's (0.5: half).
+    diffusion_model : str
+        ``"physical"`` (default; diffusion approximation of radiative transfer from the
+        scene's optical model: ``sigma_t``, albedo, colours, anisotropy) or ``"paper"``
+        (Zhang & Ma's eq. 23 with ``scattering``); see
+        :mod:`~vtkillum.core.convection_diffusion.solver`.
     scattering : (3,) float
-        Diffusion coefficient ``sigma_hat_s`` per RGB channel, world units² (the square of
-        the diffusion length); 0 disables diffusion.
+        ``"paper"`` only: diffusion coefficient ``sigma_hat_s`` per RGB channel, world
+        units² (the square of the diffusion length); 0 disables diffusion.
     iterations : int
         Diffusion iteration budget; 0 iterates until ``tolerance``.
     solver : str
-        ``"multigrid"``, ``"cg"``, ``"gauss-seidel"`` or ``"dct"``.
+        ``"multigrid"``, ``"gauss-seidel"``, and for the paper model ``"cg"`` or ``"dct"``.
     tolerance : float
         Relative residual at which the diffusion stops.
     source_radius : float
@@ -37,6 +46,9 @@ def render_convection_diffusion(volume, scene, width, height, device=None, progr
     convection_scheme : str
         ``"characteristics"`` (default), ``"exponential"`` or ``"upwind"`` (the paper's
         eqs. 16–20); not a scene field.
+    flux_limiter : str
+        Physical model: ``"levermore-pomraning"`` (default), ``"wilson"``, ``"larsen"`` or
+        ``"none"``; not a scene field.
     **options
         Ray-casting options of :func:`vtkillum.core.raycast.render_illuminated`
         (``step_size``, ``jitter``, ``seed``, ``early_termination``).
@@ -52,17 +64,32 @@ def render_convection_diffusion(volume, scene, width, height, device=None, progr
     for key in OPTIONS:
         if key in options:
             cd[key] = options.pop(key)
-    scheme = options.pop("convection_scheme", "characteristics")
     config = {k: cd.get(k, v) for k, v in OPTIONS.items()}
-    # One solver per volume and configuration, kept with the volume: a new camera (an
-    # interactive window re-rendering) recomputes nothing, an edit only what Algorithm 1 says.
-    solver = volume.derived(
-        "convection_diffusion_solver", (device, scheme, repr(sorted(config.items()))),
-        lambda: ConvectionDiffusionSolver(device=device, convection_scheme=scheme, **config))
+    config["convection_scheme"] = options.pop("convection_scheme", "characteristics")
+    config["flux_limiter"] = options.pop("flux_limiter", "levermore-pomraning")
+    config["first_moment"] = options.pop("first_moment", True)
+    # One solver per volume and device, kept with the volume: a new camera (an interactive
+    # window re-rendering) recomputes nothing, an edit (of the scene or of these options)
+    # only what Algorithm 1 says.
+    solver = volume.derived("convection_diffusion_solver", device,
+                            lambda: ConvectionDiffusionSolver(device=device))
+    for name, value in config.items():
+        setattr(solver, name, value)
+    part = LIGHT_PROGRESS_SHARE
+
+    def light_progress(fraction):
+        if progress is not None:
+            progress(part * fraction)
+
+    def render_progress(fraction):
+        if progress is not None:
+            progress(part + (1.0 - part) * fraction)
+
     stats = solver.update(volume, scene.resolved_transfer_function(volume),
                           scene.resolved_unit_distance(volume), scene.lights,
-                          volume_key=volume.content_key)
-    result = render_illuminated(volume, scene, width, height, device, progress,
+                          volume_key=volume.content_key, albedo=scene.albedo,
+                          anisotropy=scene.anisotropy, progress=light_progress)
+    result = render_illuminated(volume, scene, width, height, device, render_progress,
                                 illumination=solver.illumination_volume(volume), **options)
     result.info["convection_diffusion"] = stats.as_dict()
     return result

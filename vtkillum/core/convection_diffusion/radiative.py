@@ -1,0 +1,633 @@
+"""Physically based diffusion of the scattered light: flux-limited diffusion with a
+vacuum boundary, solved by nonlinear multigrid (the ``"physical"`` diffusion model).
+
+The equation
+------------
+The diffusion (P1) approximation of radiative transfer for the fluence ``phi_s`` of
+light that has scattered at least once, per RGB channel ``c``:
+
+    -div(D_c grad phi_s,c) + sigma_a,c phi_s,c = Q_c
+
+with the first-scattered source ``Q`` of
+:mod:`~vtkillum.core.convection_diffusion.composition` (``sigma_s`` times the direct
+fluence), ``sigma_s,c = albedo color_c sigma_t``, ``sigma_a,c = sigma_t - sigma_s,c``,
+and the diffusion coefficient of the *reduced* (transport) extinction
+``sigma_tr,c = sigma_a,c + sigma_s,c (1 - g)``:
+
+    D_c = 1 / (3 sigma_tr,c)       (classic diffusion; limiter ``"none"``)
+
+Flux limiter
+------------
+Classic diffusion lets the flux ``|F| = D |grad phi|`` exceed the fluence ``phi``
+(faster than light) wherever the medium is thin or empty, and ``D`` is infinite in
+vacuum: light would cross empty space instantly and pile up in the box. The flux
+limiter of Levermore & Pomraning (1981, default) replaces the coefficient by
+
+    D = lambda(R) / sigma_tr,     R = |grad phi| / (sigma_tr phi),
+    lambda(R) = (coth R - 1 / R) / R
+
+which is ``1 / (3 sigma_tr)`` where ``R -> 0`` (diffusive, optically thick) and
+``phi / |grad phi|`` where ``R -> inf`` (free streaming: ``|F| -> phi``), finite in
+vacuum. Also available: Wilson's ``D = 1 / (3 sigma_tr + |grad phi| / phi)`` and
+Larsen's (n = 2) ``D = (9 sigma_tr^2 + (|grad phi| / phi)^2)^(-1/2)``. ``D`` is
+capped at the box diagonal (only reached where ``phi`` has no gradient). The
+coefficients depend on the solution; they are *lagged*: every outer iteration
+evaluates them from the current ``phi`` and then runs one multigrid V-cycle of the
+linear problem (Picard iteration), until the nonlinear residual is below the
+tolerance.
+
+Vacuum boundary
+---------------
+Nothing enters the box from outside: the Marshak condition, zero incoming partial
+current ``J- = phi / 4 - (D / 2) d phi / dn = 0``, i.e. the outgoing flux through a
+box face is ``F . n = phi / 2`` (the extrapolated boundary ``phi = 0`` at ``2 D``
+beyond the face, to first order). Energy leaves the box there, so that a
+high-albedo medium in a box does not keep its light.
+
+Discretisation
+--------------
+Finite volumes on the light grid, one cell of size ``h`` (per axis) around each
+point, 7-point stencil; equations divided by the cell volume:
+
+    sum_faces k_f (phi_i - phi_j) + (sigma_a,i + b_i) phi_i = Q_i
+
+* interior face between cells ``i`` and ``j`` along axis ``a``: ``k_f = D_f / h_a^2``,
+  ``D_f`` from the limiter with the face means of ``sigma_tr`` (arithmetic: the
+  harmonic mean of the classic ``D``, which keeps the flux continuous across a jump
+  of the medium) and of ``phi``, and the face gradient (normal component from the two
+  cells, tangential components from their central differences);
+* box face of a boundary cell (at ``h_a / 2`` beyond its point): the Marshak flux
+  through a face half a cell away, ``F = phi_i 2 D / (4 D + h_a)``, so
+  ``b_i = sum_box faces 2 D_i / ((4 D_i + h_a) h_a)`` with the cell's own ``D_i``.
+
+The matrix is a symmetric M-matrix for fixed coefficients, and summing the
+equations gives the discrete energy balance exactly (:meth:`energy_balance`):
+
+    emitted  sum Q V  =  absorbed  sum sigma_a phi V  +  escaped  sum b phi V.
+
+Multigrid
+---------
+The hierarchy of :class:`~vtkillum.core.convection_diffusion.multigrid.Multigrid`
+(cell-centred coarsening, mean restriction, trilinear prolongation), with the
+operator *re-discretised* on every level from the restricted (mean) ``sigma_a``,
+``sigma_tr`` and ``phi``; red–black Gauss–Seidel V(2,2) cycles; the coarsest grid
+(at most :data:`COARSEST_CELLS` cells) is relaxed with :data:`COARSE_SWEEPS`
+sweeps. The residual is ``max_c ||Q - A(phi) phi||_c / ||Q||_c`` with the
+coefficients of the current ``phi`` (the nonlinear residual); float32 cancels about
+``4 eps32 ||diag(A) phi|| / ||Q||`` of it, below which the solve counts as converged.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import warp as wp
+
+from vtkillum.core.convection_diffusion.diffusion import DiffusionReport
+from vtkillum.core.convection_diffusion.multigrid import prolong_add_kernel, restrict_kernel
+from vtkillum.core.convection_diffusion.stencil import add_channels, sum_squares_kernel
+
+#: Flux limiters (see the module docstring).
+LIMITERS = {"levermore-pomraning": 0, "wilson": 1, "larsen": 2, "none": 3}
+LP = wp.constant(0)
+WILSON = wp.constant(1)
+LARSEN = wp.constant(2)
+
+#: Free-streaming limit of the flux, ``|F| -> phi / FREE_STREAMING`` (see the module docstring).
+FREE_STREAMING = wp.constant(2.0)
+
+#: Coarsening stops at this many cells; the coarsest grid is relaxed, not solved.
+COARSEST_CELLS = 64
+#: Red–black sweeps on the coarsest grid per V-cycle.
+COARSE_SWEEPS = 40
+PRE_SMOOTH = 2
+POST_SMOOTH = 2
+
+
+class Level:
+    """One grid of the hierarchy: shape, spacing, coefficients and work arrays."""
+
+    def __init__(self, shape, spacing, device):
+        self.shape = tuple(int(n) for n in shape)
+        self.spacing = np.asarray(spacing, dtype=np.float64)
+        self.h = wp.vec3(*self.spacing.astype(np.float32))
+        nx, ny, nz = self.shape
+
+        def vec3(s):
+            return wp.zeros(s, dtype=wp.vec3, device=device)
+
+        self.sigma_a = vec3(self.shape)
+        self.sigma_tr = vec3(self.shape)
+        self.leak = vec3(self.shape)
+        self.kx = vec3((nx - 1, ny, nz))
+        self.ky = vec3((nx, ny - 1, nz))
+        self.kz = vec3((nx, ny, nz - 1))
+        self.phi = vec3(self.shape)  # restricted solution (coarse levels: for the coefficients)
+        self.x = vec3(self.shape)  # coarse-level correction
+        self.b = vec3(self.shape)  # coarse-level right-hand side
+        self.r = vec3(self.shape)  # residual
+
+    @property
+    def coefficients(self):
+        return [self.kx, self.ky, self.kz, self.sigma_a, self.leak]
+
+
+class RadiativeDiffusion:
+    """``-div(D grad phi) + sigma_a phi = Q`` per RGB channel on a light grid.
+
+    Parameters
+    ----------
+    shape : (3,) int
+        Light-grid points per axis.
+    spacing : (3,) float
+        Light-grid spacing (world units).
+    limiter : str
+        One of :data:`LIMITERS`.
+    device : str
+        Warp device.
+
+    Set the medium with :meth:`set_medium`, then call :meth:`solve`.
+    """
+
+    def __init__(self, shape, spacing, limiter: str = "levermore-pomraning",
+                 device: str = "cpu"):
+        if limiter not in LIMITERS:
+            raise ValueError(f"unknown flux limiter {limiter!r}; choose one of {sorted(LIMITERS)}")
+        self.device = device
+        self.limiter = limiter
+        shapes = [tuple(int(n) for n in shape)]
+        spacings = [np.asarray(spacing, dtype=np.float64)]
+        while int(np.prod(shapes[-1])) > COARSEST_CELLS:
+            n = np.asarray(shapes[-1])
+            halve = n >= 4
+            if not halve.any():
+                break
+            nc = np.where(halve, (n + 1) // 2, n)
+            spacings.append(spacings[-1] * n / nc)
+            shapes.append(tuple(int(v) for v in nc))
+        self.levels = [Level(s, h, device) for s, h in zip(shapes, spacings)]
+        self.shape = shapes[0]
+        self.spacing = spacings[0]
+        #: Largest diffusion coefficient (world units): the box diagonal.
+        self.d_max = float(np.linalg.norm(self.spacing * (np.asarray(self.shape) - 1)))
+        self._norms = wp.zeros(6, dtype=wp.float64, device=device)
+        self._rhs = None
+        self._has_medium = False
+
+    # --- public ----------------------------------------------------------------------------
+    def set_medium(self, sigma: wp.array3d, color_sigma: wp.array3d, albedo: float,
+                   anisotropy: float) -> None:
+        """Absorption and reduced extinction from the light grid's optics, on every level.
+
+        Parameters
+        ----------
+        sigma : warp.array3d of float32
+            Cell-mean ``sigma_t`` (1/world units).
+        color_sigma : warp.array3d of vec3
+            Cell-mean ``color * sigma_t``.
+        albedo, anisotropy : float
+            Single-scattering albedo and Henyey–Greenstein ``g``.
+        """
+        top = self.levels[0]
+        wp.launch(medium_kernel, dim=self.shape, device=self.device,
+                  inputs=[sigma, color_sigma, float(albedo), float(anisotropy), top.sigma_a,
+                          top.sigma_tr])
+        for fine, coarse in zip(self.levels, self.levels[1:]):
+            ratio = self._ratio(fine, coarse)
+            for a, b in ((fine.sigma_a, coarse.sigma_a), (fine.sigma_tr, coarse.sigma_tr)):
+                wp.launch(restrict_kernel, dim=coarse.shape, device=self.device,
+                          inputs=[a, b, ratio])
+        self._has_medium = True
+
+    def update_coefficients(self, x: wp.array3d) -> None:
+        """Lagged coefficients (face ``D / h^2``, boundary leakage) from the solution ``x``."""
+        self._check_medium()
+        lim = LIMITERS[self.limiter]
+        phi = x
+        for index, level in enumerate(self.levels):
+            if index > 0:
+                fine = self.levels[index - 1]
+                wp.launch(restrict_kernel, dim=level.shape, device=self.device,
+                          inputs=[phi, level.phi, self._ratio(fine, level)])
+                phi = level.phi
+            nx, ny, nz = level.shape
+            for axis, k, dim in ((0, level.kx, (nx - 1, ny, nz)), (1, level.ky, (nx, ny - 1, nz)),
+                                 (2, level.kz, (nx, ny, nz - 1))):
+                wp.launch(face_coefficient_kernel, dim=dim, device=self.device,
+                          inputs=[phi, level.sigma_tr, k, axis, level.h, self.d_max, lim])
+            wp.launch(leak_kernel, dim=level.shape, device=self.device,
+                      inputs=[phi, level.sigma_tr, level.leak, level.h, self.d_max, lim])
+
+    def solve(self, q: wp.array3d, x: wp.array3d, max_iterations: int = 100,
+              tolerance: float = 1e-4, method: str = "multigrid", callback=None,
+              moment=None, anisotropy: float = 0.0) -> DiffusionReport:
+        """Improve ``x`` in place towards the solution for source ``q``.
+
+        Parameters
+        ----------
+        q : warp.array3d of vec3
+            First-scattered source ``Q``.
+        x : warp.array3d of vec3
+            Initial guess (zeros, or a previous solution); overwritten.
+        max_iterations : int
+            Outer iterations (coefficient update + one V-cycle, or one red–black sweep for
+            ``method="gauss-seidel"``) of this call.
+        tolerance : float
+            Relative nonlinear residual to reach (raised to the float32 floor).
+        method : str
+            ``"multigrid"`` or ``"gauss-seidel"``.
+        callback : callable, optional
+            ``callback(iteration, residual)`` after every iteration.
+        moment, anisotropy : optional
+            ``(mx, my, mz)`` of :func:`~vtkillum.core.convection_diffusion.composition.first_scattered_source`
+            and ``g``: adds the source's first moment ``Q1 = g sum_l Q_l u_l`` (the P1
+            flux ``F = -D grad phi + 3 D Q1``), i.e. the right-hand side becomes
+            ``Q - div(3 D Q1)``, re-evaluated with the lagged ``D``.
+        """
+        if method not in ("multigrid", "gauss-seidel"):
+            raise ValueError(f"the physical diffusion model is solved with 'multigrid' or "
+                             f"'gauss-seidel', not {method!r}")
+        report = DiffusionReport()
+        self.update_coefficients(x)
+        q_norm = self._norm(q)
+        rhs = q
+        if moment is not None and anisotropy != 0.0:
+            if self._rhs is None:
+                self._rhs = wp.empty_like(q)
+            rhs = self._rhs
+
+        def source_terms():
+            if rhs is not q:
+                top = self.levels[0]
+                wp.launch(moment_source_kernel, dim=self.shape, device=self.device,
+                          inputs=[q, *moment, top.kx, top.ky, top.kz, top.h,
+                                  float(anisotropy), rhs])
+
+        source_terms()
+        res, floor = self.residual(x, rhs, q_norm)
+        report.residuals.append(res)
+        if res <= max(tolerance, floor):
+            report.converged = True
+            return report
+        top = self.levels[0]
+        for _ in range(int(max_iterations)):
+            if method == "multigrid":
+                self.vcycle(x, rhs)
+            else:
+                relax(top, x, rhs, 1)
+            self.update_coefficients(x)
+            source_terms()
+            res, floor = self.residual(x, rhs, q_norm)
+            report.iterations += 1
+            report.residuals.append(res)
+            if callback is not None:
+                callback(report.iterations, res)
+            if res <= max(tolerance, floor):
+                report.converged = True
+                break
+        return report
+
+    def vcycle(self, x: wp.array3d, b: wp.array3d, level: int = 0) -> None:
+        """One V(2,2) cycle for the current (lagged) coefficients, in place."""
+        lv = self.levels[level]
+        if level == len(self.levels) - 1:
+            relax(lv, x, b, COARSE_SWEEPS)
+            return
+        relax(lv, x, b, PRE_SMOOTH)
+        wp.launch(residual_field_kernel, dim=lv.shape, device=self.device,
+                  inputs=[x, b, lv.r, *lv.coefficients])
+        coarse = self.levels[level + 1]
+        ratio = self._ratio(lv, coarse)
+        wp.launch(restrict_kernel, dim=coarse.shape, device=self.device,
+                  inputs=[lv.r, coarse.b, ratio])
+        coarse.x.zero_()
+        self.vcycle(coarse.x, coarse.b, level + 1)
+        wp.launch(prolong_add_kernel, dim=lv.shape, device=self.device,
+                  inputs=[coarse.x, x, ratio])
+        relax(lv, x, b, POST_SMOOTH, reverse=True)
+
+    def residual(self, x: wp.array3d, q: wp.array3d, q_norm=None) -> tuple[float, float]:
+        """Relative residual ``max_c ||Q - A x||_c / ||Q||_c`` and its float32 floor."""
+        if q_norm is None:
+            q_norm = self._norm(q)
+        top = self.levels[0]
+        self._norms.zero_()
+        wp.launch(residual_norm_kernel, dim=(self.shape[1], self.shape[2]), device=self.device,
+                  inputs=[x, q, *top.coefficients, self._norms])
+        n = np.sqrt(self._norms.numpy())
+        safe = np.maximum(q_norm, 1e-300)
+        rel = np.where(q_norm > 0, n[:3] / safe, 0.0)
+        floor = np.where(q_norm > 0, 4.0 * float(np.finfo(np.float32).eps) * n[3:] / safe, 0.0)
+        return float(rel.max()), float(floor.max())
+
+    def apply(self, x: wp.array3d, out: wp.array3d | None = None) -> wp.array3d:
+        """``A x`` with the current coefficients (tests and diagnostics)."""
+        out = wp.empty_like(x) if out is None else out
+        zero = wp.zeros_like(x)
+        top = self.levels[0]
+        wp.launch(residual_field_kernel, dim=self.shape, device=self.device,
+                  inputs=[x, zero, out, *top.coefficients])
+        wp.launch(negate_kernel, dim=self.shape, device=self.device, inputs=[out])
+        return out
+
+    def energy_balance(self, q: wp.array3d, x: wp.array3d) -> dict:
+        """Emitted, absorbed and escaped power per RGB channel (float64, host).
+
+        ``emitted = sum Q V``, ``absorbed = sum sigma_a phi V``, ``escaped = sum b phi V``
+        (``V`` the cell volume) with the current coefficients; at convergence
+        ``emitted = absorbed + escaped`` up to the residual.
+        """
+        top = self.levels[0]
+        v = float(np.prod(self.spacing))
+        phi = x.numpy().astype(np.float64)
+        return {
+            "emitted": q.numpy().astype(np.float64).sum((0, 1, 2)) * v,
+            "absorbed": (top.sigma_a.numpy() * phi).sum((0, 1, 2)) * v,
+            "escaped": (top.leak.numpy() * phi).sum((0, 1, 2)) * v,
+        }
+
+    # --- internals -------------------------------------------------------------------------
+    def _check_medium(self) -> None:
+        if not self._has_medium:
+            raise RuntimeError("call set_medium() before solving")
+
+    def _ratio(self, fine: Level, coarse: Level):
+        return wp.vec3i(*((np.asarray(fine.shape) != np.asarray(coarse.shape)).astype(int) + 1))
+
+    def _norm(self, a) -> np.ndarray:
+        self._norms.zero_()
+        wp.launch(sum_squares_kernel, dim=(self.shape[1], self.shape[2]), device=self.device,
+                  inputs=[a, self._norms])
+        return np.sqrt(self._norms.numpy()[:3])
+
+
+def relax(level: Level, x: wp.array3d, b: wp.array3d, sweeps: int, reverse: bool = False) -> None:
+    """``sweeps`` red–black Gauss–Seidel sweeps on ``level`` in place."""
+    nx, ny, nz = level.shape
+    dim = (nx, ny, (nz + 1) // 2)
+    colors = (1, 0) if reverse else (0, 1)
+    for _ in range(int(sweeps)):
+        for color in colors:
+            wp.launch(red_black_kernel, dim=dim, device=x.device,
+                      inputs=[x, b, *level.coefficients, color])
+
+
+# --- device functions ----------------------------------------------------------------------------
+@wp.func
+def limited_coefficient(sigma_tr: float, grad: float, phi: float, d_max: float, limiter: int):
+    """Diffusion coefficient ``D`` (world units) of one channel; see the module docstring."""
+    d = d_max
+    if limiter == 3 or phi <= 0.0 or grad <= 0.0:
+        if 3.0 * sigma_tr * d_max > 1.0:
+            d = 1.0 / (3.0 * sigma_tr)
+        return d
+    g = FREE_STREAMING * grad / phi  # 1/world units
+    if limiter == WILSON:
+        d = 1.0 / (3.0 * sigma_tr + g)
+    elif limiter == LARSEN:
+        d = 1.0 / wp.sqrt(9.0 * sigma_tr * sigma_tr + g * g)
+    else:
+        if sigma_tr * 1.0e4 <= g:
+            d = 1.0 / g  # R = g / sigma_tr -> inf: free streaming
+        else:
+            r = g / sigma_tr
+            if r < 1.0e-2:
+                d = (1.0 / 3.0 - r * r / 45.0) / sigma_tr
+            elif r > 20.0:
+                d = (1.0 - 1.0 / r) / g
+            else:
+                d = (1.0 / wp.tanh(r) - 1.0 / r) / g
+    return wp.min(d, d_max)
+
+
+@wp.func
+def limited_vec(sigma_tr: wp.vec3, grad_sq: wp.vec3, phi: wp.vec3, d_max: float, limiter: int):
+    return wp.vec3(
+        limited_coefficient(sigma_tr[0], wp.sqrt(grad_sq[0]), phi[0], d_max, limiter),
+        limited_coefficient(sigma_tr[1], wp.sqrt(grad_sq[1]), phi[1], d_max, limiter),
+        limited_coefficient(sigma_tr[2], wp.sqrt(grad_sq[2]), phi[2], d_max, limiter),
+    )
+
+
+@wp.func
+def central_difference(phi: wp.array3d(dtype=wp.vec3), p: wp.vec3i, axis: int, h: float):
+    """``d phi / dx_axis`` at point ``p``: central inside, one-sided at the box faces."""
+    n = phi.shape[axis]
+    lo = wp.vec3i(p[0], p[1], p[2])
+    hi = wp.vec3i(p[0], p[1], p[2])
+    if p[axis] > 0:
+        lo[axis] = p[axis] - 1
+    if p[axis] < n - 1:
+        hi[axis] = p[axis] + 1
+    steps = float(hi[axis] - lo[axis])
+    if steps == 0.0:
+        return wp.vec3(0.0)
+    return (phi[hi[0], hi[1], hi[2]] - phi[lo[0], lo[1], lo[2]]) / (steps * h)
+
+
+@wp.func
+def gradient_sq(phi: wp.array3d(dtype=wp.vec3), p: wp.vec3i, h: wp.vec3):
+    """``|grad phi|^2`` per channel at point ``p``."""
+    gx = central_difference(phi, p, 0, h[0])
+    gy = central_difference(phi, p, 1, h[1])
+    gz = central_difference(phi, p, 2, h[2])
+    return wp.cw_mul(gx, gx) + wp.cw_mul(gy, gy) + wp.cw_mul(gz, gz)
+
+
+@wp.func
+def neighbours(x: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int,
+               kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
+               kz: wp.array3d(dtype=wp.vec3)):
+    """Off-diagonal sum ``sum k_f x_nbr`` and ``sum k_f`` over the interior faces of a cell."""
+    off = wp.vec3(0.0)
+    diag = wp.vec3(0.0)
+    if i > 0:
+        c = kx[i - 1, j, k]
+        off += wp.cw_mul(c, x[i - 1, j, k])
+        diag += c
+    if i < x.shape[0] - 1:
+        c = kx[i, j, k]
+        off += wp.cw_mul(c, x[i + 1, j, k])
+        diag += c
+    if j > 0:
+        c = ky[i, j - 1, k]
+        off += wp.cw_mul(c, x[i, j - 1, k])
+        diag += c
+    if j < x.shape[1] - 1:
+        c = ky[i, j, k]
+        off += wp.cw_mul(c, x[i, j + 1, k])
+        diag += c
+    if k > 0:
+        c = kz[i, j, k - 1]
+        off += wp.cw_mul(c, x[i, j, k - 1])
+        diag += c
+    if k < x.shape[2] - 1:
+        c = kz[i, j, k]
+        off += wp.cw_mul(c, x[i, j, k + 1])
+        diag += c
+    return off, diag
+
+
+# --- kernels -------------------------------------------------------------------------------------
+@wp.kernel
+def medium_kernel(sigma: wp.array3d(dtype=wp.float32), color_sigma: wp.array3d(dtype=wp.vec3),
+                  albedo: float, g: float, sigma_a: wp.array3d(dtype=wp.vec3),
+                  sigma_tr: wp.array3d(dtype=wp.vec3)):
+    """``sigma_a = sigma_t - sigma_s`` and ``sigma_tr = sigma_t - g sigma_s`` at ``wp.tid()``.
+
+    ``sigma_s = albedo * color_sigma`` (RGB, 1/world units), clamped to ``sigma_t``.
+    """
+    i, j, k = wp.tid()
+    st = sigma[i, j, k]
+    ss = albedo * color_sigma[i, j, k]
+    ss = wp.vec3(wp.min(ss[0], st), wp.min(ss[1], st), wp.min(ss[2], st))
+    sigma_a[i, j, k] = wp.vec3(st) - ss
+    sigma_tr[i, j, k] = wp.vec3(st) - g * ss
+
+
+@wp.kernel
+def face_coefficient_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
+                            k_out: wp.array3d(dtype=wp.vec3), axis: int, h: wp.vec3, d_max: float,
+                            limiter: int):
+    """``k = D_f / h_axis^2`` of the face between point ``wp.tid()`` and its +``axis`` neighbour.
+
+    Face means of ``sigma_tr`` and ``phi``; face gradient from the two points (normal)
+    and the mean of their central differences (tangential).
+    """
+    i, j, k = wp.tid()
+    p = wp.vec3i(i, j, k)
+    q = wp.vec3i(i, j, k)
+    q[axis] = q[axis] + 1
+    a = phi[p[0], p[1], p[2]]
+    b = phi[q[0], q[1], q[2]]
+    normal = (b - a) / h[axis]
+    grad_sq = wp.cw_mul(normal, normal)
+    for t in range(3):
+        if t != axis:
+            gt = 0.5 * (central_difference(phi, p, t, h[t]) + central_difference(phi, q, t, h[t]))
+            grad_sq += wp.cw_mul(gt, gt)
+    s = 0.5 * (sigma_tr[p[0], p[1], p[2]] + sigma_tr[q[0], q[1], q[2]])
+    f = 0.5 * (a + b)
+    d = limited_vec(s, grad_sq, f, d_max, limiter)
+    k_out[i, j, k] = d / (h[axis] * h[axis])
+
+
+@wp.kernel
+def leak_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
+                leak: wp.array3d(dtype=wp.vec3), h: wp.vec3, d_max: float, limiter: int):
+    """Marshak leakage ``b = sum_box faces 2 D / ((4 D + h_a) h_a)`` of cell ``wp.tid()``.
+
+    Zero for interior cells (1/world units).
+    """
+    i, j, k = wp.tid()
+    p = wp.vec3i(i, j, k)
+    out = wp.vec3(0.0)
+    on_box = False
+    for a in range(3):
+        if p[a] == 0 or p[a] == phi.shape[a] - 1:
+            on_box = True
+    if on_box:
+        d = limited_vec(sigma_tr[i, j, k], gradient_sq(phi, p, h), phi[i, j, k], d_max, limiter)
+        for a in range(3):
+            faces = float(0.0)
+            if p[a] == 0:
+                faces += 1.0
+            if p[a] == phi.shape[a] - 1:
+                faces += 1.0
+            if faces > 0.0:
+                ha = h[a]
+                out += faces * wp.vec3(2.0 * d[0] / ((4.0 * d[0] + ha) * ha),
+                                       2.0 * d[1] / ((4.0 * d[1] + ha) * ha),
+                                       2.0 * d[2] / ((4.0 * d[2] + ha) * ha))
+    leak[i, j, k] = out
+
+
+@wp.kernel
+def red_black_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
+                     kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
+                     kz: wp.array3d(dtype=wp.vec3), sigma_a: wp.array3d(dtype=wp.vec3),
+                     leak: wp.array3d(dtype=wp.vec3), color: int):
+    """Gauss–Seidel update of the points with ``(i + j + k) % 2 == color``.
+
+    ``wp.tid() = (i, j, kk)``; the point is ``k = 2 kk + ((i + j + color) % 2)``.
+    """
+    i, j, kk = wp.tid()
+    k = 2 * kk + (i + j + color) % 2
+    if k >= x.shape[2]:
+        return
+    off, diag = neighbours(x, i, j, k, kx, ky, kz)
+    diag += sigma_a[i, j, k] + leak[i, j, k]
+    v = wp.vec3(0.0)
+    for c in range(3):
+        if diag[c] > 0.0:
+            v[c] = (b[i, j, k][c] + off[c]) / diag[c]
+    x[i, j, k] = v
+
+
+@wp.kernel
+def residual_field_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
+                          r: wp.array3d(dtype=wp.vec3), kx: wp.array3d(dtype=wp.vec3),
+                          ky: wp.array3d(dtype=wp.vec3), kz: wp.array3d(dtype=wp.vec3),
+                          sigma_a: wp.array3d(dtype=wp.vec3), leak: wp.array3d(dtype=wp.vec3)):
+    """``r = b - A x`` at point ``wp.tid() = (i, j, k)``."""
+    i, j, k = wp.tid()
+    off, diag = neighbours(x, i, j, k, kx, ky, kz)
+    diag += sigma_a[i, j, k] + leak[i, j, k]
+    r[i, j, k] = b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
+
+
+@wp.kernel
+def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
+                         kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
+                         kz: wp.array3d(dtype=wp.vec3), sigma_a: wp.array3d(dtype=wp.vec3),
+                         leak: wp.array3d(dtype=wp.vec3), acc: wp.array(dtype=wp.float64)):
+    """Add ``sum_i |b - A x|^2`` to ``acc[0:3]`` and ``sum_i |diag(A) x|^2`` to ``acc[3:6]``.
+
+    ``wp.tid() = (j, k)`` is a line along x.
+    """
+    j, k = wp.tid()
+    s = wp.vec3(0.0)
+    m = wp.vec3(0.0)
+    for i in range(x.shape[0]):
+        off, diag = neighbours(x, i, j, k, kx, ky, kz)
+        diag += sigma_a[i, j, k] + leak[i, j, k]
+        dx = wp.cw_mul(diag, x[i, j, k])
+        r = b[i, j, k] - dx + off
+        s += wp.cw_mul(r, r)
+        m += wp.cw_mul(dx, dx)
+    add_channels(acc, 0, s)
+    add_channels(acc, 3, m)
+
+
+@wp.kernel
+def moment_source_kernel(q: wp.array3d(dtype=wp.vec3), mx: wp.array3d(dtype=wp.vec3),
+                         my: wp.array3d(dtype=wp.vec3), mz: wp.array3d(dtype=wp.vec3),
+                         kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
+                         kz: wp.array3d(dtype=wp.vec3), h: wp.vec3, g: float,
+                         rhs: wp.array3d(dtype=wp.vec3)):
+    """``rhs = Q - div(3 D g m)`` at cell ``wp.tid()``: the first-moment flux ``3 D g m . n``
+    through each interior face (face mean of ``m``; none through the box faces).
+
+    ``k = D / h^2`` per face, so the flux divided by the cell's width is ``3 g k h m``.
+    """
+    i, j, k = wp.tid()
+    div = wp.vec3(0.0)
+    if i < q.shape[0] - 1:
+        div += (3.0 * g * h[0] * 0.5) * wp.cw_mul(kx[i, j, k], mx[i, j, k] + mx[i + 1, j, k])
+    if i > 0:
+        div -= (3.0 * g * h[0] * 0.5) * wp.cw_mul(kx[i - 1, j, k], mx[i, j, k] + mx[i - 1, j, k])
+    if j < q.shape[1] - 1:
+        div += (3.0 * g * h[1] * 0.5) * wp.cw_mul(ky[i, j, k], my[i, j, k] + my[i, j + 1, k])
+    if j > 0:
+        div -= (3.0 * g * h[1] * 0.5) * wp.cw_mul(ky[i, j - 1, k], my[i, j, k] + my[i, j - 1, k])
+    if k < q.shape[2] - 1:
+        div += (3.0 * g * h[2] * 0.5) * wp.cw_mul(kz[i, j, k], mz[i, j, k] + mz[i, j, k + 1])
+    if k > 0:
+        div -= (3.0 * g * h[2] * 0.5) * wp.cw_mul(kz[i, j, k - 1], mz[i, j, k] + mz[i, j, k - 1])
+    rhs[i, j, k] = q[i, j, k] - div
+
+
+@wp.kernel
+def negate_kernel(a: wp.array3d(dtype=wp.vec3)):
+    """``a = -a`` at ``wp.tid()``."""
+    i, j, k = wp.tid()
+    a[i, j, k] = -a[i, j, k]
