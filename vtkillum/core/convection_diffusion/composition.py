@@ -43,6 +43,9 @@ import warp as wp
 from vtkillum.core.convection_diffusion.convection import POINT_KIND
 from vtkillum.core.warp_common import grid_point
 
+#: Largest fraction of a cell's source moved to its neighbours by the displacement.
+MAX_MOVED = wp.constant(1.0)
+
 
 def compose_direct(transmittances, kinds, vecs, rgbs, spacing, source_radius: float,
                    out: wp.array3d) -> None:
@@ -71,7 +74,7 @@ def compose_direct(transmittances, kinds, vecs, rgbs, spacing, source_radius: fl
 
 def first_scattered_source(transmittances, kinds, vecs, rgbs, spacing, source_radius: float,
                            sigma: wp.array3d, color_sigma: wp.array3d, albedo: float,
-                           out: wp.array3d, moment=None) -> None:
+                           out: wp.array3d, displacement=None, anisotropy: float = 0.0) -> None:
     """``out = Q``, the first-scattered source of the physical model (see the module docstring).
 
     Parameters
@@ -86,21 +89,23 @@ def first_scattered_source(transmittances, kinds, vecs, rgbs, spacing, source_ra
         Single-scattering albedo ``Λ``.
     out : warp.array3d of vec3
         Overwritten; units of the lights' irradiance per world unit.
-    moment : (3,) warp.array3d of vec3, optional
-        Overwritten with ``sum_l Q_l u_l`` per axis (x, y, z components, RGB each), ``u_l``
-        the light's travel direction: divided by ``g`` the first moment of the source.
+    displacement : (3,) warp.array3d of vec3, optional
+        Overwritten with the source's dipole moment per axis (x, y, z; RGB each),
+        ``sum_l Q_l delta_l`` with the displacement ``delta_l`` of the module docstring.
+    anisotropy : float
+        Henyey–Greenstein ``g`` (the forward displacement ``g u / sigma_tr``).
     """
     out.zero_()
-    mx, my, mz = moment if moment is not None else (out, out, out)
-    if moment is not None:
-        for m in moment:
+    px, py, pz = displacement if displacement is not None else (out,) * 3
+    if displacement is not None:
+        for m in displacement:
             m.zero_()
     h = wp.vec3(*np.asarray(spacing, dtype=np.float32))
     for T, kind, vec, rgb in zip(transmittances, kinds, vecs, rgbs):
         wp.launch(first_scattered_kernel, dim=out.shape, device=out.device,
                   inputs=[T, sigma, color_sigma, out, int(kind), wp.vec3(*vec), wp.vec3(*rgb),
-                          h, float(source_radius), float(albedo), int(moment is not None),
-                          mx, my, mz])
+                          h, float(source_radius), float(albedo), float(anisotropy),
+                          int(displacement is not None), px, py, pz])
 
 
 # --- device functions ----------------------------------------------------------------------------
@@ -139,6 +144,31 @@ def cell_mean_transmittance(t: float, sigma: float, u: wp.vec3, h: wp.vec3):
     return wp.min(wp.exp(wp.log(t) + log_f), 1.0)
 
 
+@wp.func
+def langevin(z: float):
+    """``coth(z) - 1 / z`` for ``z >= 0``."""
+    if z < 1.0e-3:
+        return z / 3.0
+    if z > 20.0:
+        return 1.0 - 1.0 / z
+    return 1.0 / wp.tanh(z) - 1.0 / z
+
+
+@wp.func
+def source_offset(sigma: float, u: wp.vec3, h: wp.vec3):
+    """Centroid of ``exp(-sigma u . y)`` over a box cell, relative to its centre."""
+    d = wp.vec3(0.0)
+    for a in range(3):
+        z = 0.5 * sigma * wp.abs(u[a]) * h[a]
+        s = float(0.0)
+        if u[a] > 0.0:
+            s = -1.0
+        elif u[a] < 0.0:
+            s = 1.0
+        d[a] = s * 0.5 * h[a] * langevin(z)
+    return d
+
+
 # --- kernels -------------------------------------------------------------------------------------
 @wp.kernel
 def compose_kernel(T: wp.array3d(dtype=wp.float32), out: wp.array3d(dtype=wp.vec3), kind: int,
@@ -157,21 +187,37 @@ def compose_kernel(T: wp.array3d(dtype=wp.float32), out: wp.array3d(dtype=wp.vec
 def first_scattered_kernel(T: wp.array3d(dtype=wp.float32), sigma: wp.array3d(dtype=wp.float32),
                            color_sigma: wp.array3d(dtype=wp.vec3),
                            out: wp.array3d(dtype=wp.vec3), kind: int, vec: wp.vec3, rgb: wp.vec3,
-                           h: wp.vec3, source_radius: float, albedo: float, with_moment: int,
-                           mx: wp.array3d(dtype=wp.vec3), my: wp.array3d(dtype=wp.vec3),
-                           mz: wp.array3d(dtype=wp.vec3)):
+                           h: wp.vec3, source_radius: float, albedo: float, g: float,
+                           with_displacement: int, px: wp.array3d(dtype=wp.vec3),
+                           py: wp.array3d(dtype=wp.vec3), pz: wp.array3d(dtype=wp.vec3)):
     """``out += Q_l = albedo <color sigma_t> E <T>`` for one light at point ``wp.tid() = (i, j, k)``.
 
-    With ``with_moment``: also ``(mx, my, mz) += Q_l u`` (``u`` the unit travel direction).
-    ``h`` is the light-grid spacing (world units), ``vec`` the light's unit travel
-    direction (directional) or position (point) in the local frame.
+    With ``with_displacement``: also ``(px, py, pz) += Q_l delta_l`` per channel (see the
+    module docstring). ``h`` is the light-grid spacing (world units), ``vec`` the light's
+    unit travel direction (directional) or position (point) in the local frame.
     """
     i, j, k = wp.tid()
     e, u = light_at(kind, vec, rgb, grid_point(i, j, k, h), source_radius)
     tm = cell_mean_transmittance(T[i, j, k], sigma[i, j, k], u, h)
     q = (albedo * tm) * wp.cw_mul(color_sigma[i, j, k], e)
     out[i, j, k] = out[i, j, k] + q
-    if with_moment != 0:
-        mx[i, j, k] = mx[i, j, k] + u[0] * q
-        my[i, j, k] = my[i, j, k] + u[1] * q
-        mz[i, j, k] = mz[i, j, k] + u[2] * q
+    if with_displacement != 0:
+        st = sigma[i, j, k]
+        cell = source_offset(st, u, h)
+        dx = wp.vec3(0.0)
+        dy = wp.vec3(0.0)
+        dz = wp.vec3(0.0)
+        for c in range(3):
+            sigma_tr = st - g * albedo * color_sigma[i, j, k][c]
+            d = cell
+            if sigma_tr > 0.0:
+                d = d + (g / sigma_tr) * u
+            moved = wp.abs(d[0]) / h[0] + wp.abs(d[1]) / h[1] + wp.abs(d[2]) / h[2]
+            if moved > MAX_MOVED:
+                d = d * (MAX_MOVED / moved)
+            dx[c] = d[0] * q[c]
+            dy[c] = d[1] * q[c]
+            dz[c] = d[2] * q[c]
+        px[i, j, k] = px[i, j, k] + dx
+        py[i, j, k] = py[i, j, k] + dy
+        pz[i, j, k] = pz[i, j, k] + dz

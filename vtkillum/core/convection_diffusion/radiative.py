@@ -73,7 +73,12 @@ operator *re-discretised* on every level from the restricted (mean) ``sigma_a``,
 ``sigma_tr`` and ``phi``; red–black Gauss–Seidel V(2,2) cycles; the coarsest grid
 (at most :data:`COARSEST_CELLS` cells) is relaxed with :data:`COARSE_SWEEPS`
 sweeps. The residual is ``max_c ||Q - A(phi) phi||_c / ||Q||_c`` with the
-coefficients of the current ``phi`` (the nonlinear residual); float32 cancels about
+coefficients of the current ``phi`` (the nonlinear residual), summed over the cells
+of the medium (``sigma_tr h >= 1e-3``): empty cells are never rendered (``sigma_s = 0``
+there) and reach the medium only through its faces, whose fluxes are part of the
+medium cells' residual; left in, their slow convergence (the lagged limiter spreads a
+change by about a cell per iteration through empty space) would set the iteration
+count while the medium has long converged. float32 cancels about
 ``4 eps32 ||diag(A) phi|| / ||Q||`` of it, below which the solve counts as converged.
 """
 
@@ -101,6 +106,11 @@ COARSEST_CELLS = 64
 COARSE_SWEEPS = 40
 PRE_SMOOTH = 2
 POST_SMOOTH = 2
+#: Optical size ``sigma_tr h`` below which a cell counts as empty for the residual.
+MEDIUM_DEPTH = 1.0e-3
+#: Nested iteration (cold start): outer iterations on the coarsest and on each finer grid.
+COARSEST_ITERATIONS = 30
+NESTED_ITERATIONS = 6
 
 
 class Level:
@@ -122,6 +132,8 @@ class Level:
         self.ky = vec3((nx, ny - 1, nz))
         self.kz = vec3((nx, ny, nz - 1))
         self.phi = vec3(self.shape)  # restricted solution (coarse levels: for the coefficients)
+        self.q = None  # nested iteration: this level's own source and solution
+        self.sol = None
         self.x = vec3(self.shape)  # coarse-level correction
         self.b = vec3(self.shape)  # coarse-level right-hand side
         self.r = vec3(self.shape)  # residual
@@ -169,6 +181,8 @@ class RadiativeDiffusion:
         self.spacing = spacings[0]
         #: Largest diffusion coefficient (world units): the box diagonal.
         self.d_max = float(np.linalg.norm(self.spacing * (np.asarray(self.shape) - 1)))
+        #: Cells with a smaller reduced extinction (1/world units) are left out of the residual.
+        self.min_sigma = MEDIUM_DEPTH / float(self.spacing.min())
         self._norms = wp.zeros(6, dtype=wp.float64, device=device)
         self._rhs = None
         self._has_medium = False
@@ -198,13 +212,17 @@ class RadiativeDiffusion:
                           inputs=[a, b, ratio])
         self._has_medium = True
 
-    def update_coefficients(self, x: wp.array3d) -> None:
-        """Lagged coefficients (face ``D / h^2``, boundary leakage) from the solution ``x``."""
+    def update_coefficients(self, x: wp.array3d, start: int = 0) -> None:
+        """Lagged coefficients (face ``D / h^2``, boundary leakage) from the solution ``x``.
+
+        ``x`` lives on level ``start``; the coarser levels get theirs from its restriction.
+        """
         self._check_medium()
         lim = LIMITERS[self.limiter]
         phi = x
-        for index, level in enumerate(self.levels):
-            if index > 0:
+        for index in range(start, len(self.levels)):
+            level = self.levels[index]
+            if index > start:
                 fine = self.levels[index - 1]
                 wp.launch(restrict_kernel, dim=level.shape, device=self.device,
                           inputs=[phi, level.phi, self._ratio(fine, level)])
@@ -219,7 +237,7 @@ class RadiativeDiffusion:
 
     def solve(self, q: wp.array3d, x: wp.array3d, max_iterations: int = 100,
               tolerance: float = 1e-4, method: str = "multigrid", callback=None,
-              moment=None, anisotropy: float = 0.0) -> DiffusionReport:
+              displacement=None, cold: bool = False) -> DiffusionReport:
         """Improve ``x`` in place towards the solution for source ``q``.
 
         Parameters
@@ -237,11 +255,13 @@ class RadiativeDiffusion:
             ``"multigrid"`` or ``"gauss-seidel"``.
         callback : callable, optional
             ``callback(iteration, residual)`` after every iteration.
-        moment, anisotropy : optional
-            ``(mx, my, mz)`` of :func:`~vtkillum.core.convection_diffusion.composition.first_scattered_source`
-            and ``g``: adds the source's first moment ``Q1 = g sum_l Q_l u_l`` (the P1
-            flux ``F = -D grad phi + 3 D Q1``), i.e. the right-hand side becomes
-            ``Q - div(3 D Q1)``, re-evaluated with the lagged ``D``.
+        displacement : (3,) warp.array3d of vec3, optional
+            Dipole moment of the source per axis
+            (:func:`~vtkillum.core.convection_diffusion.composition.first_scattered_source`):
+            the right-hand side becomes ``Q - div(p)``, the source displaced within its cell
+            and forward.
+        cold : bool
+            ``x`` is no estimate (zeros): start with nested iteration (:meth:`_nested_start`).
         """
         if method not in ("multigrid", "gauss-seidel"):
             raise ValueError(f"the physical diffusion model is solved with 'multigrid' or "
@@ -250,32 +270,29 @@ class RadiativeDiffusion:
         self.update_coefficients(x)
         q_norm = self._norm(q)
         rhs = q
-        if moment is not None and anisotropy != 0.0:
+        if displacement is not None:
             if self._rhs is None:
                 self._rhs = wp.empty_like(q)
             rhs = self._rhs
 
-        def source_terms():
-            if rhs is not q:
-                top = self.levels[0]
-                wp.launch(moment_source_kernel, dim=self.shape, device=self.device,
-                          inputs=[q, *moment, top.kx, top.ky, top.kz, top.h,
-                                  float(anisotropy), rhs])
-
-        source_terms()
+        if rhs is not q:
+            wp.launch(displaced_source_kernel, dim=self.shape, device=self.device,
+                      inputs=[q, *displacement, self.levels[0].h, rhs])
         res, floor = self.residual(x, rhs, q_norm)
         report.residuals.append(res)
         if res <= max(tolerance, floor):
             report.converged = True
             return report
         top = self.levels[0]
+        if cold and method == "multigrid" and len(self.levels) > 1:
+            self._nested_start(rhs, x)
+            self.update_coefficients(x)
         for _ in range(int(max_iterations)):
             if method == "multigrid":
                 self.vcycle(x, rhs)
             else:
                 relax(top, x, rhs, 1)
             self.update_coefficients(x)
-            source_terms()
             res, floor = self.residual(x, rhs, q_norm)
             report.iterations += 1
             report.residuals.append(res)
@@ -285,6 +302,38 @@ class RadiativeDiffusion:
                 report.converged = True
                 break
         return report
+
+    def _nested_start(self, q: wp.array3d, x: wp.array3d) -> None:
+        """Initial guess by nested iteration (full multigrid) for a cold start, into ``x``.
+
+        The lagged flux limiter spreads a change of the solution by about a cell per outer
+        iteration in optically thin regions, so a cold start on the finest grid needs
+        iterations in proportion to its size. Solving first on the coarsest grid, then
+        :data:`NESTED_ITERATIONS` outer iterations on each finer grid starting from the
+        interpolated coarser solution, leaves the finest grid only its local corrections.
+        """
+        levels = self.levels
+        for fine, coarse in zip(levels, levels[1:]):
+            src = q if fine is levels[0] else fine.q
+            if coarse.q is None:
+                coarse.q = wp.zeros(coarse.shape, dtype=wp.vec3, device=self.device)
+                coarse.sol = wp.zeros(coarse.shape, dtype=wp.vec3, device=self.device)
+            wp.launch(restrict_kernel, dim=coarse.shape, device=self.device,
+                      inputs=[src, coarse.q, self._ratio(fine, coarse)])
+        last = len(levels) - 1
+        for index in range(last, 0, -1):
+            lv = levels[index]
+            if index == last:
+                lv.sol.zero_()
+            iterations = COARSEST_ITERATIONS if index == last else NESTED_ITERATIONS
+            for _ in range(iterations):
+                self.update_coefficients(lv.sol, index)
+                self.vcycle(lv.sol, lv.q, index)
+            target = x if index == 1 else levels[index - 1].sol
+            fine = levels[index - 1]
+            target.zero_()
+            wp.launch(prolong_add_kernel, dim=fine.shape, device=self.device,
+                      inputs=[lv.sol, target, self._ratio(fine, lv)])
 
     def vcycle(self, x: wp.array3d, b: wp.array3d, level: int = 0) -> None:
         """One V(2,2) cycle for the current (lagged) coefficients, in place."""
@@ -306,13 +355,14 @@ class RadiativeDiffusion:
         relax(lv, x, b, POST_SMOOTH, reverse=True)
 
     def residual(self, x: wp.array3d, q: wp.array3d, q_norm=None) -> tuple[float, float]:
-        """Relative residual ``max_c ||Q - A x||_c / ||Q||_c`` and its float32 floor."""
+        """Relative residual ``max_c ||Q - A x||_c / ||Q||_c`` over the medium, and its
+        float32 floor (see the module docstring)."""
         if q_norm is None:
             q_norm = self._norm(q)
         top = self.levels[0]
         self._norms.zero_()
         wp.launch(residual_norm_kernel, dim=(self.shape[1], self.shape[2]), device=self.device,
-                  inputs=[x, q, *top.coefficients, self._norms])
+                  inputs=[x, q, *top.coefficients, top.sigma_tr, self.min_sigma, self._norms])
         n = np.sqrt(self._norms.numpy())
         safe = np.maximum(q_norm, 1e-300)
         rel = np.where(q_norm > 0, n[:3] / safe, 0.0)
@@ -579,8 +629,10 @@ def residual_field_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.v
 def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
                          kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
                          kz: wp.array3d(dtype=wp.vec3), sigma_a: wp.array3d(dtype=wp.vec3),
-                         leak: wp.array3d(dtype=wp.vec3), acc: wp.array(dtype=wp.float64)):
-    """Add ``sum_i |b - A x|^2`` to ``acc[0:3]`` and ``sum_i |diag(A) x|^2`` to ``acc[3:6]``.
+                         leak: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
+                         min_sigma: float, acc: wp.array(dtype=wp.float64)):
+    """Add ``sum_i |b - A x|^2`` to ``acc[0:3]`` and ``sum_i |diag(A) x|^2`` to ``acc[3:6]``
+    over the cells with ``max_c sigma_tr >= min_sigma`` (the medium).
 
     ``wp.tid() = (j, k)`` is a line along x.
     """
@@ -588,42 +640,40 @@ def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.ve
     s = wp.vec3(0.0)
     m = wp.vec3(0.0)
     for i in range(x.shape[0]):
-        off, diag = neighbours(x, i, j, k, kx, ky, kz)
-        diag += sigma_a[i, j, k] + leak[i, j, k]
-        dx = wp.cw_mul(diag, x[i, j, k])
-        r = b[i, j, k] - dx + off
-        s += wp.cw_mul(r, r)
-        m += wp.cw_mul(dx, dx)
+        st = sigma_tr[i, j, k]
+        if wp.max(st[0], wp.max(st[1], st[2])) >= min_sigma:
+            off, diag = neighbours(x, i, j, k, kx, ky, kz)
+            diag += sigma_a[i, j, k] + leak[i, j, k]
+            dx = wp.cw_mul(diag, x[i, j, k])
+            r = b[i, j, k] - dx + off
+            s += wp.cw_mul(r, r)
+            m += wp.cw_mul(dx, dx)
     add_channels(acc, 0, s)
     add_channels(acc, 3, m)
 
 
 @wp.kernel
-def moment_source_kernel(q: wp.array3d(dtype=wp.vec3), mx: wp.array3d(dtype=wp.vec3),
-                         my: wp.array3d(dtype=wp.vec3), mz: wp.array3d(dtype=wp.vec3),
-                         kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
-                         kz: wp.array3d(dtype=wp.vec3), h: wp.vec3, g: float,
-                         rhs: wp.array3d(dtype=wp.vec3)):
-    """``rhs = Q - div(3 D g m)`` at cell ``wp.tid()``: the first-moment flux ``3 D g m . n``
-    through each interior face (face mean of ``m``; none through the box faces).
-
-    ``k = D / h^2`` per face, so the flux divided by the cell's width is ``3 g k h m``.
+def displaced_source_kernel(q: wp.array3d(dtype=wp.vec3), px: wp.array3d(dtype=wp.vec3),
+                            py: wp.array3d(dtype=wp.vec3), pz: wp.array3d(dtype=wp.vec3),
+                            h: wp.vec3, rhs: wp.array3d(dtype=wp.vec3)):
+    """``rhs = Q - div(p)`` at cell ``wp.tid()``: the flux of the dipole density ``p``
+    through each interior face is the face mean of ``p`` (none through the box faces).
     """
     i, j, k = wp.tid()
-    div = wp.vec3(0.0)
+    out = q[i, j, k]
     if i < q.shape[0] - 1:
-        div += (3.0 * g * h[0] * 0.5) * wp.cw_mul(kx[i, j, k], mx[i, j, k] + mx[i + 1, j, k])
+        out -= 0.5 * (px[i, j, k] + px[i + 1, j, k]) / h[0]
     if i > 0:
-        div -= (3.0 * g * h[0] * 0.5) * wp.cw_mul(kx[i - 1, j, k], mx[i, j, k] + mx[i - 1, j, k])
+        out += 0.5 * (px[i, j, k] + px[i - 1, j, k]) / h[0]
     if j < q.shape[1] - 1:
-        div += (3.0 * g * h[1] * 0.5) * wp.cw_mul(ky[i, j, k], my[i, j, k] + my[i, j + 1, k])
+        out -= 0.5 * (py[i, j, k] + py[i, j + 1, k]) / h[1]
     if j > 0:
-        div -= (3.0 * g * h[1] * 0.5) * wp.cw_mul(ky[i, j - 1, k], my[i, j, k] + my[i, j - 1, k])
+        out += 0.5 * (py[i, j, k] + py[i, j - 1, k]) / h[1]
     if k < q.shape[2] - 1:
-        div += (3.0 * g * h[2] * 0.5) * wp.cw_mul(kz[i, j, k], mz[i, j, k] + mz[i, j, k + 1])
+        out -= 0.5 * (pz[i, j, k] + pz[i, j, k + 1]) / h[2]
     if k > 0:
-        div -= (3.0 * g * h[2] * 0.5) * wp.cw_mul(kz[i, j, k - 1], mz[i, j, k] + mz[i, j, k - 1])
-    rhs[i, j, k] = q[i, j, k] - div
+        out += 0.5 * (pz[i, j, k] + pz[i, j, k - 1]) / h[2]
+    rhs[i, j, k] = out
 
 
 @wp.kernel

@@ -350,7 +350,8 @@ class ConvectionDiffusionSolver:
         physical = self.diffusion_model == "physical"
         light_key = tuple((g, tuple(rgbs[i].tolist())) for i, g in enumerate(geometry))
         compose_key = (self._opacity_version, light_key, self.diffusion_model) + (
-            (self._color_version, opts["albedo"], bool(self.first_moment)) if physical else ())
+            (self._color_version, opts["albedo"], bool(self.first_moment),
+             opts["anisotropy"] if self.first_moment else None) if physical else ())
         if compose_key != self._compose_key:
             t = time.perf_counter()
             Ts = [fresh[key][1] for key in geometry]
@@ -365,7 +366,8 @@ class ConvectionDiffusionSolver:
                                          for _ in range(3))
                 first_scattered_source(Ts, kinds, directions, rgbs, spacing, r_s, self._sigma,
                                        self._color_sigma, opts["albedo"], self._q,
-                                       self._moment if self.first_moment else None)
+                                       self._moment if self.first_moment else None,
+                                       opts["anisotropy"])
             self._compose_key = compose_key
             self._compose_version += 1
             stats.composed = True
@@ -617,8 +619,8 @@ class ConvectionDiffusionSolver:
         budget = opts["iterations"] or MAX_ITERATIONS[self.solver]
         result = rd.solve(self._q, self._x, budget, opts["tolerance"], method=self.solver,
                           callback=self._progress_callback(report, opts["tolerance"], budget),
-                          moment=self._moment if self.first_moment else None,
-                          anisotropy=opts["anisotropy"])
+                          displacement=self._moment if self.first_moment else None,
+                          cold=not stats.warm_start and new_problem)
         self._diffusion_key = key
         self._converged = result.converged
         self._tolerance_reached = opts["tolerance"]
