@@ -307,26 +307,29 @@ def transmittance(grid, lights=None, scalars=None, *, cmap=None, opacity="linear
 def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
                          clim=None, n_colors=256, flip_scalars=False, transfer_function=None,
                          opacity_unit_distance=None, albedo=0.9, scattering=(0.0, 0.0, 0.0),
-                         light_volume_scale=0.5, iterations=0, tolerance=1e-4,
+                         light_volume_scale=0.5, iterations=0, tolerance=1e-3,
                          solver="multigrid", device=None, rgba=False,
-                         exposure=DEFAULT_EXPOSURE):
+                         exposure=DEFAULT_EXPOSURE, diffusion_model="physical", anisotropy=0.0):
     """Zhang & Ma's convection–diffusion light volume (:class:`ConvectionDiffusionLightFilter`).
 
-    ``scattering`` is the diffusion coefficient per RGB channel (world units², one
+    ``diffusion_model`` is ``"physical"`` (default: radiative-transfer diffusion from
+    ``albedo``, ``anisotropy`` and the transfer functions) or ``"paper"`` (Zhang & Ma's
+    diffusion with ``scattering``, the coefficient per RGB channel in world units², one
     number for all channels); other parameters as in :func:`transmittance`.
 
     Returns
     -------
     pyvista.ImageData
-        ``fluence`` (active), ``direct_fluence``, ``transmittance_<l>`` on the light
-        grid (or, with ``rgba=True``, on the data grid with ``illuminated_rgba``).
+        ``fluence`` (active), ``transmittance`` (physical model), ``scattered_fluence`` on
+        the light grid (or, with ``rgba=True``, on the data grid with ``illuminated_rgba``).
     """
     if np.ndim(scattering) == 0:
         scattering = (float(scattering),) * 3
     optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
                      transfer_function, opacity_unit_distance)
     return _run(ConvectionDiffusionLightFilter, grid, scalars, optics,
-                {"Albedo": albedo, "LightVolumeScale": light_volume_scale,
+                {"Albedo": albedo, "Anisotropy": anisotropy, "LightVolumeScale": light_volume_scale,
+                 "DiffusionModel": diffusion_model,
                  "Scattering": tuple(float(s) for s in scattering), "Iterations": iterations,
                  "Tolerance": tolerance, "Solver": solver, "Device": device},
                 lights=lights, rgba=rgba, exposure=exposure)

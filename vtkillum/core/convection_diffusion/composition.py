@@ -33,6 +33,38 @@ so that a column of cells deposits exactly the energy the beam loses
 (``sum_cells sigma_t <T> h = 1 - T_exit`` for axis-aligned light with the
 short-characteristics convection, whose steps attenuate with the same trapezoidal
 ``sigma_t``). ``<T>`` is clamped to 1.
+
+Where the source sits: its dipole moment
+----------------------------------------
+A cell's source is not at its centre, and the light it scatters does not start
+isotropic. Both shift the source by a displacement ``delta`` that the diffusion
+takes as a dipole density ``p = sum_l Q_l delta_l`` (right-hand side ``Q - div p``,
+:mod:`~vtkillum.core.convection_diffusion.radiative`):
+
+* within the cell: the centroid of ``exp(-sigma_t u . y)`` over the box, per axis
+  ``-sign(u_a) (h_a / 2) L(sigma_t |u_a| h_a / 2)`` with the Langevin function
+  ``L(z) = coth z - 1 / z`` (up to half a cell towards the light in a thick cell);
+* forward, by anisotropic scattering: the first moment of the scattered light is
+  ``g Q u``, and in the P1 approximation it adds the flux ``g Q u / sigma_tr``: a
+  displacement ``g u / sigma_tr`` per channel (one transport mean free path times
+  ``g``).
+
+A nearest-neighbour dipole represents a displacement of at most about one cell, so
+``sum_a |delta_a| / h_a`` is limited to :data:`MAX_MOVED` = 1 (in thin media, where
+``g / sigma_tr`` exceeds a cell, the forward-scattered light mostly leaves before
+its next collision anyway). The face-centred divergence of ``p`` can be negative
+next to empty cells; those parts are clipped and the rest rescaled to the same
+total (:mod:`~vtkillum.core.convection_diffusion.radiative`), since a negative source
+would make the lagged flux limiter oscillate. Measured on the suite of
+:mod:`~vtkillum.core.convection_diffusion.radiative` (relative RMSE vs ``path``,
+without -> with): thick cloud (g 0.4) 0.158 -> 0.143 (energy 0.91 -> 0.93),
+point-lit cloud 0.084 -> 0.078, ball albedo 0.99 0.068 -> 0.065, CT 0.105 -> 0.106,
+plume (g 0.3) 0.154 -> 0.161.
+
+Cells on the box faces extend half a cell beyond the box, where there is no medium:
+the means and centroids above are taken over the part of the cell inside the box
+(per full cell volume), so that a column of cells deposits exactly the energy the
+beam loses in the box.
 """
 
 from __future__ import annotations
@@ -43,7 +75,9 @@ import warp as wp
 from vtkillum.core.convection_diffusion.convection import POINT_KIND
 from vtkillum.core.warp_common import grid_point
 
-#: Largest fraction of a cell's source moved to its neighbours by the displacement.
+#: Largest optical depth of a cell axis evaluated (beyond: the source is at the entry face).
+MAX_RATE = wp.constant(80.0)
+#: Largest displacement of a cell's source, ``sum_a |delta_a| / h_a`` (cells).
 MAX_MOVED = wp.constant(1.0)
 
 
@@ -124,49 +158,50 @@ def light_at(kind: int, vec: wp.vec3, rgb: wp.vec3, x: wp.vec3, source_radius: f
 
 
 @wp.func
-def log_sinhc(z: float):
-    """``log(sinh(z) / z)`` for ``z >= 0`` without overflow."""
-    if z < 1.0e-3:
-        return z * z / 6.0
-    if z > 20.0:
-        return z - wp.log(2.0 * z)
-    return wp.log(wp.sinh(z) / z)
+def axis_moments(k: float, lo: float, hi: float, h: float):
+    """``log`` of the mean of ``exp(-k y)`` over ``y`` in ``[-lo, hi]`` per cell length ``h``
+    (zero outside), and its centroid: one axis of a cell clipped to the box, ``y`` along
+    the light's travel (``lo`` upstream)."""
+    w = lo + hi
+    if k * w < 1.0e-3:
+        return wp.log(w / h), 0.5 * (hi - lo)
+    e = wp.exp(-k * w)
+    log_mean = k * lo + wp.log(1.0 - e) - wp.log(k * h)
+    centroid = (1.0 / k - lo - (hi + 1.0 / k) * e) / (1.0 - e)
+    return log_mean, centroid
 
 
 @wp.func
-def cell_mean_transmittance(t: float, sigma: float, u: wp.vec3, h: wp.vec3):
-    """``<T>`` over a homogeneous box cell from the value ``t`` at its centre (clamped to 1)."""
-    if t <= 0.0:
-        return 0.0
-    log_f = (log_sinhc(0.5 * sigma * wp.abs(u[0]) * h[0])
-             + log_sinhc(0.5 * sigma * wp.abs(u[1]) * h[1])
-             + log_sinhc(0.5 * sigma * wp.abs(u[2]) * h[2]))
-    return wp.min(wp.exp(wp.log(t) + log_f), 1.0)
-
-
-@wp.func
-def langevin(z: float):
-    """``coth(z) - 1 / z`` for ``z >= 0``."""
-    if z < 1.0e-3:
-        return z / 3.0
-    if z > 20.0:
-        return 1.0 - 1.0 / z
-    return 1.0 / wp.tanh(z) - 1.0 / z
-
-
-@wp.func
-def source_offset(sigma: float, u: wp.vec3, h: wp.vec3):
-    """Centroid of ``exp(-sigma u . y)`` over a box cell, relative to its centre."""
-    d = wp.vec3(0.0)
+def cell_exposure(t: float, sigma: float, u: wp.vec3, h: wp.vec3, idx: wp.vec3i,
+                  shape: wp.vec3i):
+    """``<T>`` over the cell of point ``idx`` (clipped to the box, per full cell volume) from
+    the value ``t`` at the point, for a homogeneous cell; and the centroid of
+    ``sigma T`` in the cell relative to the point (world units)."""
+    log_t = float(-1.0e30)
+    if t > 0.0:
+        log_t = wp.log(t)
+    offset = wp.vec3(0.0)
     for a in range(3):
-        z = 0.5 * sigma * wp.abs(u[a]) * h[a]
-        s = float(0.0)
-        if u[a] > 0.0:
+        lower = 0.5 * h[a]
+        upper = 0.5 * h[a]
+        if idx[a] == 0:
+            lower = 0.0
+        if idx[a] == shape[a] - 1:
+            upper = 0.0
+        s = float(1.0)
+        lo = lower
+        hi = upper
+        if u[a] < 0.0:
             s = -1.0
-        elif u[a] < 0.0:
-            s = 1.0
-        d[a] = s * 0.5 * h[a] * langevin(z)
-    return d
+            lo = upper
+            hi = lower
+        lm, c = axis_moments(wp.min(sigma * wp.abs(u[a]), MAX_RATE / h[a]), lo, hi, h[a])
+        log_t += lm
+        offset[a] = s * c
+    mean = float(0.0)
+    if t > 0.0:
+        mean = wp.min(wp.exp(log_t), 1.0)
+    return mean, offset
 
 
 # --- kernels -------------------------------------------------------------------------------------
@@ -198,12 +233,12 @@ def first_scattered_kernel(T: wp.array3d(dtype=wp.float32), sigma: wp.array3d(dt
     """
     i, j, k = wp.tid()
     e, u = light_at(kind, vec, rgb, grid_point(i, j, k, h), source_radius)
-    tm = cell_mean_transmittance(T[i, j, k], sigma[i, j, k], u, h)
+    st = sigma[i, j, k]
+    tm, cell = cell_exposure(T[i, j, k], st, u, h, wp.vec3i(i, j, k),
+                             wp.vec3i(T.shape[0], T.shape[1], T.shape[2]))
     q = (albedo * tm) * wp.cw_mul(color_sigma[i, j, k], e)
     out[i, j, k] = out[i, j, k] + q
     if with_displacement != 0:
-        st = sigma[i, j, k]
-        cell = source_offset(st, u, h)
         dx = wp.vec3(0.0)
         dy = wp.vec3(0.0)
         dz = wp.vec3(0.0)

@@ -236,7 +236,7 @@ class RadiativeDiffusion:
                       inputs=[phi, level.sigma_tr, level.leak, level.h, self.d_max, lim])
 
     def solve(self, q: wp.array3d, x: wp.array3d, max_iterations: int = 100,
-              tolerance: float = 1e-4, method: str = "multigrid", callback=None,
+              tolerance: float = 1e-3, method: str = "multigrid", callback=None,
               displacement=None, cold: bool = False) -> DiffusionReport:
         """Improve ``x`` in place towards the solution for source ``q``.
 
@@ -278,6 +278,12 @@ class RadiativeDiffusion:
         if rhs is not q:
             wp.launch(displaced_source_kernel, dim=self.shape, device=self.device,
                       inputs=[q, *displacement, self.levels[0].h, rhs])
+            # Clip the negative parts (a dipole next to an empty cell), keeping the total.
+            self._norms.zero_()
+            wp.launch(positive_sums_kernel, dim=(self.shape[1], self.shape[2]),
+                      device=self.device, inputs=[rhs, self._norms])
+            wp.launch(clip_rescale_kernel, dim=self.shape, device=self.device,
+                      inputs=[rhs, self._norms])
         res, floor = self.residual(x, rhs, q_norm)
         report.residuals.append(res)
         if res <= max(tolerance, floor):
@@ -484,6 +490,32 @@ def gradient_sq(phi: wp.array3d(dtype=wp.vec3), p: wp.vec3i, h: wp.vec3):
 
 
 @wp.func
+def dense(sigma_tr: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int, min_sigma: float):
+    st = sigma_tr[i, j, k]
+    return wp.max(st[0], wp.max(st[1], st[2])) >= min_sigma
+
+
+@wp.func
+def near_medium(sigma_tr: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int, min_sigma: float):
+    """Whether the cell or one of its face neighbours has ``max_c sigma_tr >= min_sigma``."""
+    if dense(sigma_tr, i, j, k, min_sigma):
+        return True
+    if i > 0 and dense(sigma_tr, i - 1, j, k, min_sigma):
+        return True
+    if i < sigma_tr.shape[0] - 1 and dense(sigma_tr, i + 1, j, k, min_sigma):
+        return True
+    if j > 0 and dense(sigma_tr, i, j - 1, k, min_sigma):
+        return True
+    if j < sigma_tr.shape[1] - 1 and dense(sigma_tr, i, j + 1, k, min_sigma):
+        return True
+    if k > 0 and dense(sigma_tr, i, j, k - 1, min_sigma):
+        return True
+    if k < sigma_tr.shape[2] - 1 and dense(sigma_tr, i, j, k + 1, min_sigma):
+        return True
+    return False
+
+
+@wp.func
 def neighbours(x: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int,
                kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
                kz: wp.array3d(dtype=wp.vec3)):
@@ -632,7 +664,7 @@ def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.ve
                          leak: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
                          min_sigma: float, acc: wp.array(dtype=wp.float64)):
     """Add ``sum_i |b - A x|^2`` to ``acc[0:3]`` and ``sum_i |diag(A) x|^2`` to ``acc[3:6]``
-    over the cells with ``max_c sigma_tr >= min_sigma`` (the medium).
+    over the medium and its face neighbours (:func:`near_medium`).
 
     ``wp.tid() = (j, k)`` is a line along x.
     """
@@ -640,8 +672,7 @@ def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.ve
     s = wp.vec3(0.0)
     m = wp.vec3(0.0)
     for i in range(x.shape[0]):
-        st = sigma_tr[i, j, k]
-        if wp.max(st[0], wp.max(st[1], st[2])) >= min_sigma:
+        if near_medium(sigma_tr, i, j, k, min_sigma):
             off, diag = neighbours(x, i, j, k, kx, ky, kz)
             diag += sigma_a[i, j, k] + leak[i, j, k]
             dx = wp.cw_mul(diag, x[i, j, k])
@@ -674,6 +705,34 @@ def displaced_source_kernel(q: wp.array3d(dtype=wp.vec3), px: wp.array3d(dtype=w
     if k > 0:
         out += 0.5 * (pz[i, j, k] + pz[i, j, k - 1]) / h[2]
     rhs[i, j, k] = out
+
+
+@wp.kernel
+def positive_sums_kernel(a: wp.array3d(dtype=wp.vec3), acc: wp.array(dtype=wp.float64)):
+    """Add ``sum_i a`` to ``acc[0:3]`` and ``sum_i max(a, 0)`` to ``acc[3:6]`` along line
+    ``wp.tid() = (j, k)``."""
+    j, k = wp.tid()
+    s = wp.vec3(0.0)
+    p = wp.vec3(0.0)
+    for i in range(a.shape[0]):
+        v = a[i, j, k]
+        s += v
+        p += wp.vec3(wp.max(v[0], 0.0), wp.max(v[1], 0.0), wp.max(v[2], 0.0))
+    add_channels(acc, 0, s)
+    add_channels(acc, 3, p)
+
+
+@wp.kernel
+def clip_rescale_kernel(a: wp.array3d(dtype=wp.vec3), acc: wp.array(dtype=wp.float64)):
+    """``a = max(a, 0) * sum(a) / sum(max(a, 0))`` per channel at ``wp.tid()``."""
+    i, j, k = wp.tid()
+    v = a[i, j, k]
+    out = wp.vec3(0.0)
+    for c in range(3):
+        pos = float(acc[3 + c])
+        if pos > 0.0 and v[c] > 0.0:
+            out[c] = v[c] * float(acc[c]) / pos
+    a[i, j, k] = out
 
 
 @wp.kernel
