@@ -69,7 +69,7 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         Diffusion iteration budget per execution; 0 (default) iterates until
         ``Tolerance``. With a budget, call :meth:`Refine` and update again to continue.
     Tolerance : float
-        Relative residual at which the diffusion has converged; default 1e-3.
+        Relative residual at which the diffusion has converged; default 1e-4.
     Solver : str
         ``"multigrid"`` (default), ``"gauss-seidel"``, and for the paper model ``"cg"`` or
         ``"dct"`` (host).
@@ -100,7 +100,7 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         self._model = "physical"
         self._scattering = (0.0, 0.0, 0.0)
         self._iterations = 0
-        self._tolerance = 1e-3
+        self._tolerance = 1e-4
         self._solver_name = "multigrid"
         self._source_radius = 0.0
         self._scheme = "characteristics"

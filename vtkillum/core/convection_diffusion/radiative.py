@@ -72,14 +72,18 @@ The hierarchy of :class:`~vtkillum.core.convection_diffusion.multigrid.Multigrid
 operator *re-discretised* on every level from the restricted (mean) ``sigma_a``,
 ``sigma_tr`` and ``phi``; red–black Gauss–Seidel V(2,2) cycles; the coarsest grid
 (at most :data:`COARSEST_CELLS` cells) is relaxed with :data:`COARSE_SWEEPS`
-sweeps. The residual is ``max_c ||Q - A(phi) phi||_c / ||Q||_c`` with the
-coefficients of the current ``phi`` (the nonlinear residual), summed over the cells
-of the medium (``sigma_tr h >= 1e-3``): empty cells are never rendered (``sigma_s = 0``
-there) and reach the medium only through its faces, whose fluxes are part of the
-medium cells' residual; left in, their slow convergence (the lagged limiter spreads a
-change by about a cell per iteration through empty space) would set the iteration
-count while the medium has long converged. float32 cancels about
-``4 eps32 ||diag(A) phi|| / ||Q||`` of it, below which the solve counts as converged.
+sweeps. Convergence is measured by the relative correction ``max_c ||r_c / diag_c|| /
+||phi_c||``, the nonlinear residual ``r = Q - A(phi) phi`` (coefficients of the current
+``phi``) scaled by the diagonal: the change a Jacobi step would make, relative to the
+solution (``|Q| / diag`` stands in for ``phi`` where that is larger, e.g. at a cold
+start). The raw residual would be dominated by empty cavities, whose diffusion
+coefficient is capped at the box diagonal, where a change of ``phi`` by 1e-4 gives a
+residual as large as the source. The sums run over the medium (``sigma_tr h >= 1e-3``)
+and its face neighbours: empty cells further away are never rendered (``sigma_s = 0``
+there) and reach the medium only through cells that are counted; left in, their slow
+convergence (the lagged limiter spreads a change by about a cell per iteration through
+empty space) would set the iteration count while the medium has long converged. The
+float32 floor of this measure is ``4 eps32``.
 """
 
 from __future__ import annotations
@@ -236,7 +240,7 @@ class RadiativeDiffusion:
                       inputs=[phi, level.sigma_tr, level.leak, level.h, self.d_max, lim])
 
     def solve(self, q: wp.array3d, x: wp.array3d, max_iterations: int = 100,
-              tolerance: float = 1e-3, method: str = "multigrid", callback=None,
+              tolerance: float = 1e-4, method: str = "multigrid", callback=None,
               displacement=None, cold: bool = False) -> DiffusionReport:
         """Improve ``x`` in place towards the solution for source ``q``.
 
@@ -361,19 +365,17 @@ class RadiativeDiffusion:
         relax(lv, x, b, POST_SMOOTH, reverse=True)
 
     def residual(self, x: wp.array3d, q: wp.array3d, q_norm=None) -> tuple[float, float]:
-        """Relative residual ``max_c ||Q - A x||_c / ||Q||_c`` over the medium, and its
-        float32 floor (see the module docstring)."""
-        if q_norm is None:
-            q_norm = self._norm(q)
+        """Relative correction ``max_c ||diag(A)^-1 (Q - A x)||_c / ||x||_c`` over the medium
+        and its neighbours, and its float32 floor (see the module docstring)."""
         top = self.levels[0]
         self._norms.zero_()
         wp.launch(residual_norm_kernel, dim=(self.shape[1], self.shape[2]), device=self.device,
                   inputs=[x, q, *top.coefficients, top.sigma_tr, self.min_sigma, self._norms])
         n = np.sqrt(self._norms.numpy())
-        safe = np.maximum(q_norm, 1e-300)
-        rel = np.where(q_norm > 0, n[:3] / safe, 0.0)
-        floor = np.where(q_norm > 0, 4.0 * float(np.finfo(np.float32).eps) * n[3:] / safe, 0.0)
-        return float(rel.max()), float(floor.max())
+        scale = n[3:]
+        rel = np.where(n[:3] > 0, n[:3] / np.maximum(scale, 1e-300), 0.0)
+        rel = np.where((scale == 0) & (n[:3] > 0), 1.0, rel)
+        return float(rel.max()), 4.0 * float(np.finfo(np.float32).eps)
 
     def apply(self, x: wp.array3d, out: wp.array3d | None = None) -> wp.array3d:
         """``A x`` with the current coefficients (tests and diagnostics)."""
@@ -663,8 +665,9 @@ def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.ve
                          kz: wp.array3d(dtype=wp.vec3), sigma_a: wp.array3d(dtype=wp.vec3),
                          leak: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
                          min_sigma: float, acc: wp.array(dtype=wp.float64)):
-    """Add ``sum_i |b - A x|^2`` to ``acc[0:3]`` and ``sum_i |diag(A) x|^2`` to ``acc[3:6]``
-    over the medium and its face neighbours (:func:`near_medium`).
+    """Add ``sum_i |(b - A x) / diag(A)|^2`` to ``acc[0:3]`` and ``sum_i max(|x|, |b| /
+    diag(A))^2`` to ``acc[3:6]``, over the medium and its face neighbours
+    (:func:`near_medium`).
 
     ``wp.tid() = (j, k)`` is a line along x.
     """
@@ -675,10 +678,14 @@ def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.ve
         if near_medium(sigma_tr, i, j, k, min_sigma):
             off, diag = neighbours(x, i, j, k, kx, ky, kz)
             diag += sigma_a[i, j, k] + leak[i, j, k]
-            dx = wp.cw_mul(diag, x[i, j, k])
-            r = b[i, j, k] - dx + off
-            s += wp.cw_mul(r, r)
-            m += wp.cw_mul(dx, dx)
+            xi = x[i, j, k]
+            r = b[i, j, k] - wp.cw_mul(diag, xi) + off
+            for c in range(3):
+                if diag[c] > 0.0:
+                    e = r[c] / diag[c]
+                    v = wp.max(wp.abs(xi[c]), wp.abs(b[i, j, k][c]) / diag[c])
+                    s[c] = s[c] + e * e
+                    m[c] = m[c] + v * v
     add_channels(acc, 0, s)
     add_channels(acc, 3, m)
 

@@ -94,7 +94,7 @@ OPTIONS = {
     "scattering": [0.0, 0.0, 0.0],
     "iterations": 0,
     "solver": "multigrid",
-    "tolerance": 1e-3,
+    "tolerance": 1e-4,
     "source_radius": 0.0,
 }
 
@@ -200,7 +200,7 @@ class ConvectionDiffusionSolver:
 
     def __init__(self, light_volume_scale: float = 0.5, light_volume_shape=None,
                  diffusion_model: str = "physical", scattering=(0.0, 0.0, 0.0),
-                 solver: str = "multigrid", tolerance: float = 1e-3, iterations: int = 0,
+                 solver: str = "multigrid", tolerance: float = 1e-4, iterations: int = 0,
                  source_radius: float = 0.0, warm_start: bool = True,
                  convection_scheme: str = "characteristics",
                  flux_limiter: str = "levermore-pomraning", first_moment: bool = True,
