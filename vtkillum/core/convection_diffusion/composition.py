@@ -214,7 +214,7 @@ def compose_kernel(T: wp.array3d(dtype=wp.float32), out: wp.array3d(dtype=wp.vec
     (intensity over squared distance, world units) for a point light at ``vec``.
     """
     i, j, k = wp.tid()
-    e, u = light_at(kind, vec, rgb, grid_point(i, j, k, h), source_radius)
+    e, _u = light_at(kind, vec, rgb, grid_point(i, j, k, h), source_radius)
     out[i, j, k] = out[i, j, k] + T[i, j, k] * e
 
 

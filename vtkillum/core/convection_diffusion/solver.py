@@ -76,6 +76,7 @@ from vtkillum.core.convection_diffusion.opacity import (
     light_grid_spacing,
 )
 from vtkillum.core.convection_diffusion.radiative import LIMITERS, RadiativeDiffusion
+from vtkillum.core.convection_diffusion.reconstruction import filter_along_surfaces
 from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.lights import DIRECTIONAL, pack_lights
@@ -241,6 +242,8 @@ class ConvectionDiffusionSolver:
         self._q_norm_prev = None  # ||Q|| per channel of the last physical solve
         self._x = None  # diffused light L (paper) or scattered fluence phi_s (physical)
         self._x_model = None  # the model that _x belongs to
+        self._x_version = 0  # counts diffusion updates of _x
+        self._rendered = None  # (key, phi_s filtered along surfaces)
         self._diffusion_key = None
         self._diffusion = None
         self._radiative = None  # (limiter, RadiativeDiffusion)
@@ -471,8 +474,21 @@ class ConvectionDiffusionSolver:
         """
         if self.model == "paper":
             return IlluminationVolume.for_volume(volume, self.scattered_fluence)
-        return IlluminationVolume.for_volume(volume, self.scattered_fluence,
+        return IlluminationVolume.for_volume(volume, self.rendered_scattered_fluence,
                                              transmittance=self.transmittances())
+
+    @property
+    def rendered_scattered_fluence(self) -> np.ndarray:
+        """Physical model: ``phi_s`` filtered along thick surfaces for the ray caster
+        (:mod:`~vtkillum.core.convection_diffusion.reconstruction`), ``(nx, ny, nz, 3)``, >= 0."""
+        self._check_updated()
+        if self.model != "physical":
+            return self.scattered_fluence
+        key = (self._diffusion_key, self._opacity_version, self._x_version)
+        if self._rendered is None or self._rendered[0] != key:
+            out = self._rendered[1] if self._rendered is not None else None
+            self._rendered = (key, filter_along_surfaces(self._x, self._sigma, self.spacing, out))
+        return np.maximum(self._rendered[1].numpy(), 0.0)
 
     # --- internals -------------------------------------------------------------------------
     def _check_updated(self) -> None:
@@ -624,6 +640,7 @@ class ConvectionDiffusionSolver:
         self._diffusion_key = key
         self._converged = result.converged
         self._tolerance_reached = opts["tolerance"]
+        self._x_version += 1
         stats.diffused = True
         stats.diffusion = result
         stats.ms["diffusion"] = _elapsed_ms(t, self.device)
