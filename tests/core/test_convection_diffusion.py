@@ -69,7 +69,12 @@ def test_physical_model_hands_over_direct_light_per_light_and_scattered_light(de
     iv = cd.illumination_volume(vol)
     assert iv.transmittance.shape == (2, *cd.shape)
     np.testing.assert_array_equal(iv.transmittance[1], cd.transmittance(1))
-    np.testing.assert_array_equal(iv.scattered, cd.scattered_fluence)
+    # The ray caster gets the scattered fluence filtered along thick surfaces, the same
+    # elsewhere (this soft ball has few).
+    np.testing.assert_array_equal(iv.scattered, cd.rendered_scattered_fluence)
+    raw = cd.scattered_fluence
+    changed = np.abs(iv.scattered - raw) > 0.1 * raw + 0.02 * raw.max()
+    assert changed.mean() < 0.01 and np.array_equal(iv.scattered[raw == 0], raw[raw == 0])
     assert iv.scattered.min() >= 0 and iv.scattered.max() > 0
     np.testing.assert_allclose(cd.fluence, cd.composed + cd.scattered_fluence)
     # The scattered light is fed by sigma_s: albedo 0 scatters nothing.
