@@ -40,7 +40,8 @@ vacuum condition (``F . n = phi / 2``, extrapolation length ``2 D``), wherever t
 surface lies in the grid; Levermore & Pomraning's own limit ``|F| = phi`` (a
 collimated beam) halves the extrapolation length and lets light escape too fast:
 image energy 0.86 / 0.83 / 0.69 of the path tracer's on the balls (albedo 0.9 /
-0.99) and the cloud of the table below, instead of 1.00 / 1.06 / 0.91.
+0.99) and the cloud of the table below, instead of 1.00 / 1.06 / 0.91 (both measured
+without the source moments).
 
 The coefficients depend on the solution; they are *lagged*: every outer iteration
 evaluates them from the current ``phi`` (on every multigrid level, from the restricted
