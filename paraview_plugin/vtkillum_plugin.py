@@ -59,6 +59,7 @@ from vtkillum_paraview.glue import DEFAULT_EXPOSURE, ParaViewGlue, light_row
 from vtkillum.core.photon.mapper import DIRECT_MODES
 from vtkillum.filters.ambient_extinction import RADIUS_UNITS, AmbientExtinctionFilter
 from vtkillum.filters.base import DEFAULT_CACHE_MB
+from vtkillum.filters.convection_diffusion_light import MODELS as CD_MODELS
 from vtkillum.filters.convection_diffusion_light import (
     DEFAULT_LIGHT_VOLUME_SCALE,
     SCHEMES,
@@ -293,9 +294,15 @@ class LightTransmittance(IlluminatedRGBAOutput, ParaViewGlue, LightTransmittance
 @_proxy("vtkIllumConvectionDiffusionLight", "vtkIllum Convection-Diffusion Light",
         optical_model_xml(),
         lighting_xml(),
+        _string_list("DiffusionModel", "SetDiffusionModel", CD_MODELS, CD_MODELS[0],
+                     "physical: the diffusion approximation of radiative transfer (multiple "
+                     "scattering from Albedo, Anisotropy and the colour map; Scattering "
+                     "unused); paper: Zhang & Ma's diffusion of the light volume with "
+                     "Scattering."),
         _number("double", "Scattering", "SetScattering", "0 0 0",
-                "Diffusion coefficient per RGB channel (world units^2): how far light spreads "
-                "by multiple scattering; 0 0 0 is shadows only.", lo=0.0, elements=3),
+                "DiffusionModel paper only: diffusion coefficient per RGB channel (world "
+                "units^2): how far light spreads; 0 0 0 is shadows only.", lo=0.0, elements=3,
+                advanced=True),
         _number("int", "Iterations", "SetIterations", 0,
                 "Diffusion iterations per update; 0 iterates until Tolerance.", lo=0,
                 hi=10000, advanced=True),
