@@ -239,6 +239,7 @@ class ConvectionDiffusionSolver:
         self._q = None  # first-scattered source (physical)
         self._moment = None  # sum_l Q_l u_l per axis (physical, first moment)
         self._b_prev = None  # right-hand side of the last paper diffusion solve
+        self._light_scale = 1.0  # light arrays are in units of the brightest light's RGB
         self._q_norm_prev = None  # ||Q|| per channel of the last physical solve
         self._x = None  # diffused light L (paper) or scattered fluence phi_s (physical)
         self._x_model = None  # the model that _x belongs to
@@ -357,6 +358,20 @@ class ConvectionDiffusionSolver:
              opts["anisotropy"] if self.first_moment else None) if physical else ())
         if compose_key != self._compose_key:
             t = time.perf_counter()
+            # Light is linear in the lights' RGB (the flux limiter is scale-invariant too):
+            # solve in units of the brightest light so that squares in residual norms stay
+            # finite in float32 for any accepted light (up to 1e30); outputs scale back.
+            scale = float(max(np.max(rgbs), 1e-30))
+            if scale != self._light_scale:
+                ratio = self._light_scale / scale
+                for stale in (self._x, self._b_prev):
+                    if stale is not None:
+                        wp.launch(scale_kernel, dim=stale.shape, device=self.device,
+                                  inputs=[stale, wp.vec3(ratio, ratio, ratio)])
+                if self._q_norm_prev is not None:
+                    self._q_norm_prev = self._q_norm_prev * ratio
+                self._light_scale = scale
+            rgbs = (rgbs / scale).astype(np.float32)
             Ts = [fresh[key][1] for key in geometry]
             directions = [v / max(float(np.linalg.norm(v)), 1e-30) if k == DIRECTIONAL else v
                           for k, v in zip(kinds, vecs.astype(np.float64))]
@@ -402,7 +417,7 @@ class ConvectionDiffusionSolver:
         dip a little below zero next to sharp shadows; those values are clamped to 0.
         """
         self._check_updated()
-        return np.maximum(self._x.numpy(), 0.0)
+        return np.maximum(self._x.numpy(), 0.0) * np.float32(self._light_scale)
 
     @property
     def fluence(self) -> np.ndarray:
@@ -416,14 +431,14 @@ class ConvectionDiffusionSolver:
     def composed(self) -> np.ndarray:
         """The direct fluence ``phi_d = sum_l T_l E_l`` (eq. 22, ``L0``), ``(nx, ny, nz, 3)``."""
         self._check_updated()
-        return self._b.numpy()
+        return self._b.numpy() * np.float32(self._light_scale)
 
     @property
     def source(self) -> np.ndarray:
         """The physical model's first-scattered source ``Q``, ``(nx, ny, nz, 3)``."""
         if self.model != "physical":
             raise RuntimeError("the first-scattered source exists only for the physical model")
-        return self._q.numpy()
+        return self._q.numpy() * np.float32(self._light_scale)
 
     def transmittance(self, index: int, lights=None, volume=None) -> np.ndarray:
         """Transmittance ``T`` of light ``index`` (in the order of the last update's lights).
@@ -463,7 +478,8 @@ class ConvectionDiffusionSolver:
         channel (see :meth:`RadiativeDiffusion.energy_balance`)."""
         if self.model != "physical":
             raise RuntimeError("the energy balance is defined for the physical model")
-        return self._radiative[1].energy_balance(self._q, self._x)
+        balance = self._radiative[1].energy_balance(self._q, self._x)
+        return {name: value * self._light_scale for name, value in balance.items()}
 
     def illumination_volume(self, volume) -> IlluminationVolume:
         """The light volume as an :class:`IlluminationVolume` covering ``volume``'s box.
@@ -488,7 +504,7 @@ class ConvectionDiffusionSolver:
         if self._rendered is None or self._rendered[0] != key:
             out = self._rendered[1] if self._rendered is not None else None
             self._rendered = (key, filter_along_surfaces(self._x, self._sigma, self.spacing, out))
-        return np.maximum(self._rendered[1].numpy(), 0.0)
+        return np.maximum(self._rendered[1].numpy(), 0.0) * np.float32(self._light_scale)
 
     # --- internals -------------------------------------------------------------------------
     def _check_updated(self) -> None:
