@@ -298,6 +298,7 @@ def explicit_scene(scene, volume):
         step_size=scene.step_size,
         shading=scene.shading,
         options=scene.options,
+        optics=scene.optics,
     )
 
 

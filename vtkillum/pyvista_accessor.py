@@ -20,12 +20,19 @@ module taking the grid first (``transmittance(grid, ...)``).
 Transfer functions follow ``Plotter.add_volume``: ``cmap`` (a colormap name,
 matplotlib colormap, list of colours or ``pyvista.LookupTable``), ``opacity`` (a
 name such as ``'linear'``, ``'sigmoid'``, ``'geom_r'``, a float or a list of
-values spread over ``clim``), ``clim`` (default: the data range), ``n_colors``
-and ``flip_scalars``; the tables are built with ``pyvista.LookupTable`` exactly as
+values spread over ``clim``), ``clim`` (default: the range of the rendered values;
+``(low, high)`` with ``low < high``, or one positive ``c`` for ``(-c, c)``),
+``n_colors`` (>= 1) and ``flip_scalars``; the tables are built with ``pyvista.LookupTable`` exactly as
 ``add_volume`` builds them. ``opacity_unit_distance`` defaults to pyvista's too
 (``grid.length / (mean(grid.dimensions) - 1)``), so a given ``cmap``/``opacity``
 looks as dense as with ``add_volume``. Alternatively pass ``transfer_function=``
 a :class:`vtkillum.TransferFunction`.
+
+The rendered array is ``scalars=`` (a point array, or a cell array averaged onto the
+points as ``add_volume`` does; default the active scalars), its ``component=`` for
+multi-component arrays (an index, or -1 / ``"magnitude"``) and ``nan_policy=``
+(``"raise"`` or ``"fill"``), as the filters' ``InputComponent`` and ``NaNPolicy``.
+Every function takes them.
 
 Lights are :class:`vtkillum.DirectionalLight` / :class:`vtkillum.PointLight`, or
 ``pyvista.Light`` objects (a directional light travels from ``position`` towards
@@ -35,6 +42,8 @@ light travelling along (1, -1, -1).
 """
 
 from __future__ import annotations
+
+import re
 
 import numpy as np
 import pyvista as pv
@@ -48,6 +57,7 @@ from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.filters.ambient_extinction import AmbientExtinctionFilter
 from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLightFilter
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
+from vtkillum.filters.many_lights import ManyLightsFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
 from vtkillum.filters.photon_density import PhotonDensityFilter
 from vtkillum.filters.rgba_output import DEFAULT_EXPOSURE, with_rgba_output
@@ -80,17 +90,23 @@ def pyvista_unit_distance(grid) -> float:
 
 
 def transfer_function_from_pyvista(grid, scalars=None, cmap=None, opacity="linear", clim=None,
-                                   n_colors: int = 256, flip_scalars: bool = False):
+                                   n_colors: int = 256, flip_scalars: bool = False, *,
+                                   component=None, nan_policy: str = "raise"):
     """Colour and opacity of ``add_volume``'s conventions as VTK transfer functions.
 
     Parameters
     ----------
     grid : pyvista.ImageData
-        Gives the default ``clim`` (the range of ``scalars``).
+        Gives the default ``clim``: the range of the rendered values (``scalars``, its
+        ``component``, cell data converted to points as ``add_volume`` does).
     scalars : str, optional
-        Point array; default the active scalars.
+        Point or cell array; default the active scalars.
     cmap, opacity, clim, n_colors, flip_scalars
         As in ``pyvista.Plotter.add_volume``; ``cmap=None`` takes the theme's colormap.
+        ``clim`` is ``(low, high)`` with ``low < high``, or one positive number ``c`` for
+        ``(-c, c)``; ``n_colors`` an integer >= 1.
+    component, nan_policy
+        As in :func:`transmittance` (used for the default ``clim`` only).
 
     Returns
     -------
@@ -110,19 +126,15 @@ def transfer_function_from_pyvista(grid, scalars=None, cmap=None, opacity="linea
     else:
         from pyvista.plotting.colors import get_cmap_safe
 
+        n_colors = _check_n_colors(n_colors)
+        clim = _data_range(_rendered_volume(grid, scalars, component, nan_policy)) \
+            if clim is None else _check_clim(clim)
         lut = pv.LookupTable()
         cmap_obj = get_cmap_safe(cmap if cmap is not None else pv.global_theme.cmap)
         if flip_scalars:
             cmap_obj = cmap_obj.reversed()
         lut.apply_cmap(cmap_obj, n_colors)
         lut.apply_opacity(opacity)
-        values = _scalars(grid, scalars)
-        if clim is None:
-            clim = (float(np.nanmin(values)), float(np.nanmax(values)))
-        elif isinstance(clim, (int, float)):
-            clim = (-float(clim), float(clim))
-        if clim[1] <= clim[0]:
-            clim = (clim[0], clim[0] + 1.0)
         lut.scalar_range = clim
     return lut.to_color_tf(), lut.to_opacity_tf()
 
@@ -160,19 +172,6 @@ def lights_from_pyvista(lights) -> list:
     return out
 
 
-def _scalars(grid, scalars):
-    if scalars is None:
-        values = grid.active_scalars
-        if values is None:
-            raise ValueError(f"the grid has no active scalars; pass scalars=<name> (point arrays: "
-                             f"{list(grid.point_data.keys())})")
-        return values
-    if scalars not in grid.point_data:
-        raise ValueError(f"the grid has no point array {scalars!r} (point arrays: "
-                         f"{list(grid.point_data.keys())})")
-    return grid.point_data[scalars]
-
-
 def _illumination_lights(image, lights, core_lights) -> list:
     """The lights an illumination image was computed with, or ``core_lights`` without them.
 
@@ -201,16 +200,153 @@ def _same_lights(a, b) -> bool:
                                     for x, y in zip(a, b))
 
 
+#: Filter properties and the accessor arguments that set them (error messages name the latter).
+_ARGUMENT_NAMES = {
+    "ScalarOpacityUnitDistance": "opacity_unit_distance", "InputComponent": "component",
+    "NaNPolicy": "nan_policy", "Albedo": "albedo", "Anisotropy": "anisotropy",
+    "Device": "device", "Exposure": "exposure", "StepSize": "step_size",
+    "Scattering": "scattering", "Iterations": "iterations", "Tolerance": "tolerance",
+    "Solver": "solver", "Photons": "photons", "Radius": "radius", "MaxOrder": "max_order",
+    "Seed": "seed", "Passes": "passes", "Historygrams": "historygrams",
+    "DirectLight": "direct_light", "RadiusUnits": "radius_units",
+    "ComputeRadiance": "compute_radiance", "LightVolumeScale": "light_volume_scale",
+    "array_name": "scalars",
+}
+
+
+def _in_accessor_words(err: Exception, names: dict | None = None) -> Exception:
+    """``err`` with the filters' property names replaced by the accessor's argument names."""
+    if not isinstance(err, (TypeError, ValueError)):
+        return err
+    message = str(err)
+    for prop, arg in {**_ARGUMENT_NAMES, **(names or {})}.items():
+        message = re.sub(rf"\b{prop}\b", arg, message)
+    if message == str(err):
+        return err
+    new = type(err)(message)
+    new.__cause__ = err
+    return new
+
+
 def _check_grid(grid) -> None:
     if not isinstance(grid, vtkImageData):
         raise TypeError(f"expected a pyvista.ImageData (uniform grid), got {type(grid).__name__}; "
                         "resample other meshes first, e.g. pv.ImageData(...).sample(mesh)")
+    dims = tuple(int(n) for n in grid.GetDimensions())
+    if min(dims) < 2:
+        raise ValueError(
+            f"the grid has dimensions {dims}: volume rendering needs at least 2 points along "
+            "every axis (a single point or a 2D image has no thickness); pad or resample the "
+            "grid")
+    spacing = tuple(float(h) for h in grid.GetSpacing())
+    if not all(np.isfinite(h) and h > 0 for h in spacing):
+        raise ValueError(f"the grid's spacing {spacing} must be positive and finite along every "
+                         "axis; set grid.spacing (flip a mirrored axis with grid.flip_x() etc.)")
+
+
+def _check_component(component):
+    """``component`` for the core (None, index, ``"magnitude"``) and for the filters (-1)."""
+    if component is None or (isinstance(component, str) and component == "magnitude"):
+        return component, (None if component is None else -1)
+    if (isinstance(component, (int, np.integer)) and not isinstance(component, bool)
+            and component >= -1):
+        component = int(component)
+        return ("magnitude" if component == -1 else component), component
+    raise ValueError(f"component must be an index >= 0, -1 or 'magnitude' (the magnitude of "
+                     f"each tuple), or None for a one-component array; got {component!r}")
+
+
+def _check_nan_policy(nan_policy) -> str:
+    if not (isinstance(nan_policy, str) and nan_policy in ("raise", "fill")):
+        raise ValueError(f"nan_policy must be 'raise' or 'fill' (replace NaN/Inf by the smallest "
+                         f"finite value), got {nan_policy!r}")
+    return nan_policy
+
+
+def _association(grid, scalars):
+    """``"points"``/``"cells"`` where ``scalars`` lives (points first, as add_volume), or None."""
+    if scalars is None:
+        return None
+    if not isinstance(scalars, str):
+        raise TypeError(f"scalars must be the name of a point or cell array of the grid, got "
+                        f"{type(scalars).__name__}")
+    if scalars in grid.point_data:
+        return "points"
+    if scalars in grid.cell_data:
+        return "cells"
+    raise ValueError(f"the grid has no point or cell array {scalars!r} (point arrays: "
+                     f"{list(grid.point_data.keys())}; cell arrays: {list(grid.cell_data.keys())})")
+
+
+def _rendered_volume(grid, scalars, component, nan_policy):
+    """The values the filters and renderers will use, as a core Volume (validates the choice).
+
+    The same conversion as the filters': the named point array, else that cell array
+    averaged onto the points; ``component`` of a multi-component array; NaN/Inf by
+    ``nan_policy``.
+    """
+    _check_grid(grid)
+    association = _association(grid, scalars)
+    core_component, _ = _check_component(component)
+    _check_nan_policy(nan_policy)
+    if scalars is None and grid.GetPointData().GetScalars() is None \
+            and grid.GetPointData().GetNumberOfArrays() == 0 \
+            and grid.GetCellData().GetNumberOfArrays() == 0:
+        raise ValueError("the grid has no arrays to render; add one (grid['values'] = ...) or "
+                         "pass scalars=<name>")
+    try:
+        return volume_from_image_data(grid, scalars, core_component, nan_policy, association)
+    except (TypeError, ValueError) as err:
+        raise _in_accessor_words(err) from None
+
+
+def _data_range(volume) -> tuple:
+    """Default ``clim``: the rendered values' range (constant data: ``(v, v + 1)``)."""
+    lo, hi = (float(v) for v in volume.value_range)
+    return (lo, hi) if hi > lo else (lo, lo + 1.0)
+
+
+def _check_clim(clim) -> tuple:
+    if isinstance(clim, (int, float, np.integer, np.floating)) and not isinstance(clim, bool):
+        if not (np.isfinite(clim) and clim > 0):
+            raise ValueError(f"clim={clim!r}: one number c means (-c, c) and must be positive and "
+                             "finite; or give (low, high)")
+        return (-float(clim), float(clim))
+    try:
+        low, high = (float(v) for v in clim)
+    except (TypeError, ValueError):
+        raise ValueError(f"clim must be (low, high) or one positive number, got {clim!r}") from None
+    if not (np.isfinite(low) and np.isfinite(high)):
+        raise ValueError(f"clim={tuple(clim)!r} must be finite")
+    if not low < high:
+        raise ValueError(f"clim={tuple(clim)!r}: give (low, high) with low < high (limits are not "
+                         "sorted or widened: pyvista's add_volume does not either, VTK reports a "
+                         "bad table range); flip_scalars=True reverses the colormap")
+    return (low, high)
+
+
+def _check_n_colors(n_colors) -> int:
+    if isinstance(n_colors, bool) or not isinstance(n_colors, (int, np.integer)) or n_colors < 1:
+        raise ValueError(f"n_colors must be an integer >= 1 (the number of colours and opacities "
+                         f"spread over clim), got {n_colors!r}")
+    return int(n_colors)
+
+
+def _check_unit_distance(u):
+    if u is None:
+        return None
+    if isinstance(u, bool) or not isinstance(u, (int, float, np.integer, np.floating)) \
+            or not (np.isfinite(u) and u > 0):
+        raise ValueError(f"opacity_unit_distance must be a positive number of world units (or "
+                         f"None for pyvista's default), got {u!r}")
+    return float(u)
 
 
 def _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars, transfer_function,
-            opacity_unit_distance):
-    """(vtk colour TF, vtk opacity TF, unit distance) from either convention."""
-    _check_grid(grid)
+            opacity_unit_distance, component=None, nan_policy="raise"):
+    """(vtk colour TF, vtk opacity TF, unit distance, rendered Volume) from either convention."""
+    volume = _rendered_volume(grid, scalars, component, nan_policy)
+    u = _check_unit_distance(opacity_unit_distance)
     if transfer_function is not None:
         if cmap is not None or clim is not None or not (isinstance(opacity, str)
                                                         and opacity == "linear"):
@@ -219,44 +355,61 @@ def _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars, transfer
             raise TypeError("transfer_function must be a vtkillum.TransferFunction")
         ctf, otf = transfer_function_to_vtk(transfer_function)
     else:
+        if not isinstance(cmap, pv.LookupTable):
+            n_colors = _check_n_colors(n_colors)
+            clim = _data_range(volume) if clim is None else _check_clim(clim)
         ctf, otf = transfer_function_from_pyvista(grid, scalars, cmap, opacity, clim, n_colors,
                                                   flip_scalars)
-    u = pyvista_unit_distance(grid) if opacity_unit_distance is None else float(opacity_unit_distance)
-    return ctf, otf, u
+    if u is None:
+        u = pyvista_unit_distance(grid)
+    return ctf, otf, u, volume
 
 
 def _run(filter_class, grid, scalars, optics, settings: dict, lights=None, rgba=False,
-         exposure=DEFAULT_EXPOSURE):
-    """Configure a filter, run it on ``grid`` and return its output as new pyvista.ImageData."""
-    _check_grid(grid)
-    _scalars(grid, scalars)
+         exposure=DEFAULT_EXPOSURE, component=None, nan_policy="raise", with_filter=False):
+    """Configure a filter, run it on ``grid`` and return its output as new pyvista.ImageData.
+
+    ``settings`` maps filter properties to ``(accessor argument, value)``; errors of the
+    filter name the accessor's arguments. ``with_filter``: return ``(output, filter)``
+    (for filters with more output ports).
+    """
     cls = with_rgba_output(filter_class) if rgba else filter_class
     algorithm = cls()
-    ctf, otf, u = optics
-    algorithm.SetColorTransferFunction(ctf)
-    algorithm.SetScalarOpacity(otf)
-    algorithm.SetScalarOpacityUnitDistance(u)
-    if lights is not None:
-        algorithm.SetLights(lights_from_pyvista(lights))
-    if rgba:
-        algorithm.SetExposure(exposure)
-    if scalars is not None:
-        algorithm.SetInputArrayToProcess(0, 0, 0, vtkDataObject.FIELD_ASSOCIATION_POINTS, scalars)
-    for key, value in settings.items():
-        if value is None:
-            continue
-        setter = getattr(algorithm, f"Set{key}")
-        setter(*value) if isinstance(value, tuple) else setter(value)
-    output = algorithm.execute(grid)
+    ctf, otf, u, _ = optics
+    names = {prop: arg for prop, (arg, _) in settings.items()}
+    try:
+        algorithm.SetColorTransferFunction(ctf)
+        algorithm.SetScalarOpacity(otf)
+        algorithm.SetScalarOpacityUnitDistance(u)
+        if lights is not None:
+            algorithm.SetLights(lights_from_pyvista(lights))
+        if rgba:
+            algorithm.SetExposure(exposure)
+        association = _association(grid, scalars)
+        if scalars is not None:
+            field = (vtkDataObject.FIELD_ASSOCIATION_CELLS if association == "cells"
+                     else vtkDataObject.FIELD_ASSOCIATION_POINTS)
+            algorithm.SetInputArrayToProcess(0, 0, 0, field, scalars)
+        algorithm.SetInputComponent(_check_component(component)[1])
+        algorithm.SetNaNPolicy(_check_nan_policy(nan_policy))
+        for key, (_, value) in settings.items():
+            if value is None:
+                continue
+            setter = getattr(algorithm, f"Set{key}")
+            setter(*value) if isinstance(value, tuple) else setter(value)
+        output = algorithm.execute(grid)
+    except (TypeError, ValueError) as err:
+        raise _in_accessor_words(err, names) from None
     result = pv.ImageData()
     result.shallow_copy(output)
-    return result
+    return (result, algorithm) if with_filter else result
 
 
 # === the filters as functions ======================================================================
 def optical_properties(grid, scalars=None, *, cmap=None, opacity="linear", clim=None,
                        n_colors=256, flip_scalars=False, transfer_function=None,
-                       opacity_unit_distance=None, albedo=0.9, output_scale=1.0):
+                       opacity_unit_distance=None, albedo=0.9, output_scale=1.0,
+                       component=None, nan_policy="raise"):
     """Extinction and scattering coefficients per point (:class:`OpticalPropertiesFilter`).
 
     Returns
@@ -282,21 +435,26 @@ def optical_properties(grid, scalars=None, *, cmap=None, opacity="linear", clim=
     0.6892
     """
     optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                     transfer_function, opacity_unit_distance)
+                     transfer_function, opacity_unit_distance, component, nan_policy)
     return _run(OpticalPropertiesFilter, grid, scalars, optics,
-                {"Albedo": albedo, "OutputScale": output_scale})
+                {"Albedo": ("albedo", albedo), "OutputScale": ("output_scale", output_scale)},
+                component=component, nan_policy=nan_policy)
 
 
 def transmittance(grid, lights=None, scalars=None, *, cmap=None, opacity="linear", clim=None,
                   n_colors=256, flip_scalars=False, transfer_function=None,
                   opacity_unit_distance=None, albedo=0.9, light_volume_scale=1.0,
-                  step_size=None, device=None, rgba=False, exposure=DEFAULT_EXPOSURE):
+                  step_size=None, device=None, rgba=False, exposure=DEFAULT_EXPOSURE,
+                  component=None, nan_policy="raise"):
     """Shadow rays towards every light (:class:`LightTransmittanceFilter`).
 
     Parameters
     ----------
     lights : light or list of lights, optional
         See the module docstring.
+    scalars : str, optional
+        Point or cell array to render (cell data are averaged onto the points, as
+        ``add_volume`` does); default the active scalars.
     light_volume_scale : float
         Resolution of the light grid relative to the data, in (0, 1].
     step_size : float, optional
@@ -305,6 +463,13 @@ def transmittance(grid, lights=None, scalars=None, *, cmap=None, opacity="linear
         ``"cpu"``, ``"cuda"``; default CUDA when present.
     rgba : bool
         Also output ``illuminated_rgba`` (:mod:`vtkillum.filters.rgba_output`) with ``exposure``.
+    component : int or str, optional
+        Component of a multi-component array: an index, or -1 / ``"magnitude"`` for the
+        magnitude of each tuple (the filters' ``InputComponent``). Required for
+        multi-component arrays.
+    nan_policy : {"raise", "fill"}
+        NaN/Inf values raise ``ValueError`` (default) or are replaced by the smallest
+        finite value (the filters' ``NaNPolicy``).
 
     Returns
     -------
@@ -330,10 +495,13 @@ def transmittance(grid, lights=None, scalars=None, *, cmap=None, opacity="linear
     (0.368, 0.368)
     """
     optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                     transfer_function, opacity_unit_distance)
+                     transfer_function, opacity_unit_distance, component, nan_policy)
     return _run(LightTransmittanceFilter, grid, scalars, optics,
-                {"Albedo": albedo, "OutputScale": light_volume_scale, "StepSize": step_size,
-                 "Device": device}, lights=lights, rgba=rgba, exposure=exposure)
+                {"Albedo": ("albedo", albedo),
+                 "OutputScale": ("light_volume_scale", light_volume_scale),
+                 "StepSize": ("step_size", step_size), "Device": ("device", device)},
+                lights=lights, rgba=rgba, exposure=exposure, component=component,
+                nan_policy=nan_policy)
 
 
 def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
@@ -341,7 +509,7 @@ def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity=
                          opacity_unit_distance=None, albedo=0.9, scattering=(0.0, 0.0, 0.0),
                          light_volume_scale=0.5, iterations=0, tolerance=1e-4,
                          solver="multigrid", device=None, rgba=False,
-                         exposure=DEFAULT_EXPOSURE):
+                         exposure=DEFAULT_EXPOSURE, component=None, nan_policy="raise"):
     """Zhang & Ma's convection–diffusion light volume (:class:`ConvectionDiffusionLightFilter`).
 
     ``scattering`` is the diffusion coefficient per RGB channel (world units², one
@@ -361,12 +529,15 @@ def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity=
     if np.ndim(scattering) == 0:
         scattering = (float(scattering),) * 3
     optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                     transfer_function, opacity_unit_distance)
+                     transfer_function, opacity_unit_distance, component, nan_policy)
     return _run(ConvectionDiffusionLightFilter, grid, scalars, optics,
-                {"Albedo": albedo, "LightVolumeScale": light_volume_scale,
-                 "Scattering": tuple(float(s) for s in scattering), "Iterations": iterations,
-                 "Tolerance": tolerance, "Solver": solver, "Device": device},
-                lights=lights, rgba=rgba, exposure=exposure)
+                {"Albedo": ("albedo", albedo),
+                 "LightVolumeScale": ("light_volume_scale", light_volume_scale),
+                 "Scattering": ("scattering", tuple(float(s) for s in scattering)),
+                 "Iterations": ("iterations", iterations), "Tolerance": ("tolerance", tolerance),
+                 "Solver": ("solver", solver), "Device": ("device", device)},
+                lights=lights, rgba=rgba, exposure=exposure, component=component,
+                nan_policy=nan_policy)
 
 
 def photon_density(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
@@ -374,7 +545,7 @@ def photon_density(grid, lights=None, scalars=None, *, cmap=None, opacity="linea
                    opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, photons=200_000,
                    radius=2.0, max_order=0, seed=0, passes=1, historygrams=True,
                    direct_light="exact", output_scale=1.0, device=None, rgba=False,
-                   exposure=DEFAULT_EXPOSURE):
+                   exposure=DEFAULT_EXPOSURE, component=None, nan_policy="raise"):
     """Jönsson et al.'s photon density light volume (:class:`PhotonDensityFilter`).
 
     ``photons`` per pass, ``radius`` in voxels, ``max_order`` the maximum scattering
@@ -391,20 +562,61 @@ def photon_density(grid, lights=None, scalars=None, *, cmap=None, opacity="linea
         :func:`convection_diffusion`).
     """
     optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                     transfer_function, opacity_unit_distance)
+                     transfer_function, opacity_unit_distance, component, nan_policy)
     return _run(PhotonDensityFilter, grid, scalars, optics,
-                {"Albedo": albedo, "Anisotropy": anisotropy, "Photons": photons,
-                 "Radius": radius, "MaxOrder": max_order, "Seed": seed, "Passes": passes,
-                 "Historygrams": historygrams, "DirectLight": direct_light,
-                 "OutputScale": output_scale, "Device": device},
-                lights=lights, rgba=rgba, exposure=exposure)
+                {"Albedo": ("albedo", albedo), "Anisotropy": ("anisotropy", anisotropy),
+                 "Photons": ("photons", photons), "Radius": ("radius", radius),
+                 "MaxOrder": ("max_order", max_order), "Seed": ("seed", seed),
+                 "Passes": ("passes", passes), "Historygrams": ("historygrams", historygrams),
+                 "DirectLight": ("direct_light", direct_light),
+                 "OutputScale": ("output_scale", output_scale), "Device": ("device", device)},
+                lights=lights, rgba=rgba, exposure=exposure, component=component,
+                nan_policy=nan_policy)
+
+
+def many_lights(grid, lights=None, scalars=None, *, cmap=None, opacity="linear", clim=None,
+                n_colors=256, flip_scalars=False, transfer_function=None,
+                opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, count=256,
+                vsl_radius=2.0, transmittance="avsm", avsm_resolution=48, avsm_nodes=8,
+                seed=0, output_scale=1.0, device=None, rgba=False, exposure=DEFAULT_EXPOSURE,
+                component=None, nan_policy="raise", return_virtual_lights=False):
+    """Weber et al.'s many-light illumination volume (:class:`ManyLightsFilter`).
+
+    ``count`` virtual lights from random walks, spherical with ``vsl_radius`` voxels,
+    their transmittance from adaptive volumetric shadow maps (``transmittance="avsm"``,
+    ``avsm_resolution``² texels per cube face, ``avsm_nodes`` nodes per texel) or ray
+    marched (``"ray-marched"``); other parameters as in :func:`transmittance`.
+
+    Returns
+    -------
+    pyvista.ImageData or (pyvista.ImageData, pyvista.PolyData)
+        ``fluence`` (active), ``transmittance`` (one component per light) and
+        ``scattered_fluence`` (the virtual lights' light) on the light grid; with
+        ``return_virtual_lights=True`` also the virtual lights as points (``position``,
+        ``radiance``, ``radius``, ... arrays) to show with ``plotter.add_points``.
+    """
+    optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
+                     transfer_function, opacity_unit_distance)
+    out, algorithm = _run(
+        ManyLightsFilter, grid, scalars, optics,
+        {"Albedo": ("albedo", albedo), "Anisotropy": ("anisotropy", anisotropy),
+         "Count": ("count", count), "VSLRadius": ("vsl_radius", vsl_radius),
+         "Transmittance": ("transmittance", transmittance),
+         "AVSMResolution": ("avsm_resolution", avsm_resolution),
+         "AVSMNodes": ("avsm_nodes", avsm_nodes), "Seed": ("seed", seed),
+         "OutputScale": ("output_scale", output_scale), "Device": ("device", device)},
+        lights=lights, rgba=rgba, exposure=exposure, component=component,
+        nan_policy=nan_policy, with_filter=True)
+    if not return_virtual_lights:
+        return out
+    return out, pv.wrap(algorithm.GetVirtualLightsOutput())
 
 
 def ambient_extinction(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
                        clim=None, n_colors=256, flip_scalars=False, transfer_function=None,
                        opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, radius=4.0,
                        radius_units="voxels", compute_radiance=True, output_scale=1.0,
-                       device=None):
+                       device=None, component=None, nan_policy="raise"):
     """Ament et al.'s ambient extinction and radiance cache (:class:`AmbientExtinctionFilter`).
 
     Returns
@@ -414,18 +626,20 @@ def ambient_extinction(grid, lights=None, scalars=None, *, cmap=None, opacity="l
         ``ambient_radiance_<l>`` per light.
     """
     optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                     transfer_function, opacity_unit_distance)
+                     transfer_function, opacity_unit_distance, component, nan_policy)
     return _run(AmbientExtinctionFilter, grid, scalars, optics,
-                {"Albedo": albedo, "Anisotropy": anisotropy, "Radius": radius,
-                 "RadiusUnits": radius_units, "ComputeRadiance": compute_radiance,
-                 "OutputScale": output_scale, "Device": device}, lights=lights)
+                {"Albedo": ("albedo", albedo), "Anisotropy": ("anisotropy", anisotropy),
+                 "Radius": ("radius", radius), "RadiusUnits": ("radius_units", radius_units),
+                 "ComputeRadiance": ("compute_radiance", compute_radiance),
+                 "OutputScale": ("output_scale", output_scale), "Device": ("device", device)},
+                lights=lights, component=component, nan_policy=nan_policy)
 
 
 def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opacity="linear",
            clim=None, n_colors=256, flip_scalars=False, transfer_function=None,
            opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, camera=None, width=256,
            height=256, background=(0.0, 0.0, 0.0), device=None, filename=None,
-           exposure=1.0, gamma=2.2, **options):
+           exposure=1.0, gamma=2.2, component=None, nan_policy="raise", **options):
     """Render ``grid`` with a registered method of :data:`vtkillum.METHODS`.
 
     Parameters
@@ -461,10 +675,8 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
     >>> result.radiance.shape, bool(result.alpha.max() > 0.5)
     ((24, 24, 3), True)
     """
-    _check_grid(grid)
-    ctf, otf, u = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                          transfer_function, opacity_unit_distance)
-    volume = volume_from_image_data(grid, scalars, association="points")
+    ctf, otf, u, volume = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
+                                  transfer_function, opacity_unit_distance, component, nan_policy)
     core_lights = lights_from_pyvista(lights)
     illumination = options.get("illumination")
     if isinstance(illumination, vtkImageData):
@@ -494,7 +706,7 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
                            transfer_function=None, opacity_unit_distance=None, lights=None,
                            albedo=0.9, anisotropy=0.0, exposure=4 * np.pi, shading=None,
                            step_size=None, jitter=True, name=None, reset_camera=None,
-                           render=True):
+                           render=True, component=None, nan_policy="raise"):
     """Add ``grid`` shaded by an illumination volume to a pyvista plotter.
 
     Builds an :class:`~vtkillum.mappers.IlluminatedVolume` (VTK's GPU ray caster
@@ -562,9 +774,8 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     from vtkillum.core.scene import SHADING_DEFAULTS
     from vtkillum.mappers.illuminated_volume_mapper import IlluminatedVolume
 
-    _check_grid(grid)
-    ctf, otf, u = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                          transfer_function, opacity_unit_distance)
+    ctf, otf, u, volume = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
+                                  transfer_function, opacity_unit_distance, component, nan_policy)
     core_lights = lights_from_pyvista(lights)
     if isinstance(illumination, str):
         methods = {"transmittance": transmittance, "convection_diffusion": convection_diffusion}
@@ -573,17 +784,41 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
                              "pass a filter output")
         tf = transfer_function_from_vtk(ctf, otf)
         illumination = methods[illumination](grid, core_lights, scalars, transfer_function=tf,
-                                             opacity_unit_distance=u, albedo=albedo)
+                                             opacity_unit_distance=u, albedo=albedo,
+                                             component=component, nan_policy=nan_policy)
     elif isinstance(illumination, vtkImageData):
         core_lights = _illumination_lights(illumination, lights, core_lights)
     scene = Scene(transfer_function=transfer_function_from_vtk(ctf, otf),
                   opacity_unit_distance=u, albedo=albedo, anisotropy=anisotropy,
                   lights=core_lights,
                   step_size=step_size, shading=dict(SHADING_DEFAULTS, **(shading or {})))
-    volume = IlluminatedVolume(grid, scene, illumination=illumination, array_name=scalars,
+    data, array_name = _mapper_input(grid, scalars, volume, component, nan_policy)
+    volume = IlluminatedVolume(data, scene, illumination=illumination, array_name=array_name,
                                exposure=exposure, jitter=jitter)
     plotter.add_actor(volume, name=name, reset_camera=reset_camera, render=render)
     return volume
+
+
+def _mapper_input(grid, scalars, volume, component, nan_policy):
+    """``(image, array name)`` for the illuminated mapper, which renders one point array.
+
+    The grid itself when ``scalars`` is a one-component point array (the mapper then
+    follows edits of the grid); otherwise a grid of the same structure holding the values
+    the filters render (cell data averaged onto the points, the chosen ``component``,
+    NaN/Inf filled).
+    """
+    pd = grid.GetPointData()
+    array = pd.GetScalars() if scalars is None else pd.GetArray(scalars)
+    if (array is not None and array.GetName() and array.GetNumberOfComponents() == 1
+            and component is None and (scalars is not None or pd.GetScalars() is not None)
+            and np.all(np.isfinite(np.asarray(grid.point_data[array.GetName()])))):
+        return grid, scalars
+    name = scalars or (array.GetName() if array is not None else None) or "values"
+    data = pv.ImageData()
+    data.copy_structure(grid)
+    data.point_data[name] = np.asarray(volume.scalars).ravel(order="F")
+    data.point_data.active_scalars_name = name
+    return data, name
 
 
 # === the accessor ======================================================================================
@@ -607,6 +842,9 @@ class IllumAccessor:
 
     def photon_density(self, *args, **kwargs):
         return photon_density(self._grid, *args, **kwargs)
+
+    def many_lights(self, *args, **kwargs):
+        return many_lights(self._grid, *args, **kwargs)
 
     def ambient_extinction(self, *args, **kwargs):
         return ambient_extinction(self._grid, *args, **kwargs)

@@ -58,6 +58,14 @@ Random numbers: each kernel launch ("pass") seeds one PCG stream per pixel with
 ``wp.rand_init(hash(seed, pass), pixel)``, so a fixed seed gives bit-identical
 images on one device, and passes are independent.
 
+Guards: delta and ratio tracking take about ``majorant × length`` steps per traversal,
+so a medium whose optical depth across the box (majorant × diagonal) exceeds
+:data:`MAX_OPTICAL_DEPTH` is refused with the smallest usable opacity unit distance, and
+so is a camera so far away that float32 distances along its rays cannot resolve a mean
+free path (``t + step == t`` would never end a traversal). On the CPU a pass is launched
+in bands of rows (or parts of a row) of about :data:`BAND_EVENTS` estimated events, so
+Ctrl-C is seen between launches.
+
 Accumulation is in float64 on the device (running sums of radiance, its square
 and alpha), so thousands of passes lose no precision; :attr:`PathTracer.radiance`
 is the running mean.
@@ -103,6 +111,15 @@ MAX_PATH_VERTICES = 100_000
 SHADOW_RR_THRESHOLD = wp.constant(0.1)
 #: Salt of the per-pass seeds (keeps them apart from other estimators' streams).
 PASS_SALT = 0x165667B1
+#: Largest optical depth of the majorant across the volume's diagonal: delta and ratio
+#: tracking take about that many steps per traversal (cf. ``MAX_STEPS_PER_RAY``).
+MAX_OPTICAL_DEPTH = 1 << 20
+#: Largest ``majorant × distance`` from the camera to the volume's far corner: beyond it
+#: a mean free path is below one float32 ulp of the distances along camera rays.
+MAX_FREE_PATHS_FROM_CAMERA = 1 << 23
+#: Estimated tracking events per kernel launch (``(2 + lights) (1 + optical depth)`` per
+#: sample): CPU launches stay well under a second, so Ctrl-C is seen between them.
+BAND_EVENTS = {"cpu": 1 << 23, "cuda": 1 << 40}
 
 
 def render_path(volume, scene, width: int, height: int, device: str | None = None, progress=None,
@@ -197,10 +214,15 @@ class PathTracer:
         self.max_bounces = _bounce_limit(max_bounces)
         self.samples_per_pass = _positive_int(samples_per_pass, "samples_per_pass")
         self._volume = volume
+        self._n_lights = len(scene.lights)
+        self._torn = False
         self.medium = make_medium(
             volume, scene.resolved_transfer_function(volume), scene.resolved_unit_distance(volume),
             scene.albedo, scene.anisotropy, self.device,
         )
+        self._unit_distance = scene.resolved_unit_distance(volume)
+        self._transfer_function = scene.resolved_transfer_function(volume)
+        self._check_optical_depth()
         self.lights = make_lights(scene.lights, volume, self.device)
         shape = (self.height, self.width)
         self._sum = wp.zeros(shape, dtype=wp.vec3d, device=self.device)
@@ -227,34 +249,112 @@ class PathTracer:
                     f"camera must be a vtkillum.core.camera.Camera, got {type(camera).__name__}; "
                     "convert a vtkCamera with its position, focal point, view up and view angle"
                 )
+            cam = make_camera(camera, self._volume, self.width, self.height)
+            self._check_camera_distance(cam)
             self.camera = camera
-            self._cam: CameraParams = make_camera(camera, self._volume, self.width, self.height)
+            self._cam: CameraParams = cam
         self._sum.zero_()
         self._sum2.zero_()
         self._sum_alpha.zero_()
         self._capped.zero_()
+        self._torn = False
         self.passes = 0
         self._seconds = 0.0
         return self
 
     def run(self, passes: int = 1) -> "PathTracer":
-        """Add ``passes`` kernel launches of ``samples_per_pass`` samples per pixel."""
+        """Add ``passes`` passes of ``samples_per_pass`` samples per pixel.
+
+        A pass is one kernel launch, or on the CPU several over bands of the image (see
+        :meth:`bands`); a pass interrupted (Ctrl-C) between them is not counted, and the
+        tracer must be :meth:`reset` before it is used again.
+        """
         passes = _positive_int(passes, "passes")
+        self._check_whole()
         start = time.perf_counter()
+        bands = self.bands()
         for _ in range(passes):
-            wp.launch(
-                path_trace_kernel,
-                dim=(self.height, self.width),
-                inputs=[self.medium, self._cam, self.lights,
-                        stream_seed(self.seed, self.passes, PASS_SALT), self.samples_per_pass,
-                        self._vertex_limit, self._sum, self._sum2, self._sum_alpha,
-                        self._capped],
-                device=self.device,
-            )
+            seed = stream_seed(self.seed, self.passes, PASS_SALT)
+            self._torn = len(bands) > 1
+            for row0, col0, rows, cols in bands:
+                wp.launch(
+                    path_trace_kernel,
+                    dim=(rows, cols),
+                    inputs=[self.medium, self._cam, self.lights, seed, self.samples_per_pass,
+                            self._vertex_limit, row0, col0, self._sum, self._sum2,
+                            self._sum_alpha, self._capped],
+                    device=self.device,
+                )
+            self._torn = False
             self.passes += 1
         wp.synchronize_device(self.device)
         self._seconds += time.perf_counter() - start
         return self
+
+    def bands(self) -> list:
+        """``(row0, col0, rows, cols)`` of the launches of one pass.
+
+        The whole image on CUDA; on the CPU bands of whole rows, or parts of a row, of
+        about :data:`BAND_EVENTS` estimated events each.
+        """
+        events = (2 + self._n_lights) * (1.0 + self.optical_depth) \
+            * self.samples_per_pass
+        budget = BAND_EVENTS["cpu" if self.device == "cpu" else "cuda"]
+        pixels = max(1, int(min(budget / events, self.width * self.height)))
+        if pixels >= self.width:
+            rows = min(self.height, pixels // self.width)
+            return [(r, 0, min(rows, self.height - r), self.width)
+                    for r in range(0, self.height, rows)]
+        return [(r, c, 1, min(pixels, self.width - c)) for r in range(self.height)
+                for c in range(0, self.width, pixels)]
+
+    @property
+    def optical_depth(self) -> float:
+        """The majorant's optical depth across the volume's diagonal."""
+        return float(self.medium.majorant) * float(np.linalg.norm(self._volume.extent))
+
+    def _check_optical_depth(self) -> None:
+        tau = self.optical_depth
+        if tau <= MAX_OPTICAL_DEPTH:
+            return
+        smallest = _round_up(self._depth_at_unit_distance_one() / MAX_OPTICAL_DEPTH)
+        raise ValueError(
+            f"path: opacity_unit_distance {self._unit_distance:g} makes the medium "
+            f"{tau:.3g} mean free paths deep across the volume (majorant x diagonal); delta "
+            f"tracking takes about that many steps per ray and at most {MAX_OPTICAL_DEPTH} "
+            f"are allowed: use an opacity_unit_distance of at least {smallest:.3g} world units "
+            "(or a lower opacity)"
+        )
+
+    def _depth_at_unit_distance_one(self) -> float:
+        """The optical depth with ``opacity_unit_distance = 1`` (it scales as ``1 / u``)."""
+        tau = self.optical_depth
+        if np.isfinite(tau):
+            return tau * self._unit_distance
+        sig, _, _, _ = self._transfer_function.lookup_tables(1.0, self._volume.value_range)
+        return float(np.max(sig)) * 1.0001 * float(np.linalg.norm(self._volume.extent))
+
+    def _check_camera_distance(self, cam: CameraParams) -> None:
+        corners = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)],
+                           dtype=np.float64) * np.asarray(self._volume.extent, dtype=np.float64)
+        far = float(np.linalg.norm(corners - np.asarray(cam.position, np.float64), axis=1).max())
+        majorant = float(self.medium.majorant)
+        if majorant * far <= MAX_FREE_PATHS_FROM_CAMERA:
+            return
+        closest = MAX_FREE_PATHS_FROM_CAMERA / majorant
+        raise ValueError(
+            f"path: the camera is {far:.3g} world units from the volume's far corner, "
+            f"{majorant * far:.3g} mean free paths of the densest medium; float32 distances "
+            f"along camera rays cannot resolve them beyond {MAX_FREE_PATHS_FROM_CAMERA}: move "
+            f"the camera closer (within {closest:.3g} world units of every corner, e.g. a "
+            "smaller distance with a wider view angle or parallel scale) or raise "
+            "opacity_unit_distance"
+        )
+
+    def _check_whole(self) -> None:
+        if self._torn:
+            raise RuntimeError("a pass of this PathTracer was interrupted part-way (its sums "
+                               "hold part of a pass); call reset() before using it again")
 
     @property
     def _vertex_limit(self) -> int:
@@ -273,11 +373,13 @@ class PathTracer:
     @property
     def radiance(self) -> np.ndarray:
         """Running mean of the radiance, (H, W, 3) float32 (zeros before the first pass)."""
+        self._check_whole()
         return (self._sum.numpy() / max(self.passes, 1)).astype(np.float32)
 
     @property
     def alpha(self) -> np.ndarray:
         """Running mean of ``1 - T`` along the primary rays, (H, W) float32."""
+        self._check_whole()
         return (self._sum_alpha.numpy() / max(self.passes, 1)).astype(np.float32)
 
     @property
@@ -287,6 +389,7 @@ class PathTracer:
         ``(mean of squares - square of mean) / (passes - 1)`` over per-pass values; needs two
         passes at least.
         """
+        self._check_whole()
         n = self.passes
         if n < 2:
             raise ValueError("the variance needs at least two passes; call run(2) first")
@@ -316,6 +419,12 @@ class PathTracer:
         if self.passes >= 2:
             info["radiance_variance"] = self.radiance_variance  # float64: squares of huge lights
         return RenderResult(self.radiance, self.alpha, info)
+
+
+def _round_up(x: float, digits: int = 3) -> float:
+    """``x`` rounded up to ``digits`` significant digits (so that the printed value works)."""
+    scale = 10.0 ** (digits - 1 - int(np.floor(np.log10(x))))
+    return float(np.ceil(x * scale * (1 - 1e-12)) / scale)
 
 
 def _is_integral(value) -> bool:
@@ -445,18 +554,22 @@ def trace_path(m: Medium, lights: Lights, o: wp.vec3, d: wp.vec3, max_bounces: i
 
 @wp.kernel
 def path_trace_kernel(m: Medium, cam: CameraParams, lights: Lights, seed: int, spp: int,
-                      max_bounces: int, sum_radiance: wp.array2d(dtype=wp.vec3d),
+                      max_bounces: int, row0: int, col0: int,
+                      sum_radiance: wp.array2d(dtype=wp.vec3d),
                       sum_radiance2: wp.array2d(dtype=wp.vec3d),
                       sum_alpha: wp.array2d(dtype=wp.float64),
                       capped_paths: wp.array(dtype=wp.int64)):
     """One pass of ``spp`` camera paths per pixel, added to the running sums.
 
-    ``wp.tid()`` is ``(row, col)`` of the image, row 0 at the top. Radiance is in the
+    ``wp.tid()`` is ``(row - row0, col - col0)`` of the image, row 0 at the top (a pass
+    may be launched in bands; each pixel's stream depends only on ``(row, col)``). Radiance is in the
     lights' units (irradiance E, or I / d^2, per steradian through the phase function);
     ``sum_radiance2`` accumulates the square of the per-pass mean (for the variance);
     ``capped_paths[0]`` counts walks still alive after ``max_bounces`` vertices.
     """
-    row, col = wp.tid()
+    r, c = wp.tid()
+    row = row0 + r
+    col = col0 + c
     state = wp.rand_init(seed, row * cam.width + col)
     total = wp.vec3(0.0)
     alpha = float(0.0)

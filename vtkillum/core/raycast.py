@@ -48,7 +48,7 @@ from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import IlluminationVolume, gradient_threshold, shading_terms
 from vtkillum.core.raymarch import (
     RAY_OPTIONS,
-    launch_row_bands,
+    launch_tiles,
     pixel_ray,
     ray_options,
     sample_count,
@@ -87,8 +87,20 @@ MODE_NAMES = {EMISSION: "emission", SINGLE: "single", ILLUMINATION: "illuminatio
 #: before reading the cached transmittance (0: read the grid at the sample).
 RAYCAST_OPTIONS = {**RAY_OPTIONS, "near_cells": 2.0}
 
-#: Pixels per kernel launch when the image is tiled into row bands (progress reporting).
+#: Most pixels per kernel launch when the image is tiled into row bands (progress reporting).
 TILE_PIXELS = {"cpu": 1 << 14, "cuda": 1 << 20}
+
+#: Refuse settings whose worst case needs more samples than this for one pixel: the
+#: samples of the primary ray plus, for each of them, every sample of its shadow rays
+#: (``single``: to the box exit or the light; ``illumination``: the exact near march).
+#: Under half a second of one CPU core, so that a launch of one pixel stays interruptible.
+MAX_SAMPLES_PER_PIXEL = 1 << 26
+
+#: Worst-case samples per kernel launch: the bands shrink (to parts of a row) as the work
+#: per pixel grows, so that a CPU launch takes well under a second and Ctrl-C (seen
+#: between launches) works; on CUDA a band keeps at least ``CUDA_MIN_BAND_PIXELS``.
+BAND_SAMPLES = {"cpu": 1 << 24, "cuda": 1 << 38}
+CUDA_MIN_BAND_PIXELS = 1 << 16
 
 
 def render_emission(volume, scene, width, height, device=None, progress=None, **options):
@@ -175,6 +187,57 @@ def _parse_options(options: dict, volume, scene) -> dict:
     return opts
 
 
+def samples_per_pixel(volume, step: float, n_lights: int = 0, shadow_length: float = 0.0) -> int:
+    """Worst-case samples of one pixel: ``n (1 + n_lights m)``.
+
+    ``n = ceil(diagonal / step)`` samples along the primary ray and, at each, one shadow
+    ray per light of ``m = ceil(min(shadow_length, diagonal) / step)`` samples (shadow
+    rays end at the box exit, so never longer than its diagonal). ``step`` in world units.
+    """
+    diagonal = float(np.linalg.norm(volume.extent))
+    n = int(np.ceil(diagonal / step))
+    m = int(np.ceil(min(float(shadow_length), diagonal) / step)) if n_lights else 0
+    return n * (1 + int(n_lights) * m)
+
+
+def check_samples_per_pixel(volume, step: float, n_lights: int, shadow_length: float,
+                            method: str, limit: int = MAX_SAMPLES_PER_PIXEL) -> int:
+    """:func:`samples_per_pixel`, or ``ValueError`` naming the smallest usable ``step_size``."""
+    work = samples_per_pixel(volume, step, n_lights, shadow_length)
+    if work <= limit:
+        return work
+    diagonal = float(np.linalg.norm(volume.extent))
+    shadow = min(float(shadow_length), diagonal)
+    # n (1 + L m) <= limit with n = D / s, m = S / s: L D S x^2 + D x - limit <= 0, x = 1 / s.
+    a, b = n_lights * diagonal * shadow, diagonal
+    x = (-b + np.sqrt(b * b + 4.0 * a * limit)) / (2.0 * a) if a > 0 else limit / b
+    smallest = 1.0 / x
+    while samples_per_pixel(volume, smallest, n_lights, shadow_length) > limit:
+        smallest *= 1.0 + 1e-6
+    smallest = _round_up(smallest)
+    n = int(np.ceil(diagonal / step))
+    m = int(np.ceil(shadow / step))
+    raise ValueError(
+        f"step_size {step:g} needs up to {work:.3g} samples per pixel with method {method!r} "
+        f"({n} along the ray, each with {n_lights} shadow ray(s) of up to {m}); at most "
+        f"{limit:.3g} are allowed: use a step_size of at least {smallest:.3g} world units"
+        + (" (or fewer lights)" if n_lights > 1 else "")
+    )
+
+
+def _round_up(x: float, digits: int = 3) -> float:
+    """``x`` rounded up to ``digits`` significant digits (so that the printed value works)."""
+    scale = 10.0 ** (digits - 1 - int(np.floor(np.log10(x))))
+    return float(np.ceil(x * scale * (1 - 1e-12)) / scale)
+
+
+def band_pixels(device: str, work: int) -> int:
+    """Pixels per launch for ``work`` worst-case samples per pixel (see :data:`BAND_SAMPLES`)."""
+    key = "cpu" if device == "cpu" else "cuda"
+    pixels = min(TILE_PIXELS[key], max(1, BAND_SAMPLES[key] // max(int(work), 1)))
+    return max(pixels, min(CUDA_MIN_BAND_PIXELS, TILE_PIXELS[key])) if key == "cuda" else pixels
+
+
 def _render(mode, volume, scene, width, height, device, progress, illumination, options):
     """Upload, launch in row tiles, download; see the module docstring."""
     t_start = time.perf_counter()
@@ -196,15 +259,21 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
     direct = make_light_grid(None if illumination is None else illumination.transmittance,
                              volume.extent, device, opts["near_cells"])
     grad_eps = gradient_threshold(volume)
+    # Shadow rays per sample: to every light for single scattering, the exact near march
+    # of every cached light for illumination volumes, none for emission.
+    n_lights, shadow_length = {SINGLE: (len(scene.lights), np.inf),
+                               ILLUMINATION: (direct.count, direct.near)}.get(mode, (0, 0.0))
+    work = check_samples_per_pixel(volume, opts["step_size"], n_lights, shadow_length,
+                                   MODE_NAMES[mode])
 
     wp.synchronize_device(device)
     t_upload = time.perf_counter()
 
-    radiance, alpha, samples, n_tiles = launch_row_bands(
+    radiance, alpha, samples, n_tiles = launch_tiles(
         raycast_kernel,
         [medium, cam, lights, illum, direct, mode, opts["step_size"], int(opts["jitter"]), opts["seed"],
          opts["early_termination"], wp.vec4(ka, kd, ks, shininess), float(grad_eps)],
-        width, height, TILE_PIXELS["cpu" if device == "cpu" else "cuda"], device, progress)
+        width, height, band_pixels(device, work), device, progress)
     t_render = time.perf_counter()
 
     rad = radiance.numpy().astype(np.float32).reshape(height, width, 3)
@@ -314,19 +383,21 @@ def raycast_kernel(
     shading: wp.vec4,
     grad_eps: float,
     row0: int,
+    col0: int,
     radiance: wp.array2d(dtype=wp.vec3),
     alpha: wp.array2d(dtype=wp.float32),
     samples: wp.array2d(dtype=wp.int32),
 ):
     """March one primary ray per pixel.
 
-    ``wp.tid()`` is ``(row - row0, col)`` of the image (row 0 at the top). Positions
+    ``wp.tid()`` is ``(row - row0, col - col0)`` of the image (row 0 at the top). Positions
     are in the volume's local frame (world units); ``step`` in world units; ``mode``
     is EMISSION (0), SINGLE (1) or ILLUMINATION (2). Writes premultiplied radiance
     and alpha = 1 - transmittance at ``[row, col]``.
     """
-    r, c = wp.tid()
+    r, cc = wp.tid()
     row = row0 + r
+    c = col0 + cc
     o, d, t0, t1 = pixel_ray(cam, m.extent, row, c)
     colour = wp.vec3(0.0)
     trans = float(1.0)

@@ -55,8 +55,8 @@ def launch_row_bands(kernel, inputs: list, width: int, height: int, band_pixels:
 
     The kernel's last four parameters must be ``row0, radiance, alpha, samples``
     (``wp.tid()`` = ``(row - row0, col)``); ``inputs`` are the ones before them. Each band
-    holds about ``band_pixels`` pixels; ``progress(fraction)`` is called between bands (not
-    after the last). The device is synchronised before returning.
+    holds about ``band_pixels`` pixels (at least one row); ``progress(fraction)`` is called
+    between bands (not after the last). The device is synchronised before returning.
 
     Returns
     -------
@@ -66,19 +66,43 @@ def launch_row_bands(kernel, inputs: list, width: int, height: int, band_pixels:
     bands : int
         Number of launches.
     """
+    rows = max(1, min(height, band_pixels // max(width, 1)))
+    tiles = [(row0, 0, min(rows, height - row0), width) for row0 in range(0, height, rows)]
+    return _launch(kernel, inputs, width, height, tiles, device, progress, False)
+
+
+def launch_tiles(kernel, inputs: list, width: int, height: int, band_pixels: int, device: str,
+                 progress=None):
+    """Like :func:`launch_row_bands`, but a band may also be a part of one row.
+
+    For kernels whose work per pixel can be large: bands of whole rows while a row holds
+    at most ``band_pixels`` pixels, else runs of ``band_pixels`` (at least 1) pixels of
+    one row. The kernel's last five parameters must be ``row0, col0, radiance, alpha,
+    samples`` (``wp.tid()`` = ``(row - row0, col - col0)``).
+    """
+    band_pixels = max(1, int(band_pixels))
+    if band_pixels >= width:
+        rows = max(1, min(height, band_pixels // max(width, 1)))
+        tiles = [(row0, 0, min(rows, height - row0), width) for row0 in range(0, height, rows)]
+    else:
+        tiles = [(row, col0, 1, min(band_pixels, width - col0)) for row in range(height)
+                 for col0 in range(0, width, band_pixels)]
+    return _launch(kernel, inputs, width, height, tiles, device, progress, True)
+
+
+def _launch(kernel, inputs, width, height, tiles, device, progress, with_col0):
     radiance = wp.zeros((height, width), dtype=wp.vec3, device=device)
     alpha = wp.zeros((height, width), dtype=wp.float32, device=device)
     samples = wp.zeros((height, width), dtype=wp.int32, device=device)
-    rows = max(1, min(height, band_pixels // max(width, 1)))
-    bands = (height + rows - 1) // rows
-    for n, row0 in enumerate(range(0, height, rows)):
-        wp.launch(kernel, dim=(min(rows, height - row0), width),
-                  inputs=[*inputs, row0, radiance, alpha, samples], device=device)
-        if progress is not None and n + 1 < bands:
+    for n, (row0, col0, rows, cols) in enumerate(tiles):
+        offsets = [row0, col0] if with_col0 else [row0]
+        wp.launch(kernel, dim=(rows, cols), inputs=[*inputs, *offsets, radiance, alpha, samples],
+                  device=device)
+        if progress is not None and n + 1 < len(tiles):
             wp.synchronize_device(device)
-            progress((n + 1) / bands)
+            progress((n + 1) / len(tiles))
     wp.synchronize_device(device)
-    return radiance, alpha, samples, bands
+    return radiance, alpha, samples, len(tiles)
 
 
 @wp.func

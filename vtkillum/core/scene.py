@@ -3,7 +3,8 @@
 Fields (unknown ones are an error, missing ones take the defaults below)::
 
     transfer_function      {"scalars": [...], "opacity": [...], "colors": [[r,g,b], ...]}
-                           default: opacity ramp over the data range, white
+                           default: opacity ramp over the data range, white; optional
+                           "refractive_index" and "medium_color" (core/refraction/optics.py)
     opacity_unit_distance  u in world units; default: the volume's mean spacing
     albedo                 single-scattering albedo Λ in [0, 1]; default 0.9
     anisotropy             Henyey–Greenstein g in (-1, 1); default 0
@@ -58,6 +59,20 @@ METHOD_OPTIONS: dict[str, dict] = {
         "historygrams": True, "spatial_historygram": True, "direct": "exact", "passes": 1,
         "alpha": 0.6666666666666666, "surface_range": [0.0, 0.0], "surface_gradient": 0.02,
         "surface_diffuse": 0.6, "surface_specular": 0.4, "surface_shininess": 40.0,
+    },
+    "refraction": {                    # Magnus & Bruckner 2017, see core/refraction/render.py
+        "sample_distance": 1.0, "softness": 0.0, "direction_blur": 1.0,
+        "intensity_correction": True, "max_concentration": 100.0, "specular": 1.0,
+        "roughness": 0.3, "light_buffer_scale": 1.0, "environment": "",
+        "early_termination": 0.999, "seed": 0,
+    },
+    "many_lights": {                   # see vtkillum.core.many_lights.render
+        "count": 256, "sets": 1, "max_sets": 64, "virtual_lights": "spherical",
+        "vsl_radius": 2.0, "vsl_radius_mfp": 0.5, "radius_exponent": 1.0 / 3.0,
+        "transmittance": "avsm", "avsm_resolution": 48, "avsm_nodes": 8,
+        "avsm_lookup": "trilinear", "distance_sampling": "delta-tracking", "phase_sampling": "hg",
+        "view_samples": 8, "update_fraction": 0.1, "update_budget": 0,
+        "scale_range": [1.0, 1.0], "density_scale": 1.0, "seed": 0,
     },
 }
 
@@ -145,6 +160,9 @@ class Scene:
     step_size: float | None = None
     shading: dict = field(default_factory=lambda: dict(SHADING_DEFAULTS))
     options: dict = field(default_factory=lambda: copy.deepcopy(METHOD_OPTIONS))
+    #: Refractive index and medium colour (``transfer_function.refractive_index`` /
+    #: ``.medium_color`` in the file): a RefractiveOptics, None for η ≡ 1, m ≡ white.
+    optics: object = None
 
     def __post_init__(self) -> None:
         if not (0.0 <= float(self.albedo) <= 1.0):
@@ -172,6 +190,12 @@ class Scene:
                 raise ValueError(f"unknown method section {name!r}; known: {sorted(METHOD_OPTIONS)}")
             merged[name] = _merge(name, METHOD_OPTIONS[name], opts)
         self.options = merged
+        if self.optics is not None:
+            from vtkillum.core.refraction.optics import RefractiveOptics
+
+            if not isinstance(self.optics, RefractiveOptics):
+                raise ValueError("optics must be a RefractiveOptics (refractive index and medium "
+                                 f"colour), got {type(self.optics).__name__}")
 
     # --- resolution of data-dependent defaults --------------------------------------------
     def resolved_transfer_function(self, volume) -> TransferFunction:
@@ -200,6 +224,8 @@ class Scene:
         }
         if self.transfer_function is not None:
             d["transfer_function"] = self.transfer_function.to_dict()
+            if self.optics is not None:
+                d["transfer_function"].update(self.optics.to_dict())
         if self.opacity_unit_distance is not None:
             d["opacity_unit_distance"] = self.opacity_unit_distance
         if self.camera is not None:
@@ -219,7 +245,12 @@ class Scene:
             raise ValueError(f"unknown scene field(s) {sorted(unknown)}; known: {sorted(TOP_LEVEL)}")
         kw = {}
         if "transfer_function" in d:
-            kw["transfer_function"] = TransferFunction.from_dict(d["transfer_function"])
+            from vtkillum.core.refraction.optics import split_transfer_function
+
+            tf, optics = split_transfer_function(d["transfer_function"])
+            kw["transfer_function"] = TransferFunction.from_dict(tf)
+            if optics is not None:
+                kw["optics"] = optics
         if "lights" in d:
             if not isinstance(d["lights"], list):
                 raise ValueError("lights must be a list of light objects")

@@ -53,6 +53,9 @@ DATASETS: dict[str, BuiltinDataset] = {
                          64, 16, procedural.ct_phantom),
     "marschner-lobb": BuiltinDataset("marschner-lobb", "Marschner-Lobb test signal on [-1, 1]^3",
                                      41, 4, procedural.marschner_lobb),
+    "glass": BuiltinDataset("glass", "stemmed glass with liquid on a checkered floor "
+                            "(refraction; SIZE x SIZE x 1.05 SIZE)", 96, 16,
+                            procedural.stemmed_glass),
 }
 
 

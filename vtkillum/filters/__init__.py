@@ -10,6 +10,7 @@ from vtkillum.filters.ambient_extinction import AmbientExtinctionFilter
 from vtkillum.filters.base import IlluminationFilterBase, IlluminationParameters
 from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLightFilter
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
+from vtkillum.filters.many_lights import ManyLightsFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
 from vtkillum.filters.photon_density import PhotonDensityFilter
 
@@ -19,6 +20,7 @@ __all__ = [
     "IlluminationFilterBase",
     "IlluminationParameters",
     "LightTransmittanceFilter",
+    "ManyLightsFilter",
     "OpticalPropertiesFilter",
     "PhotonDensityFilter",
 ]

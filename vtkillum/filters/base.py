@@ -28,6 +28,23 @@ RequestData
     Converts the input (:mod:`vtkillum.io.convert`), calls :meth:`compute` and
     assembles the output, or copies the cached output.
 
+Ctrl-C
+------
+VTK cannot pass a Python exception through its (C++) pipeline: an exception raised in
+``RequestData`` is printed and the request reported as failed, so a ``KeyboardInterrupt``
+(Ctrl-C during a long kernel; the core launches in chunks so that it is seen) would end
+up as an empty output and, in :meth:`IlluminationFilterBase.execute`, a ``RuntimeError``.
+``RequestData`` therefore catches it, leaves the output empty, reports "interrupted"
+the VTK way (``ErrorEvent`` observers or the output window) and remembers it; the
+filter's own ``Update()``, ``UpdateTimeStep()``, ``UpdateWholeExtent()`` and
+``execute()`` re-raise it once VTK has returned. When something else drives the
+pipeline (a downstream algorithm's ``Update()``, a render window, ParaView), VTK offers
+no way to raise through it: that update fails like any other (empty output, VTK's
+failure message), and :meth:`IlluminationFilterBase.GetLastError` says it was
+interrupted. (Re-delivering the signal from inside the pipeline does not work either:
+Python handles a pending signal at the next call, still inside VTK's callback, where
+VTK swallows it again.) The next update re-executes the filter.
+
 Time cache
 ----------
 Outputs are kept per requested time in a :class:`~vtkillum.filters.time_cache.TimeStepCache`
@@ -208,6 +225,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         self._cache = TimeStepCache(int(DEFAULT_CACHE_MB * 2**20))
         self._pending = None  # (key, cached output or None), from RequestUpdateExtent
         self._last_error: Exception | None = None
+        self._interrupt: KeyboardInterrupt | None = None  # caught in RequestData, see module doc
         self.SetInputArrayToProcess(0, 0, 0, vtkDataObject.FIELD_ASSOCIATION_POINTS,
                                     vtkDataSetAttributes.SCALARS)
 
@@ -445,6 +463,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             raise ValueError(f"{type(self).__name__} has no input; pass data or connect one")
         self._last_error = None
         # Update()'s return value differs between VTK versions (void in 9.2): check the output.
+        # Both re-raise a KeyboardInterrupt caught in RequestData.
         if time is None:
             self.Update()
         else:
@@ -456,6 +475,33 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             raise RuntimeError(f"{type(self).__name__}: the pipeline update failed "
                                "(see VTK errors)")
         return output
+
+    # === Ctrl-C through the pipeline (see the module docstring) ==================================
+    def Update(self, *args):
+        """``vtkAlgorithm.Update``; re-raises a ``KeyboardInterrupt`` caught in ``RequestData``."""
+        self._interrupt = None
+        result = super().Update(*args)
+        self._reraise_interrupt()
+        return result
+
+    def UpdateTimeStep(self, *args):
+        """``vtkAlgorithm.UpdateTimeStep``; re-raises a caught ``KeyboardInterrupt``."""
+        self._interrupt = None
+        result = super().UpdateTimeStep(*args)
+        self._reraise_interrupt()
+        return result
+
+    def UpdateWholeExtent(self, *args):
+        """``vtkAlgorithm.UpdateWholeExtent``; re-raises a caught ``KeyboardInterrupt``."""
+        self._interrupt = None
+        result = super().UpdateWholeExtent(*args)
+        self._reraise_interrupt()
+        return result
+
+    def _reraise_interrupt(self) -> None:
+        interrupt, self._interrupt = self._interrupt, None
+        if interrupt is not None:
+            raise interrupt
 
     def GetLastError(self) -> str | None:
         """Message of the error of the last failed execution, or ``None``."""
@@ -525,6 +571,13 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
                                             info.Get(vtkDataObject.DATA_TIME_STEP()))
             self.UpdateProgress(1.0)
             return 1
+        except KeyboardInterrupt as interrupt:  # VTK would swallow it: see the module docstring
+            output.Initialize()
+            self._interrupt = interrupt
+            self._last_error = RuntimeError("interrupted (KeyboardInterrupt); the output is "
+                                            "empty until the next update")
+            self._show_error(str(self._last_error))
+            return 0
         except Exception as err:  # reported through VTK, see _report
             output.Initialize()
             self._report(err)
@@ -699,7 +752,10 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
     def _report(self, err: Exception) -> None:
         """Record ``err`` and show it the VTK way (ErrorEvent observers or the output window)."""
         self._last_error = err
-        message = f"{type(self).__name__}: {err}"
+        self._show_error(str(err))
+
+    def _show_error(self, text: str) -> None:
+        message = f"{type(self).__name__}: {text}"
         if self.HasObserver("ErrorEvent"):
             self.InvokeEvent("ErrorEvent", message)
         else:

@@ -6,11 +6,12 @@ with an illumination volume, ``path``, and whatever registers later, e.g. method
 that gather per sample) at the size and camera of a ``vtkRenderer``, and shows the
 tone-mapped image as that renderer's textured background. It re-renders when
 the camera or the viewport size changes (checked in the renderer's
-``StartEvent``, so the new image is in the same frame). The ``path`` method is
-progressive: each camera change restarts a :class:`~vtkillum.core.pathtrace.PathTracer`
-with one pass, and :meth:`ComputeVolumeRenderer.refine` -- called by hand or by a
+``StartEvent``, so the new image is in the same frame). ``path`` and ``many-lights``
+are progressive: each camera change restarts the image with one pass (a path-tracing
+sample per pixel; one set of virtual lights, whose lights are kept across camera
+moves), and :meth:`ComputeVolumeRenderer.refine` -- called by hand or by a
 repeating interactor timer (:meth:`ComputeVolumeRenderer.start_refinement`) while the
-camera rests -- adds passes up to ``spp``.
+camera rests -- adds passes up to ``spp`` / ``max_sets``.
 
 Display: ``tonemap(exposure * radiance, alpha, background, gamma=gamma)`` with the
 renderer's background colour, ``gamma = 1`` by default (linear, like VTK's own
@@ -40,8 +41,31 @@ from vtkillum.io.illumination_arrays import illumination_from_image, lights_from
 from vtkillum.mappers.camera_bridge import camera_from_vtk
 from vtkillum.mappers.inputs import check_covers
 
-#: The method rendered progressively.
-PROGRESSIVE = "path"
+#: Methods rendered progressively: refined while the camera rests (``refine``).
+PROGRESSIVE = ("path", "many-lights")
+
+
+def _progressive_renderer(method: str, volume, scene, width: int, height: int, device,
+                          options: dict):
+    """The accumulating renderer of a progressive ``method`` and its pass limit.
+
+    ``path``: a :class:`~vtkillum.core.pathtrace.PathTracer` (one sample per pixel per
+    pass, up to ``spp``); ``many-lights``: a
+    :class:`~vtkillum.core.many_lights.render.ManyLightsRenderer` (one set of virtual
+    lights per pass, up to ``max_sets``). Both have ``width``, ``height``, ``passes``,
+    ``reset(camera)``, ``run(passes)`` and ``result()``.
+    """
+    if method == "path":
+        from vtkillum.core.pathtrace import PathTracer
+
+        path = {**scene.options["path"], **options}
+        tracer = PathTracer(volume, scene, width, height, device=device,
+                            seed=int(path["seed"]), max_bounces=int(path["max_bounces"]))
+        return tracer, int(path["spp"])
+    from vtkillum.core.many_lights.render import ManyLightsRenderer
+
+    tracer = ManyLightsRenderer(volume, scene, width, height, device=device, **options)
+    return tracer, int(tracer.opts["max_sets"])
 
 
 class ComputeVolumeRenderer:
@@ -235,14 +259,10 @@ class ComputeVolumeRenderer:
         scene = copy.copy(self.scene)
         scene.camera = camera
         scene.lights = self.lights
-        if self.method == PROGRESSIVE:
+        if self.method in PROGRESSIVE:
             if self._tracer is None or (self._tracer.width, self._tracer.height) != (width, height):
-                from vtkillum.core.pathtrace import PathTracer
-
-                path = {**scene.options["path"], **self.options}
-                self._tracer = PathTracer(self.volume, scene, width, height, device=self.device,
-                                          seed=int(path["seed"]),
-                                          max_bounces=int(path["max_bounces"]))
+                self._tracer, self._limit = _progressive_renderer(
+                    self.method, self.volume, scene, width, height, self.device, self.options)
             else:
                 self._tracer.reset(camera)
             self._tracer.run(1)
@@ -258,19 +278,20 @@ class ComputeVolumeRenderer:
         return True
 
     def refine(self, passes: int = 1) -> int:
-        """Add ``passes`` path-tracing passes (``path`` only) and show the new mean.
+        """Add ``passes`` passes of a progressive method and show the new mean.
 
-        Stops at ``spp`` passes. Returns the number of passes accumulated. Does not
+        ``path``: samples per pixel, up to ``spp``; ``many-lights``: sets of virtual
+        lights, up to ``max_sets``. Returns the number of passes accumulated. Does not
         render the window: call ``render_window.Render()`` to see the result.
         """
-        if self.method != PROGRESSIVE:
-            raise ValueError(f"refine() is for the progressive 'path' method, not {self.method!r}")
+        if self.method not in PROGRESSIVE:
+            raise ValueError(f"refine() is for the progressive methods {PROGRESSIVE}, not "
+                             f"{self.method!r}")
         if self._tracer is None:
             self.update()
             if self._tracer is None:
                 return 0
-        limit = int({**self.scene.options["path"], **self.options}["spp"])
-        passes = min(int(passes), limit - self._tracer.passes)
+        passes = min(int(passes), self._limit - self._tracer.passes)
         if passes > 0:
             self._tracer.run(passes)
             self.result = self._tracer.result()
@@ -294,7 +315,7 @@ class ComputeVolumeRenderer:
 
         def on_timer(caller, event):
             renderer = self._renderer.Get()
-            if renderer is None or self.method != PROGRESSIVE:
+            if renderer is None or self.method not in PROGRESSIVE:
                 return
             w, h = self.viewport_size()
             camera = camera_from_vtk(renderer.GetActiveCamera(), aspect=w / h)

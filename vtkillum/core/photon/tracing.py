@@ -32,7 +32,10 @@ would do past ``j`` under the same optical properties (the basis of the "increme
 == full recompute" guarantee of the Historygrams).
 
 A walk that goes on past :data:`MAX_VERTICES` interactions (albedo ~1 without escape) is
-cut there and counted (``PhotonMap.stats["capped"]``), never silently.
+cut there and counted (``PhotonMap.stats["capped"]``), never silently. A flight marches
+at most ``MAX_STEPS_PER_RAY`` steps across the volume (a smaller ``photon_step`` is
+refused), and on the CPU a tracing round is launched in chunks of photons of about
+:data:`TRACE_CHUNK_SAMPLES` estimated samples, so Ctrl-C is seen between launches.
 """
 
 from __future__ import annotations
@@ -64,6 +67,7 @@ from vtkillum.core.photon.storage import (
     exclusive_scan,
     select,
 )
+from vtkillum.core.raymarch import MAX_STEPS_PER_RAY
 from vtkillum.core.transfer_function import TABLE_SIZE
 from vtkillum.core.warp_common import (
     Medium,
@@ -83,6 +87,10 @@ MAX_VERTICES = 10_000
 FIRST_ROUND_SLOTS = 8
 #: Largest scratch slots per work item in later rounds.
 MAX_ROUND_SLOTS = 4096
+#: Estimated samples per tracing launch (``FLIGHTS_PER_PHOTON`` flights of ``diagonal /
+#: step`` samples per photon): CPU launches stay well under a second, so Ctrl-C is seen.
+TRACE_CHUNK_SAMPLES = {"cpu": 1 << 23, "cuda": 1 << 62}
+FLIGHTS_PER_PHOTON = 4
 
 
 @wp.struct
@@ -119,8 +127,8 @@ def photon_tables(transfer_function, unit_distance: float, value_range, size: in
     lo, hi : float
     """
     lo, hi = (float(v) for v in value_range)
-    if hi <= lo:
-        hi = lo + 1.0
+    if not hi - lo > 0:  # constant data; lo + 1 == lo for |lo| > 2**53
+        hi = lo + max(1.0, abs(lo) * 1e-6)
     v = np.linspace(lo, hi, size)
     return (transfer_function.sigma_t(v, unit_distance).astype(np.float32),
             transfer_function.color(v).astype(np.float32), lo, hi)
@@ -223,6 +231,14 @@ class PhotonMap:
         """
         t0 = time.perf_counter()
         device = self.device
+        diagonal = float(np.linalg.norm(np.asarray(medium.extent, dtype=np.float64)))
+        flight = int(np.ceil(diagonal / self.step))
+        if flight > MAX_STEPS_PER_RAY:
+            raise ValueError(
+                f"photon_step {self.step:g} needs {flight} samples per photon flight across "
+                f"the volume; use at least {diagonal / MAX_STEPS_PER_RAY:.3g} world units")
+        budget = TRACE_CHUNK_SAMPLES["cpu" if device == "cpu" else "cuda"]
+        chunk = max(1, budget // (FLIGHTS_PER_PHOTON * flight))
         lo, scale = bin_scale(value_range)
         traced = int(photons.shape[0])
         counters = wp.zeros(2, dtype=wp.int32, device=device)  # added, capped
@@ -247,11 +263,12 @@ class PhotonMap:
             work_hist = wp.zeros(n_work, dtype=wp.uint64, device=device)
             work_chist = wp.zeros(n_work, dtype=wp.uint64, device=device)
             work_end = wp.zeros(n_work, dtype=wp.int32, device=device)
-            wp.launch(trace_kernel, dim=n_work,
-                      inputs=[medium, emitters, params, self.surface, photons, restart,
-                              self.interactions,
-                              scratch, work_count, work_hist, work_chist, work_end],
-                      device=device)
+            for w0 in range(0, n_work, chunk):
+                wp.launch(trace_kernel, dim=min(chunk, n_work - w0),
+                          inputs=[medium, emitters, params, self.surface, photons, restart,
+                                  self.interactions, w0,
+                                  scratch, work_count, work_hist, work_chist, work_end],
+                          device=device)
             keep = wp.clone(self.count)
             new_count = wp.clone(self.count)
             wp.launch(new_counts_kernel, dim=n_work,
@@ -321,20 +338,20 @@ def _check_total(new_total: int, old_total: int, n_photons: int, device: str, li
 @wp.kernel
 def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, sp: SurfaceParams,
                  work_photon: wp.array(dtype=wp.int32),
-                 work_restart: wp.array(dtype=wp.int32), stored: Interactions,
+                 work_restart: wp.array(dtype=wp.int32), stored: Interactions, w0: int,
                  scratch: Interactions, work_count: wp.array(dtype=wp.int32),
                  work_hist: wp.array(dtype=wp.uint64), work_chist: wp.array(dtype=wp.uint64),
                  work_end: wp.array(dtype=wp.int32)):
     """Trace one photon path (or its tail) into scratch.
 
-    ``wp.tid()`` indexes the work list: photon ``work_photon[w]`` restarts at stored
+    ``w0 + wp.tid()`` indexes the work list: photon ``work_photon[w]`` restarts at stored
     interaction ``work_restart[w]`` (-1: emitted afresh) and writes up to ``tp.capacity``
     interactions to ``scratch[w * capacity ...]``. Positions in the local frame (world
     units), flux in the lights' power units. Writes the number written, the path's
     Historygrams at its end and why it ended (``OVERFLOW``: scratch full, to be continued
     from the last interaction written).
     """
-    w = wp.tid()
+    w = w0 + wp.tid()
     p = work_photon[w]
     j = work_restart[w]
     base = w * tp.capacity

@@ -1,0 +1,110 @@
+"""The ``"many-lights"`` render method: registration, the single term, options, bad input."""
+
+import numpy as np
+import pytest
+
+from vtkillum.core.many_lights.render import DEFAULTS, ManyLightsRenderer, parse_options
+from vtkillum.core.render import METHODS, render
+from vtkillum.core.scene import METHOD_OPTIONS, Scene
+from vtkillum.data.accuracy_suite import _medium_scene, _side_light, cloud
+
+SIZE = 16
+FAST = {"count": 24, "avsm_resolution": 8}
+
+
+@pytest.fixture(scope="module")
+def scene():
+    volume = cloud(SIZE)
+    return volume, _medium_scene(volume, 6.0, 0.9, 0.3, [_side_light()])
+
+
+def test_registered_with_its_scene_section(scene):
+    volume, sc = scene
+    assert METHODS["many-lights"] == "vtkillum.core.many_lights.render:render_many_lights"
+    assert METHOD_OPTIONS["many_lights"] == DEFAULTS
+    data = sc.to_dict()
+    data["many_lights"] = {"count": 24, "avsm_resolution": 8, "seed": 4}
+    loaded = Scene.from_dict(data)
+    result = render(volume, loaded, "many-lights", 12, 10, "cpu")
+    assert result.radiance.shape == (10, 12, 3) and result.alpha.shape == (10, 12)
+    assert result.info["vls"] >= 24 and np.isfinite(result.radiance).all()
+    assert result.info["multiple"].sum() > 0
+    with pytest.raises(ValueError, match="many_lights: unknown field"):
+        Scene.from_dict({**sc.to_dict(), "many_lights": {"vls": 10}})
+
+
+def test_single_term_is_the_ray_casters(scene):
+    """Without jitter the single-scattering term is ``single``'s image, bit for bit."""
+    volume, sc = scene
+    ours = render(volume, sc, "many-lights", SIZE, SIZE, "cpu", jitter=False, **FAST)
+    single = render(volume, sc, "single", SIZE, SIZE, "cpu", jitter=False)
+    np.testing.assert_allclose(ours.info["single"], single.radiance, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(ours.alpha, single.alpha, rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(ours.radiance, ours.info["single"] + ours.info["multiple"],
+                               rtol=1e-6)
+
+
+def test_same_seed_same_image_other_seed_other_image(scene):
+    volume, sc = scene
+    a = render(volume, sc, "many-lights", SIZE, SIZE, "cpu", seed=3, **FAST)
+    b = render(volume, sc, "many-lights", SIZE, SIZE, "cpu", seed=3, **FAST)
+    c = render(volume, sc, "many-lights", SIZE, SIZE, "cpu", seed=4, **FAST)
+    np.testing.assert_array_equal(a.radiance, b.radiance)
+    assert not np.array_equal(a.info["multiple"], c.info["multiple"])
+
+
+def test_sets_accumulate_and_camera_reset_keeps_the_lights(scene):
+    volume, sc = scene
+    renderer = ManyLightsRenderer(volume, sc, SIZE, SIZE, "cpu", **FAST)
+    first = renderer.run(1).result()
+    positions = renderer.state.vls.position.copy()
+    renderer.run(2)
+    assert renderer.result().info["sets"] == 3
+    camera = sc.resolved_camera(volume)
+    camera.position = camera.position * 1.1
+    renderer.reset(camera)
+    assert renderer.passes == 0
+    np.testing.assert_array_equal(renderer.state.vls.position, positions)
+    moved = renderer.run(1).result()
+    assert not np.allclose(moved.radiance, first.radiance)
+
+
+def test_albedo_zero_leaves_absorption_only(scene):
+    """No scattering: no light from the VLs or the lights, no NaN, the same alpha."""
+    volume, _ = scene
+    dark = _medium_scene(volume, 6.0, 0.0, 0.3, [_side_light()])
+    result = render(volume, dark, "many-lights", SIZE, SIZE, "cpu", jitter=False, **FAST)
+    emission = render(volume, dark, "single", SIZE, SIZE, "cpu", jitter=False)
+    assert np.isfinite(result.radiance).all() and np.isfinite(result.alpha).all()
+    assert np.all(result.radiance == 0)
+    np.testing.assert_allclose(result.alpha, emission.alpha, rtol=1e-6)
+    assert result.alpha.max() > 0.9
+
+
+def test_black_lights_give_no_virtual_lights(scene):
+    volume, _ = scene
+    black = _medium_scene(volume, 6.0, 0.9, 0.3, [_side_light(0.0)])
+    result = render(volume, black, "many-lights", SIZE, SIZE, "cpu", **FAST)
+    assert np.all(result.radiance == 0) and result.info["vls"] == 0
+
+
+@pytest.mark.parametrize("bad, match", [
+    ({"count": 0}, "count must be a positive integer"),
+    ({"count": 2.5}, "count must be a positive integer"),
+    ({"vsl_radius": 0.0}, "vsl_radius must be a positive number"),
+    ({"vsl_radius": -1.0}, "vsl_radius must be a positive number"),
+    ({"avsm_nodes": 1}, "avsm_nodes"),
+    ({"avsm_nodes": 17}, "avsm_nodes"),
+    ({"avsm_resolution": 1}, "avsm_resolution"),
+    ({"transmittance": "exact"}, "transmittance must be one of"),
+    ({"update_fraction": 0.0}, "update_fraction"),
+    ({"scale_range": [2.0, 1.0]}, "scale_range"),
+    ({"density_scale": 0.0}, "density_scale"),
+    ({"radius_exponent": 1.0}, "radius_exponent"),
+    ({"view_samples": 0}, "view_samples"),
+    ({"lights": 3}, "unknown many-lights option"),
+])
+def test_bad_options_are_refused(scene, bad, match):
+    volume, sc = scene
+    with pytest.raises(ValueError, match=match):
+        parse_options(bad, volume, sc)
