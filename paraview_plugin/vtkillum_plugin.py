@@ -67,6 +67,7 @@ from vtkillum.filters.convection_diffusion_light import (
 )
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
+from vtkillum.filters.many_lights import ManyLightsFilter
 from vtkillum.filters.photon_density import PhotonDensityFilter
 from vtkillum.filters.rgba_output import RGBA_ARRAY, RGBA_TYPES, IlluminatedRGBAOutput
 
@@ -238,9 +239,9 @@ def output_xml(scale_command="SetOutputScale", scale_default=1.0, rgba=True) -> 
     return "".join(parts)
 
 
-def _proxy(name: str, label: str, *property_xmls: str):
-    """Declare a filter proxy: image-data input, ``property_xmls`` in panel order, and the
-    ``vtkIllum`` menu and Volume-representation hints."""
+def _proxy(name: str, label: str, *property_xmls: str, ports=("Illumination",)):
+    """Declare a filter proxy: image-data input, ``property_xmls`` in panel order, output
+    ``ports`` (the first is shown as a volume), and the ``vtkIllum`` menu hint."""
 
     def decorate(cls):
         cls.paraview_label = label
@@ -255,8 +256,11 @@ def _proxy(name: str, label: str, *property_xmls: str):
         cls = smproperty.input(name="Input", port_index=0)(cls)
         for xml in property_xmls:
             cls = smproperty.xml(xml)(cls)
+        if len(ports) > 1:
+            cls = smproperty.xml("".join(f'<OutputPort name="{port}" index="{i}" />'
+                                         for i, port in enumerate(ports)))(cls)
         cls = smhint.xml(f'<ShowInMenu category="{MENU}" />'
-                         '<RepresentationType view="RenderView" type="Volume" />')(cls)
+                         '<RepresentationType view="RenderView" type="Volume" port="0" />')(cls)
         return smproxy.filter(name=name, label=label, support_reload=False)(cls)
 
     return decorate
@@ -359,6 +363,48 @@ class PhotonDensity(IlluminatedRGBAOutput, ParaViewGlue, PhotonDensityFilter):
     """Jönsson et al.'s volumetric photon mapping gathered onto a light volume."""
 
 
+def _choice(name: str, values, doc: str) -> str:
+    return _string_list(name, f"Set{name}", values, values[0], doc, advanced=True)
+
+
+@_proxy("vtkIllumManyLights", "vtkIllum Many Lights",
+        optical_model_xml(),
+        lighting_xml(),
+        _number("int", "Count", "SetCount", 256, "Virtual lights (whole light paths are kept).",
+                lo=1, hi=1000000),
+        _number("double", "VSLRadius", "SetVSLRadius", 2.0,
+                "Radius of the virtual spherical lights, in voxels (x mean spacing).", lo=0.01,
+                hi=64.0),
+        _number("int", "Seed", "SetSeed", 0, "Seed of the light paths.", lo=0, hi=2147483646,
+                advanced=True),
+        _number("double", "VSLRadiusMFP", "SetVSLRadiusMFP", 0.5,
+                "... and at most this many mean free paths at the virtual light (0: no bound).",
+                lo=0.0, advanced=True),
+        _choice("VirtualLights", ("spherical", "point"), "Virtual spherical or point lights."),
+        _choice("Transmittance", ("avsm", "ray-marching"),
+                "Transmittance from the virtual lights: shadow maps (AVSM) or exact."),
+        _number("int", "AVSMResolution", "SetAVSMResolution", 48,
+                "Texels per cube-map face edge of the shadow maps.", lo=2, hi=1024,
+                advanced=True),
+        _number("int", "AVSMNodes", "SetAVSMNodes", 8,
+                "Depth-transmittance nodes per shadow-map texel.", lo=2, hi=16, advanced=True),
+        _choice("AVSMLookup", ("trilinear", "point"), "Shadow-map lookup."),
+        _choice("DistanceSampling", ("delta-tracking", "ray-marching"),
+                "Free-path sampling of the light paths."),
+        _choice("PhaseSampling", ("hg", "isotropic"), "Scattering directions of the paths."),
+        _number("double", "DensityScale", "SetDensityScale", 1.0,
+                "Global density scale S of the random walks.", lo=0.001, advanced=True),
+        _number("double", "StepSize", "SetStepSize", 0.0,
+                "Marching step (world units); 0: half the smallest spacing.", lo=0.0,
+                advanced=True),
+        output_xml(),
+        ports=("Illumination", "Virtual Lights"))
+class ManyLights(IlluminatedRGBAOutput, ParaViewGlue, ManyLightsFilter):
+    """Weber et al.'s virtual lights: transmittance and scattered fluence; the VLs on port 1."""
+
+    memo_attributes = ("_latest_lights", "state")
+
+
 # === pvpython helpers =================================================================================
 def ShowIlluminated(source, view=None, array: str = RGBA_ARRAY):
     """Show a filter's baked ``illuminated_rgba`` (OutputRGBA on) as a volume.
@@ -455,6 +501,7 @@ if _links is not None:
 
 __all__ = [
     "AmbientExtinction",
+    "ManyLights",
     "CacheStatistics",
     "ConvectionDiffusionLight",
     "LightTransmittance",

@@ -43,7 +43,7 @@ from vtkillum_paraview import x11
 
 LABELS = ["vtkIllum Optical Properties", "vtkIllum Light Transmittance",
           "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction",
-          "vtkIllum Photon Density"]
+          "vtkIllum Photon Density", "vtkIllum Many Lights"]
 VIEW_SIZE = [400, 400]
 summary = {"steps": [], "filters": {}, "errors": []}
 

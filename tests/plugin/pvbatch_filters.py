@@ -92,6 +92,9 @@ def configure(proxy, colors=COLORS) -> None:
         proxy.Lights = LIGHT_A
     if hasattr(proxy, "Photons"):
         proxy.Photons = 20000  # (CPU)
+    if hasattr(proxy, "AVSMResolution"):
+        proxy.Count = 16
+        proxy.AVSMResolution = 8
 
 
 def filter_proxies() -> dict:

@@ -32,7 +32,7 @@ SCRIPT = Path(__file__).with_name("gui_session.py")
 MENU_CLICKS = Path(__file__).with_name("gui_menu.xml")
 LABELS = ["vtkIllum Optical Properties", "vtkIllum Light Transmittance",
           "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction",
-          "vtkIllum Photon Density"]
+          "vtkIllum Photon Density", "vtkIllum Many Lights"]
 
 
 def run_gui(out: Path, shim: Path, timeout: float = 420.0):
