@@ -121,9 +121,12 @@ def print_scene(name: str, row: dict) -> None:
 
 def save_strip(images: dict, path: Path) -> None:
     """Tone-mapped images side by side (reference first), one exposure for the row."""
-    from PIL import Image, ImageDraw
-
     path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        from PIL import Image, ImageDraw
+    except ImportError:  # e.g. a GPU machine without Pillow: keep the radiance instead
+        np.savez_compressed(path.with_suffix(".npz"), **images)
+        return
     ref = images["path"]
     exposure = 0.8 / max(float(np.percentile(ref.max(-1), 99.5)), 1e-12)
     tiles = []

@@ -1,28 +1,31 @@
 """Convection–diffusion light volumes (Zhang & Ma 2013): milliseconds per stage and solver convergence.
 
-Prints five markdown tables:
+Prints markdown tables, for both diffusion models (``physical``, the default:
+flux-limited radiative-transfer diffusion; ``paper``: Zhang & Ma's eq. 23):
 
 1. **Stages** at the data / light-volume sizes and light counts of the paper's
    Table 1: ms for the opacity volume, the convection of one light (mean over the
    lights), the composition, the diffusion (multigrid, cold start, iterations), the
    whole light simulation after a transfer-function edit, and a 512² render
-   (ray-casting kernel only) that uses the light volume.
+   (ray-casting kernel only) that uses the light volume. One table per model.
 2. **Light-volume sizes** of the paper's Table 2: absorption (one light) and
-   scattering (diffusion) ms.
-3. **Residual vs iterations** of every diffusion solver on one light volume.
+   scattering (diffusion of each model, cold start) ms.
+3. **Residual vs iterations** of every diffusion solver on one light volume (the
+   physical model's residual is the nonlinear one, over the medium).
 4. **One sweep vs the paper's iteration** (eq. 16 time steps to the steady state).
 5. **Time series**: diffusion iterations with and without warm start.
 
 Data are synthetic (an analytic cellular field, no download) at the paper's sizes;
 lights alternate between oblique directional lights and point lights inside the
-volume. ``sigma_hat_s`` gives a diffusion length of 2 light-volume spacings.
-Needs only numpy, warp and vtkillum.
+volume. ``sigma_hat_s`` (paper model) gives a diffusion length of 2 light-volume
+spacings; the physical model uses albedo 0.9, g 0.3. Needs only numpy, warp and
+vtkillum.
 
 Examples
 --------
 python benchmarks/bench_convection_diffusion.py --device cuda
 python benchmarks/bench_convection_diffusion.py --device cpu --sizes 32 64 --light-sizes 16 32 \\
-    --solver-size 32 --iterated-size 24 --render-size 128
+    --solver-size 32 --iterated-size 24 --series-size 24 --render-size 128 --repeats 2
 """
 
 from __future__ import annotations
@@ -33,11 +36,11 @@ import time
 import numpy as np
 import warp as wp
 
-from vtkillum.core.cd_convection import convect_light, convect_light_iterated
-from vtkillum.core.cd_diffusion import SOLVERS, DiffusionSolver
 from vtkillum.core.convection_diffusion import ConvectionDiffusionSolver
+from vtkillum.core.convection_diffusion.convection import convect_light, convect_light_iterated
+from vtkillum.core.convection_diffusion.diffusion import SOLVERS, DiffusionSolver
+from vtkillum.core.convection_diffusion.radiative import RadiativeDiffusion
 from vtkillum.core.device import resolve_device
-from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.lights import DIRECTIONAL, DirectionalLight, PointLight
 from vtkillum.core.scene import Scene
 from vtkillum.core.transfer_function import TransferFunction
@@ -103,12 +106,16 @@ def median_ms(fn, repeats: int) -> float:
     return 1000.0 * float(np.median(times))
 
 
-def stage_table(rows, device, repeats, render_size) -> None:
+#: Optical model of the physical diffusion in the benchmark.
+ALBEDO, ANISOTROPY = 0.9, 0.3
+
+
+def stage_table(rows, device, repeats, render_size, model) -> None:
     from vtkillum.core.raycast import render_illuminated
 
     name = device_name(device)
-    print(f"\n### 1. Stages (ms), device {name}: short characteristics, multigrid diffusion "
-          "from a cold start, after a transfer-function edit\n")
+    print(f"\n### 1. Stages (ms), {model} model, device {name}: short characteristics, "
+          "multigrid diffusion from a cold start, after a transfer-function edit\n")
     print("| data | data size | light volume | lights | opacity | convection / light | "
           "composition | diffusion (iters) | light simulation | render "
           f"{render_size}² |")
@@ -119,21 +126,23 @@ def stage_table(rows, device, repeats, render_size) -> None:
         h = vol.extent / (np.asarray(light_dims) - 1)
         scattering = (2.0 * h.max()) ** 2
         cd = ConvectionDiffusionSolver(light_volume_shape=light_dims, scattering=[scattering] * 3,
-                                       warm_start=False, device=device)
-        cd.update(vol, TF_A, vol.mean_spacing(), lights, volume_key=label)  # upload, allocate
+                                       diffusion_model=model, warm_start=False, device=device)
+        cd.update(vol, TF_A, vol.mean_spacing(), lights, volume_key=label, albedo=ALBEDO,
+                  anisotropy=ANISOTROPY)  # upload, allocate
         samples = []
         for r in range(repeats):  # transfer-function edits: every stage runs
             tf = TF_B if r % 2 == 0 else TF_A
             t0 = time.perf_counter()
-            stats = cd.update(vol, tf, vol.mean_spacing(), lights, volume_key=label)
+            stats = cd.update(vol, tf, vol.mean_spacing(), lights, volume_key=label,
+                              albedo=ALBEDO, anisotropy=ANISOTROPY)
             wp.synchronize_device(device)
             total = 1000.0 * (time.perf_counter() - t0)
             samples.append((stats.ms["opacity"], float(np.mean(stats.ms["convection"])),
                             stats.ms["composition"], stats.ms["diffusion"], total,
                             stats.diffusion.iterations))
         med = np.median(np.array(samples), axis=0)
-        scene = Scene(transfer_function=TF_A, lights=lights, albedo=0.9)
-        ilv = IlluminationVolume.for_volume(vol, cd.fluence)
+        scene = Scene(transfer_function=TF_A, lights=lights, albedo=ALBEDO, anisotropy=ANISOTROPY)
+        ilv = cd.illumination_volume(vol)
         render_illuminated(vol, scene, render_size, render_size, device, illumination=ilv)
         render_ms = np.median([1000.0 * render_illuminated(
             vol, scene, render_size, render_size, device, illumination=ilv).info["render_s"]
@@ -144,14 +153,16 @@ def stage_table(rows, device, repeats, render_size) -> None:
 
 
 def light_size_table(sizes, device, repeats) -> None:
-    print("\n### 2. Light-volume sizes (paper's Table 2): ms for one light and for the diffusion\n")
+    print("\n### 2. Light-volume sizes (paper's Table 2): ms for one light and for the diffusion "
+          "(cold start, to the default tolerance 1e-4)\n")
     print("| light volume | absorption (1 light, characteristics) | absorption (upwind) | "
-          "scattering (multigrid, iters) |")
-    print("|---|---|---|---|")
+          "scattering, paper (multigrid, iters) | scattering, physical (multigrid, iters) |")
+    print("|---|---|---|---|---|")
     for n in sizes:
         vol = synthetic((2 * n, 2 * n, 2 * n))
         cd = ConvectionDiffusionSolver(light_volume_shape=(n, n, n), device=device)
-        cd.update(vol, TF_A, vol.mean_spacing(), [DirectionalLight((1.0, -0.7, 0.3))])
+        cd.update(vol, TF_A, vol.mean_spacing(), [DirectionalLight((1.0, -0.7, 0.3))],
+                  albedo=ALBEDO, anisotropy=ANISOTROPY)
         sigma, h = cd._sigma, cd.spacing
         out = wp.empty_like(sigma)
 
@@ -171,8 +182,19 @@ def light_size_table(sizes, device, repeats) -> None:
             wp.synchronize_device(device)
 
         scattering = median_ms(diffuse, repeats)
+        rd = RadiativeDiffusion((n, n, n), h, device=device)
+        rd.set_medium(cd._sigma, cd._color_sigma, ALBEDO, ANISOTROPY)
+        q = wp.array(cd.source, dtype=wp.vec3, device=device)
+        physical = []
+
+        def diffuse_physical():
+            x = wp.zeros_like(q)
+            physical.append(rd.solve(q, x, 200, 1e-4, cold=True))
+            wp.synchronize_device(device)
+
+        physical_ms = median_ms(diffuse_physical, repeats)
         print(f"| {n}³ | {absorption:.2f} | {upwind:.2f} | {scattering:.2f} "
-              f"({reports[-1].iterations}) |")
+              f"({reports[-1].iterations}) | {physical_ms:.2f} ({physical[-1].iterations}) |")
 
 
 def residual_table(n, device, repeats) -> None:
@@ -207,10 +229,34 @@ def residual_table(n, device, repeats) -> None:
         ms_tol = f"{hit * per_iter:.2f}" if hit is not None else ""
         print(f"| {method} | " + " | ".join(cells) + f" | {per_iter:.3f} | {to_tol} | {ms_tol} |")
     print(f"\n(float32 residual floor for this operator: {solver.floor:.1e})")
+    cd.update(vol, TF_A, vol.mean_spacing(), make_lights(vol, 2), albedo=ALBEDO,
+              anisotropy=ANISOTROPY)
+    q = wp.array(cd.source, dtype=wp.vec3, device=device)
+    print(f"\nPhysical model (albedo {ALBEDO}, g {ANISOTROPY}, nonlinear residual over the "
+          "medium, cold start):\n")
+    print("| solver | " + " | ".join(str(m) for m in marks) + " | ms / iteration | "
+          "iterations to 1e-4 | ms to 1e-4 |")
+    print("|---|" + "---|" * (len(marks) + 3))
+    for method, cap in (("multigrid", 200), ("gauss-seidel", 3000)):
+        rd = RadiativeDiffusion((n, n, n), h, device=device)
+        rd.set_medium(cd._sigma, cd._color_sigma, ALBEDO, ANISOTROPY)
+        rd.solve(q, wp.zeros_like(q), 1, 1e-12, method=method, cold=True)  # compile
+        x = wp.zeros_like(q)
+        wp.synchronize_device(device)
+        t0 = time.perf_counter()
+        report = rd.solve(q, x, cap, 1e-6, method=method, cold=True)
+        wp.synchronize_device(device)
+        per_iter = 1000.0 * (time.perf_counter() - t0) / max(report.iterations, 1)
+        res = report.residuals
+        cells = [f"{res[m]:.1e}" if m < len(res) else "" for m in marks]
+        hit = next((i for i, r in enumerate(res) if r <= 1e-4), None)
+        to_tol = f"{hit}" if hit is not None else f">{len(res) - 1}"
+        ms_tol = f"{hit * per_iter:.2f}" if hit is not None else ""
+        print(f"| {method} | " + " | ".join(cells) + f" | {per_iter:.3f} | {to_tol} | {ms_tol} |")
 
 
 def iterated_table(n, device) -> None:
-    from vtkillum.core.cd_convection import sweep_plan
+    from vtkillum.core.convection_diffusion.convection import sweep_plan
 
     vol = synthetic((2 * n, 2 * n, 2 * n))
     cd = ConvectionDiffusionSolver(light_volume_shape=(n, n, n), device=device)
@@ -245,9 +291,10 @@ def iterated_table(n, device) -> None:
 def time_series_table(n, device, steps: int = 6) -> None:
     print(f"\n### 5. Time series ({steps} steps, light volume {n}³, sigma_hat_s = (4 h)²): "
           "diffusion iterations per step after the first\n")
-    print("| solver | cold start | warm start | saved |")
+    print("| model, solver | cold start | warm start | saved |")
     print("|---|---|---|---|")
-    for method in ("multigrid", "cg", "gauss-seidel"):
+    for model, method in (("paper", "multigrid"), ("paper", "cg"), ("paper", "gauss-seidel"),
+                          ("physical", "multigrid")):
         counts = {}
         for warm in (False, True):
             cd = None
@@ -258,13 +305,14 @@ def time_series_table(n, device, steps: int = 6) -> None:
                     h = vol.extent / (n - 1)
                     cd = ConvectionDiffusionSolver(light_volume_shape=(n, n, n), solver=method,
                                                    scattering=[(4.0 * h.max()) ** 2] * 3,
-                                                   warm_start=warm, device=device)
+                                                   diffusion_model=model, warm_start=warm,
+                                                   device=device)
                 stats = cd.update(vol, TF_A, vol.mean_spacing(), make_lights(vol, 2),
-                                  volume_key=t)
+                                  volume_key=t, albedo=ALBEDO, anisotropy=ANISOTROPY)
                 if t > 0:
                     its.append(stats.diffusion.iterations)
             counts[warm] = float(np.mean(its))
-        print(f"| {method} | {counts[False]:.1f} | {counts[True]:.1f} | "
+        print(f"| {model} {method} | {counts[False]:.1f} | {counts[True]:.1f} | "
               f"{counts[False] - counts[True]:.1f} ({100 * (1 - counts[True] / counts[False]):.0f} %) |")
 
 
@@ -301,9 +349,12 @@ def main(argv=None) -> None:
     device = resolve_device(args.device)
     # Compile every kernel once so that no table includes compilation.
     warm = synthetic((12, 12, 12))
-    ConvectionDiffusionSolver(scattering=[0.1] * 3, device=device).update(
-        warm, TF_A, warm.mean_spacing(), make_lights(warm, 2))
-    stage_table(parse_sizes(args.sizes), device, args.repeats, args.render_size)
+    for model in ("physical", "paper"):
+        ConvectionDiffusionSolver(scattering=[0.1] * 3, diffusion_model=model,
+                                  device=device).update(warm, TF_A, warm.mean_spacing(),
+                                                        make_lights(warm, 2))
+    for model in ("physical", "paper"):
+        stage_table(parse_sizes(args.sizes), device, args.repeats, args.render_size, model)
     light_size_table(args.light_sizes, device, args.repeats)
     residual_table(args.solver_size, device, args.repeats)
     iterated_table(args.iterated_size, device)

@@ -59,6 +59,7 @@ from vtkillum_paraview.glue import DEFAULT_EXPOSURE, ParaViewGlue, light_row
 from vtkillum.core.photon.mapper import DIRECT_MODES
 from vtkillum.filters.ambient_extinction import RADIUS_UNITS, AmbientExtinctionFilter
 from vtkillum.filters.base import DEFAULT_CACHE_MB
+from vtkillum.filters.convection_diffusion_light import MODELS as CD_MODELS
 from vtkillum.filters.convection_diffusion_light import (
     DEFAULT_LIGHT_VOLUME_SCALE,
     SCHEMES,
@@ -66,8 +67,9 @@ from vtkillum.filters.convection_diffusion_light import (
     ConvectionDiffusionLightFilter,
 )
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
-from vtkillum.filters.optical_properties import OpticalPropertiesFilter
+from vtkillum.filters.many_lights import _CHOICES as MANY_LIGHTS_CHOICES
 from vtkillum.filters.many_lights import ManyLightsFilter
+from vtkillum.filters.optical_properties import OpticalPropertiesFilter
 from vtkillum.filters.photon_density import PhotonDensityFilter
 from vtkillum.filters.rgba_output import RGBA_ARRAY, RGBA_TYPES, IlluminatedRGBAOutput
 
@@ -295,9 +297,15 @@ class LightTransmittance(IlluminatedRGBAOutput, ParaViewGlue, LightTransmittance
 @_proxy("vtkIllumConvectionDiffusionLight", "vtkIllum Convection-Diffusion Light",
         optical_model_xml(),
         lighting_xml(),
+        _string_list("DiffusionModel", "SetDiffusionModel", CD_MODELS, CD_MODELS[0],
+                     "physical: the diffusion approximation of radiative transfer (multiple "
+                     "scattering from Albedo, Anisotropy and the colour map; Scattering "
+                     "unused); paper: Zhang & Ma's diffusion of the light volume with "
+                     "Scattering."),
         _number("double", "Scattering", "SetScattering", "0 0 0",
-                "Diffusion coefficient per RGB channel (world units^2): how far light spreads "
-                "by multiple scattering; 0 0 0 is shadows only.", lo=0.0, elements=3),
+                "DiffusionModel paper only: diffusion coefficient per RGB channel (world "
+                "units^2): how far light spreads; 0 0 0 is shadows only.", lo=0.0, elements=3,
+                advanced=True),
         _number("int", "Iterations", "SetIterations", 0,
                 "Diffusion iterations per update; 0 iterates until Tolerance.", lo=0,
                 hi=10000, advanced=True),
@@ -363,44 +371,44 @@ class PhotonDensity(IlluminatedRGBAOutput, ParaViewGlue, PhotonDensityFilter):
     """Jönsson et al.'s volumetric photon mapping gathered onto a light volume."""
 
 
-def _choice(name: str, values, doc: str) -> str:
+def _choice(name: str, doc: str) -> str:
+    values = MANY_LIGHTS_CHOICES[name][1]
     return _string_list(name, f"Set{name}", values, values[0], doc, advanced=True)
 
 
 @_proxy("vtkIllumManyLights", "vtkIllum Many Lights",
         optical_model_xml(),
         lighting_xml(),
-        _number("int", "Count", "SetCount", 256, "Virtual lights (whole light paths are kept).",
-                lo=1, hi=1000000),
+        _number("int", "Count", "SetCount", 256,
+                "Virtual lights per set (random walks from the lights).", lo=1, hi=100000),
         _number("double", "VSLRadius", "SetVSLRadius", 2.0,
-                "Radius of the virtual spherical lights, in voxels (x mean spacing).", lo=0.01,
-                hi=64.0),
-        _number("int", "Seed", "SetSeed", 0, "Seed of the light paths.", lo=0, hi=2147483646,
-                advanced=True),
+                "Radius of the virtual spherical lights, in voxels.", lo=0.01, hi=64.0),
         _number("double", "VSLRadiusMFP", "SetVSLRadiusMFP", 0.5,
-                "... and at most this many mean free paths at the virtual light (0: no bound).",
-                lo=0.0, advanced=True),
-        _choice("VirtualLights", ("spherical", "point"), "Virtual spherical or point lights."),
-        _choice("Transmittance", ("avsm", "ray-marching"),
-                "Transmittance from the virtual lights: shadow maps (AVSM) or exact."),
+                "Radius bound in mean free paths at the light (0: no bound).", lo=0.0,
+                advanced=True),
         _number("int", "AVSMResolution", "SetAVSMResolution", 48,
-                "Texels per cube-map face edge of the shadow maps.", lo=2, hi=1024,
+                "Texels per cube-map face of each virtual light's shadow map.", lo=2, hi=512,
                 advanced=True),
         _number("int", "AVSMNodes", "SetAVSMNodes", 8,
-                "Depth-transmittance nodes per shadow-map texel.", lo=2, hi=16, advanced=True),
-        _choice("AVSMLookup", ("trilinear", "point"), "Shadow-map lookup."),
-        _choice("DistanceSampling", ("delta-tracking", "ray-marching"),
-                "Free-path sampling of the light paths."),
-        _choice("PhaseSampling", ("hg", "isotropic"), "Scattering directions of the paths."),
+                "Depth samples per shadow-map texel.", lo=2, hi=16, advanced=True),
         _number("double", "DensityScale", "SetDensityScale", 1.0,
-                "Global density scale S of the random walks.", lo=0.001, advanced=True),
+                "Global density scale (eqs. 7-8 of Weber et al.).", lo=0.0, advanced=True),
+        _number("int", "Seed", "SetSeed", 0, "Seed of the random walks.", lo=0,
+                hi=2147483646, advanced=True),
+        _choice("VirtualLights", "spherical (regularised) or point virtual lights."),
+        _choice("Transmittance", "avsm: cached in adaptive volumetric shadow maps; "
+                "ray-marching: exact."),
+        _choice("AVSMLookup", "Shadow-map lookup: trilinear or point."),
+        _choice("DistanceSampling", "Free-path sampling of the random walks."),
+        _choice("PhaseSampling", "Scattering directions of the random walks: hg or isotropic."),
         _number("double", "StepSize", "SetStepSize", 0.0,
-                "Marching step (world units); 0: half the smallest spacing.", lo=0.0,
+                "Ray-marching step (world units); 0: half the smallest spacing.", lo=0.0,
                 advanced=True),
-        output_xml(),
+        output_xml(scale_default=0.5),
         ports=("Illumination", "Virtual Lights"))
 class ManyLights(IlluminatedRGBAOutput, ParaViewGlue, ManyLightsFilter):
-    """Weber et al.'s virtual lights: transmittance and scattered fluence; the VLs on port 1."""
+    """Weber et al.'s virtual spherical lights gathered onto a light volume (port 0); the
+    virtual lights as points (port 1)."""
 
     memo_attributes = ("_latest_lights", "state")
 
@@ -505,6 +513,7 @@ __all__ = [
     "CacheStatistics",
     "ConvectionDiffusionLight",
     "LightTransmittance",
+    "ManyLights",
     "OpticalProperties",
     "PhotonDensity",
     "SetLights",

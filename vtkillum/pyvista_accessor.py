@@ -509,29 +509,30 @@ def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity=
                          opacity_unit_distance=None, albedo=0.9, scattering=(0.0, 0.0, 0.0),
                          light_volume_scale=0.5, iterations=0, tolerance=1e-4,
                          solver="multigrid", device=None, rgba=False,
-                         exposure=DEFAULT_EXPOSURE, component=None, nan_policy="raise"):
+                         exposure=DEFAULT_EXPOSURE, diffusion_model="physical", anisotropy=0.0,
+                         component=None, nan_policy="raise"):
     """Zhang & Ma's convection–diffusion light volume (:class:`ConvectionDiffusionLightFilter`).
 
-    ``scattering`` is the diffusion coefficient per RGB channel (world units², one
+    ``diffusion_model`` is ``"physical"`` (default: radiative-transfer diffusion from
+    ``albedo``, ``anisotropy`` and the transfer functions) or ``"paper"`` (Zhang & Ma's
+    diffusion with ``scattering``, the coefficient per RGB channel in world units², one
     number for all channels); other parameters as in :func:`transmittance`.
 
     Returns
     -------
     pyvista.ImageData
-        The filter's arrays on the light grid (or, with ``rgba=True``, on the data grid
-        with ``illuminated_rgba``): ``fluence`` (active; the total light as an isotropic
-        fluence) and what :class:`ConvectionDiffusionLightFilter` writes besides, and its
-        lights as field data. :func:`add_illuminated_volume` and :func:`render` read it
-        with :func:`vtkillum.io.illumination_arrays.illumination_from_image` (per-light
-        ``transmittance`` and ``scattered_fluence`` when present, else ``fluence`` as
-        isotropic scattered light).
+        ``fluence`` (active), ``transmittance`` (physical model), ``scattered_fluence`` on
+        the light grid (or, with ``rgba=True``, on the data grid with ``illuminated_rgba``),
+        and its lights as field data. :func:`add_illuminated_volume` and :func:`render` read
+        it with :func:`vtkillum.io.illumination_arrays.illumination_from_image`.
     """
     if np.ndim(scattering) == 0:
         scattering = (float(scattering),) * 3
     optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
                      transfer_function, opacity_unit_distance, component, nan_policy)
     return _run(ConvectionDiffusionLightFilter, grid, scalars, optics,
-                {"Albedo": ("albedo", albedo),
+                {"Albedo": ("albedo", albedo), "Anisotropy": ("anisotropy", anisotropy),
+                 "DiffusionModel": ("diffusion_model", diffusion_model),
                  "LightVolumeScale": ("light_volume_scale", light_volume_scale),
                  "Scattering": ("scattering", tuple(float(s) for s in scattering)),
                  "Iterations": ("iterations", iterations), "Tolerance": ("tolerance", tolerance),

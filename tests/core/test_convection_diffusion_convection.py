@@ -5,8 +5,12 @@ import numpy as np
 import pytest
 import warp as wp
 
-from vtkillum.core.cd_convection import convect_light, convect_light_iterated, sweep_plan
-from vtkillum.core.cd_opacity import light_grid_shape, light_grid_sigma
+from vtkillum.core.convection_diffusion.convection import (
+    convect_light,
+    convect_light_iterated,
+    sweep_plan,
+)
+from vtkillum.core.convection_diffusion.opacity import light_grid_shape, light_grid_sigma
 from vtkillum.core.lights import DIRECTIONAL, POINT
 from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.core.volume import Volume

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import warp as wp
 
-from vtkillum.core.cd_diffusion import (
+from vtkillum.core.convection_diffusion.diffusion import (
     SOLVERS,
     DiffusionSolver,
     dct2,
@@ -12,7 +12,7 @@ from vtkillum.core.cd_diffusion import (
     diffusion_length_squared,
     idct2,
 )
-from vtkillum.core.cd_multigrid import Multigrid
+from vtkillum.core.convection_diffusion.multigrid import Multigrid
 
 SHAPE = (18, 15, 11)
 SPACING = np.array([1.0, 1.2, 0.9])

@@ -93,7 +93,7 @@ def configure(proxy, colors=COLORS) -> None:
     if hasattr(proxy, "Photons"):
         proxy.Photons = 20000  # (CPU)
     if hasattr(proxy, "AVSMResolution"):
-        proxy.Count = 16
+        proxy.Count = 32  # (CPU)
         proxy.AVSMResolution = 8
 
 

@@ -28,8 +28,7 @@ pytestmark = [
 
 SCRIPT = Path(__file__).with_name("pvbatch_filters.py")
 ILLUMINATION = ("vtkIllum Light Transmittance", "vtkIllum Convection-Diffusion Light",
-                "vtkIllum Ambient Extinction", "vtkIllum Photon Density",
-                "vtkIllum Many Lights")
+                "vtkIllum Ambient Extinction", "vtkIllum Photon Density", "vtkIllum Many Lights")
 #: Least mean change (of 255) of the picture when the light moves to the other side; the
 #: ambient radiance cache spreads the light over its sphere, so it changes least.
 LIGHT_CHANGE = {"vtkIllum Ambient Extinction": 0.3}

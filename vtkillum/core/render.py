@@ -28,7 +28,7 @@ METHODS: dict[str, str] = {
     "path": "vtkillum.core.pathtrace:render_path",
     "transmittance": "vtkillum.core.transmittance_render:render_transmittance",
     "ambient-scattering": "vtkillum.core.ambient.render:render_ambient_scattering",
-    "convection-diffusion": "vtkillum.core.convection_diffusion:render_convection_diffusion",
+    "convection-diffusion": "vtkillum.core.convection_diffusion.render:render_convection_diffusion",
     "photon": "vtkillum.core.photon.render:render_photon",
     "refraction": "vtkillum.core.refraction.render:render_refraction",
     "many-lights": "vtkillum.core.many_lights.render:render_many_lights",

@@ -38,10 +38,11 @@ METHOD_OPTIONS: dict[str, dict] = {
     "path": {"spp": 64, "max_bounces": 0, "seed": 0},  # max_bounces 0: unlimited (roulette)
     "convection_diffusion": {
         "light_volume_scale": 0.5,     # light-volume resolution relative to the data
-        "scattering": [0.0, 0.0, 0.0],  # per-channel diffusion coefficient sigma_hat_s, world units²
+        "diffusion_model": "physical",  # "physical" (radiative transfer) or "paper" (Zhang & Ma)
+        "scattering": [0.0, 0.0, 0.0],  # paper model: diffusion coefficient sigma_hat_s, world units²
         "iterations": 0,               # diffusion iteration budget; 0: solve to convergence
         "solver": "multigrid",         # diffusion solver: multigrid, cg, gauss-seidel, dct
-        "tolerance": 1e-4,             # relative residual of the diffusion solve
+        "tolerance": 1e-4,             # relative residual (physical: relative correction)
         "source_radius": 0.0,          # point-light source region, world units; 0: 2 spacings
     },
     "ambient_scattering": {

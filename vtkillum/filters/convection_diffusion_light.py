@@ -5,10 +5,19 @@ from __future__ import annotations
 import numpy as np
 from vtkmodules.vtkCommonDataModel import vtkDataObject
 
-from vtkillum.core.cd_convection import SCHEMES
-from vtkillum.core.cd_diffusion import SOLVERS
-from vtkillum.core.convection_diffusion import ConvectionDiffusionSolver, UpdateStats
+from vtkillum.core.convection_diffusion.convection import SCHEMES
+from vtkillum.core.convection_diffusion.diffusion import SOLVERS
+from vtkillum.core.convection_diffusion.solver import (
+    MODELS,
+    PHYSICAL_SOLVERS,
+    ConvectionDiffusionSolver,
+    UpdateStats,
+)
 from vtkillum.filters.base import IlluminationFilterBase
+from vtkillum.io.illumination_arrays import illumination_arrays
+
+__all__ = ["DEFAULT_LIGHT_VOLUME_SCALE", "MODELS", "SCHEMES", "SOLVERS",
+           "ConvectionDiffusionLightFilter"]
 
 #: Default light-volume resolution relative to the data (the paper's choice).
 DEFAULT_LIGHT_VOLUME_SCALE = 0.5
@@ -18,59 +27,77 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
     """Convection–diffusion light volume (Zhang & Ma, I3D 2013) on a grid covering the input.
 
     Runs :class:`vtkillum.core.convection_diffusion.ConvectionDiffusionSolver`: per light
-    the steady upwind transmittance (exact in one ordered sweep), their composition
-    with the lights' irradiance (eq. 22), then implicit diffusion (eq. 23). The output
-    grid *is* the light volume; it covers the input's box at ``LightVolumeScale`` times
-    its resolution. Output arrays:
+    the steady transmittance (exact in one ordered sweep), their composition (eq. 22),
+    then the diffusion of ``DiffusionModel``. The output grid *is* the light volume; it
+    covers the input's box at ``LightVolumeScale`` times its resolution. Output arrays
+    (the illumination-volume convention of :mod:`vtkillum.io.illumination_arrays`):
 
     ``fluence`` (RGB, active scalars)
-        The light volume ``L``: illumination volume for the ray caster (eq. 24, see
-        :mod:`vtkillum.core.illumination`).
-    ``direct_fluence`` (RGB)
-        ``L0 = sum_l T_l E_l`` before diffusion.
-    ``transmittance_0`` .. ``transmittance_<n-1>``
-        Upwind transmittance ``T_l`` towards each light.
+        All light as an isotropic fluence (for display): ``sum_l T_l E_l + phi_s``
+        (physical) or the paper's diffused light volume ``L``.
+    ``transmittance`` (one component per light; physical model only)
+        ``T_l`` towards each light: the direct light, which the mappers shade with the
+        phase function.
+    ``scattered_fluence`` (RGB)
+        Physical: ``phi_s``, the fluence of light scattered at least once (diffusion
+        approximation of radiative transfer). Paper: ``L`` (the direct light included,
+        isotropic, as the paper shades it).
+
+    and the lights as field data ``vtkillum_lights``.
 
     The filter keeps the solver between executions and recomputes only what changed
     (the paper's Algorithm 1): an opacity edit re-sweeps every light, moving one light
-    re-sweeps that light, a colour/intensity edit only recomposes, a ``Scattering``
-    edit only re-diffuses. Time steps warm-start the diffusion from the previous one.
+    re-sweeps that light, a colour/intensity edit only recomposes, ``Scattering``
+    (paper) or ``Anisotropy`` (physical) only re-diffuses. Time steps warm-start the
+    diffusion from the previous one.
 
     Parameters
     ----------
     LightVolumeScale : float
         Light-volume resolution relative to the input, in (0, 1]; default 0.5. The
         same as the base class's ``OutputScale`` (``OutputDimensions`` overrides both).
+    DiffusionModel : str
+        ``"physical"`` (default): the scattered light from the diffusion approximation of
+        radiative transfer, everything derived from the optical model (``Albedo``,
+        ``Anisotropy``, the colour and opacity functions); ``Scattering`` is not used.
+        ``"paper"``: Zhang & Ma's eq. 23 with ``Scattering``.
     Scattering : (float, float, float)
-        Diffusion coefficient ``sigma_hat_s`` per RGB channel, world units² (the square
-        of the distance over which light spreads); default (0, 0, 0): no diffusion.
+        Paper model: diffusion coefficient ``sigma_hat_s`` per RGB channel, world units²
+        (the square of the distance over which light spreads); default (0, 0, 0): no
+        diffusion.
     Iterations : int
         Diffusion iteration budget per execution; 0 (default) iterates until
         ``Tolerance``. With a budget, call :meth:`Refine` and update again to continue.
     Tolerance : float
         Relative residual at which the diffusion has converged; default 1e-4.
     Solver : str
-        ``"multigrid"`` (default), ``"cg"``, ``"gauss-seidel"`` or ``"dct"`` (host).
+        ``"multigrid"`` (default), ``"gauss-seidel"``, and for the paper model ``"cg"`` or
+        ``"dct"`` (host).
     SourceRadius : float
         Point lights' source region in world units; 0 (default): two light-grid spacings.
     ConvectionScheme : str
         ``"characteristics"`` (default, short characteristics), ``"exponential"`` or
-        ``"upwind"`` (the paper's eqs. 16–20); see :mod:`vtkillum.core.cd_convection`.
-    ColorTransferFunction, ScalarOpacity, ScalarOpacityUnitDistance, Lights, Device,
-    OutputDimensions, InputComponent, NaNPolicy, PassInputArrays, CacheSizeMB
+        ``"upwind"`` (the paper's eqs. 16–20); see
+        :mod:`vtkillum.core.convection_diffusion.convection`.
+    Albedo, Anisotropy, ColorTransferFunction, ScalarOpacity, ScalarOpacityUnitDistance,
+    Lights, Device, OutputDimensions, InputComponent, NaNPolicy, PassInputArrays,
+    CacheSizeMB
         As in :class:`~vtkillum.filters.base.IlluminationFilterBase`.
 
     Notes
     -----
-    Units: ``fluence`` has the lights' irradiance units (directional: irradiance as
-    given; point: intensity / world unit²); extinction is ``-ln(1 - alpha) / u`` in
-    1/world units. :meth:`GetLastUpdateStats` tells which stages ran, the diffusion
-    iterations and residuals, and milliseconds per stage.
+    Units: fluences have the lights' irradiance units (directional: irradiance as given;
+    point: intensity / world unit²); extinction is ``-ln(1 - alpha) / u`` in 1/world
+    units. Progress is reported after the opacity volume, after each light's
+    convection, after the composition and after every diffusion iteration.
+    :meth:`GetLastUpdateStats` tells which stages ran, the diffusion iterations and
+    residuals, and milliseconds per stage.
     """
 
     def __init__(self) -> None:
         super().__init__()
         self._output_scale = DEFAULT_LIGHT_VOLUME_SCALE
+        self._model = "physical"
         self._scattering = (0.0, 0.0, 0.0)
         self._iterations = 0
         self._tolerance = 1e-4
@@ -89,6 +116,14 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
 
     def GetLightVolumeScale(self) -> float:
         return self.GetOutputScale()
+
+    def SetDiffusionModel(self, model: str) -> None:
+        if model not in MODELS:
+            raise ValueError(f"DiffusionModel must be one of {MODELS}, got {model!r}")
+        self.set_parameter("_model", str(model))
+
+    def GetDiffusionModel(self) -> str:
+        return self._model
 
     def SetScattering(self, r, g=None, b=None) -> None:
         """``sigma_hat_s`` per channel: three numbers, or one for all channels."""
@@ -123,7 +158,8 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
 
     def SetSolver(self, solver: str) -> None:
         if solver not in SOLVERS:
-            raise ValueError(f"Solver must be one of {SOLVERS}, got {solver!r}")
+            raise ValueError(f"Solver must be one of {SOLVERS}, got {solver!r} (the physical "
+                             f"model takes {PHYSICAL_SOLVERS})")
         self.set_parameter("_solver_name", str(solver))
 
     def GetSolver(self) -> str:
@@ -177,20 +213,19 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
             self._solver = ConvectionDiffusionSolver(device=params.device)
         solver = self._solver
         solver.light_volume_shape = params.output_shape
+        solver.diffusion_model = self._model
         solver.scattering = self._scattering
         solver.iterations = self._iterations
         solver.tolerance = self._tolerance
         solver.solver = self._solver_name
         solver.source_radius = self._source_radius
         solver.convection_scheme = self._scheme
-        params.progress(0.1)
         self._stats = solver.update(volume, params.transfer_function, params.unit_distance,
-                                    params.lights, volume_key=self._volume_key(volume))
-        params.progress(0.9)
-        arrays = {"fluence": solver.fluence, "direct_fluence": solver.composed}
-        for index in range(len(params.lights)):
-            arrays[f"transmittance_{index}"] = solver.transmittance(index, params.lights, volume)
-        return arrays
+                                    params.lights, volume_key=self._volume_key(volume),
+                                    albedo=params.albedo, anisotropy=params.anisotropy,
+                                    progress=params.progress)
+        return illumination_arrays(solver.illumination_volume(volume), volume, params.lights,
+                                   params.output_shape)
 
     def _volume_key(self, volume):
         """Identity of the converted input without hashing it: data MTime plus selection.

@@ -1,6 +1,6 @@
 """Geometric multigrid for the light-volume diffusion ``(I - sigma_hat_s laplace) x = b``.
 
-The operator is the finite-volume one of :mod:`vtkillum.core.cd_diffusion` (one
+The operator is the finite-volume one of :mod:`~vtkillum.core.convection_diffusion.stencil` (one
 cell per light-grid point, zero flux through the box). Multigrid treats the grid
 as cell-centred, which works for any number of points (126 x 126 x 57 as well as
 powers of two):
@@ -28,7 +28,11 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from vtkillum.core.cd_diffusion import axis_coefficients, gauss_seidel, residual_field_kernel
+from vtkillum.core.convection_diffusion.stencil import (
+    axis_coefficients,
+    gauss_seidel,
+    residual_field_kernel,
+)
 
 #: Largest grid solved directly (cells).
 COARSEST_POINTS = 512

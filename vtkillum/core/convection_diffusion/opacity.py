@@ -15,6 +15,12 @@ Averaging ``sigma_t`` keeps the optical depth of thin opaque structures that a
 point sample between them would miss (a one-voxel wall still casts a shadow on a
 half-resolution light grid). At the data's resolution there is one sub-sample,
 exactly at the point.
+
+The physically based diffusion (:mod:`~vtkillum.core.convection_diffusion.radiative`)
+also needs the scattering coefficient, ``sigma_s,c = albedo * color_c(s) *
+sigma_t(s)``: :func:`light_grid_optics` averages ``color_c * sigma_t`` over the same
+footprint (the albedo multiplies it later, so that an albedo edit does not
+resample). Its ratio to the mean ``sigma_t`` is the cell's scattering colour.
 """
 
 from __future__ import annotations
@@ -26,6 +32,7 @@ from vtkillum.core.device import resolve_device
 from vtkillum.core.warp_common import (
     Medium,
     grid_point,
+    lookup_color,
     lookup_sigma_t,
     make_medium,
     sample_scalar,
@@ -96,6 +103,34 @@ def light_grid_sigma(volume, transfer_function, unit_distance: float, shape,
     return sigma
 
 
+def light_grid_optics(volume, transfer_function, unit_distance: float, shape,
+                      device: str | None = None, medium: Medium | None = None):
+    """Mean extinction and mean ``color * sigma_t`` over each light-grid point's footprint.
+
+    Parameters are those of :func:`light_grid_sigma` (the transfer function's colours
+    matter here).
+
+    Returns
+    -------
+    sigma : warp.array3d of float32, shape ``shape``
+        ``sigma_t`` (1/world units), as :func:`light_grid_sigma`.
+    color_sigma : warp.array3d of vec3, shape ``shape``
+        Footprint mean of ``color_c(s) sigma_t(s)`` per RGB channel (1/world units):
+        ``albedo * color_sigma`` is the scattering coefficient ``sigma_s``.
+    """
+    device = resolve_device(device)
+    if medium is None:
+        medium = make_medium(volume, transfer_function, unit_distance, device=device)
+    h = light_grid_spacing(volume.extent, shape)
+    sub = np.clip(np.ceil(h / volume.spacing - 1e-6), 1, MAX_SUBSAMPLES).astype(int)
+    sigma = wp.empty(tuple(shape), dtype=wp.float32, device=device)
+    color_sigma = wp.empty(tuple(shape), dtype=wp.vec3, device=device)
+    wp.launch(light_grid_optics_kernel, dim=tuple(shape), device=device,
+              inputs=[medium, wp.vec3(*h.astype(np.float32)), wp.vec3i(*sub), sigma,
+                      color_sigma])
+    return sigma, color_sigma
+
+
 @wp.kernel
 def light_grid_sigma_kernel(m: Medium, h: wp.vec3, sub: wp.vec3i,
                             sigma: wp.array3d(dtype=wp.float32)):
@@ -121,3 +156,35 @@ def light_grid_sigma_kernel(m: Medium, h: wp.vec3, sub: wp.vec3i,
                             wp.clamp(q[2], 0.0, m.extent[2]))
                 acc += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, q))
     sigma[i, j, k] = acc / float(sub[0] * sub[1] * sub[2])
+
+
+@wp.kernel
+def light_grid_optics_kernel(m: Medium, h: wp.vec3, sub: wp.vec3i,
+                             sigma: wp.array3d(dtype=wp.float32),
+                             color_sigma: wp.array3d(dtype=wp.vec3)):
+    """Footprint means of ``sigma_t`` and ``color * sigma_t`` at point ``wp.tid() = (i, j, k)``.
+
+    Same sub-samples as :func:`light_grid_sigma_kernel`; both outputs in 1/world units.
+    """
+    i, j, k = wp.tid()
+    p = grid_point(i, j, k, h)
+    acc = float(0.0)
+    acc_c = wp.vec3(0.0)
+    for a in range(sub[0]):
+        for b in range(sub[1]):
+            for c in range(sub[2]):
+                off = wp.vec3(
+                    ((float(a) + 0.5) / float(sub[0]) - 0.5) * h[0],
+                    ((float(b) + 0.5) / float(sub[1]) - 0.5) * h[1],
+                    ((float(c) + 0.5) / float(sub[2]) - 0.5) * h[2],
+                )
+                q = p + off
+                q = wp.vec3(wp.clamp(q[0], 0.0, m.extent[0]), wp.clamp(q[1], 0.0, m.extent[1]),
+                            wp.clamp(q[2], 0.0, m.extent[2]))
+                s = sample_scalar(m.scalars, m.inv_spacing, q)
+                st = lookup_sigma_t(m, s)
+                acc += st
+                acc_c += st * lookup_color(m, s)
+    n = float(sub[0] * sub[1] * sub[2])
+    sigma[i, j, k] = acc / n
+    color_sigma[i, j, k] = acc_c / n

@@ -24,7 +24,7 @@ Absorption uses ``sigma_t``, not ``sigma_a``: ``T`` is the transmittance of the
 single-scattering fluence ``sum_l T_l E_l`` of the project's convention
 (:mod:`vtkillum.core.illumination`), opaque walls block light whatever their
 albedo, and a homogeneous slab gives ``exp(-sigma_t x)``. The diffusion step
-then spreads this light (see :mod:`vtkillum.core.cd_diffusion`).
+then spreads this light (see :mod:`~vtkillum.core.convection_diffusion.diffusion`).
 
 Boundary conditions (eqs. 6–11, 14–15)
 --------------------------------------

@@ -37,7 +37,7 @@ Solvers (``method``)
 ``"multigrid"`` (default)
     Geometric V(2,2) cycles with red–black Gauss–Seidel smoothing, cell-centred
     restriction and trilinear prolongation, an exact dense solve on the coarsest
-    grid (:mod:`vtkillum.core.cd_multigrid`). Convergence per cycle is independent
+    grid (:mod:`~vtkillum.core.convection_diffusion.multigrid`). Convergence per cycle is independent
     of the grid size and of ``sigma_hat_s``.
 ``"cg"``
     Conjugate gradients with the diagonal as preconditioner, per channel, all
@@ -68,6 +68,17 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
+from vtkillum.core.convection_diffusion.multigrid import Multigrid
+from vtkillum.core.convection_diffusion.stencil import (
+    add_channels,
+    apply_operator_kernel,
+    axis_coefficients,
+    diagonal,
+    gauss_seidel,
+    neighbours,
+    residual_norm_kernel,
+    sum_squares_kernel,
+)
 from vtkillum.core.device import resolve_device
 
 SOLVERS = ("multigrid", "cg", "gauss-seidel", "dct")
@@ -149,13 +160,11 @@ class DiffusionSolver:
         self._work = {}
         self._multigrid = None
         if method == "multigrid":
-            from vtkillum.core.cd_multigrid import Multigrid  # imports this module's kernels
-
             self._multigrid = Multigrid(self.shape, self.spacing, s, self.device)
 
     # --- public ----------------------------------------------------------------------------
     def solve(self, b: wp.array3d, x: wp.array3d, max_iterations: int = 100,
-              tolerance: float = 1e-4) -> DiffusionReport:
+              tolerance: float = 1e-4, callback=None) -> DiffusionReport:
         """Improve ``x`` in place towards the solution for right-hand side ``b``.
 
         Parameters
@@ -169,6 +178,8 @@ class DiffusionSolver:
         tolerance : float
             Stop once the relative residual is at or below this (or below
             :func:`residual_floor`, whichever is larger).
+        callback : callable, optional
+            ``callback(iteration, residual)`` after every iteration (progress reports).
         """
         self._check(b)
         self._check(x)
@@ -189,13 +200,15 @@ class DiffusionSolver:
             report.iterations = 1
             report.residuals.append(self.residual(x, b, b_norm))
         elif self.method == "cg":
-            self._cg(b, x, b_norm, max_iterations, tolerance, report)
+            self._cg(b, x, b_norm, max_iterations, tolerance, report, callback)
         else:
             step = self._multigrid.vcycle if self.method == "multigrid" else self._gs_sweep
             for _ in range(int(max_iterations)):
                 step(x, b)
                 report.iterations += 1
                 report.residuals.append(self.residual(x, b, b_norm))
+                if callback is not None:
+                    callback(report.iterations, report.residuals[-1])
                 if report.residuals[-1] <= tolerance:
                     break
         report.converged = report.residuals[-1] <= tolerance
@@ -238,7 +251,7 @@ class DiffusionSolver:
                 self._work[name] = wp.empty(self.shape, dtype=wp.vec3, device=self.device)
         return [self._work[n] for n in names]
 
-    def _cg(self, b, x, b_norm, max_iterations, tolerance, report) -> None:
+    def _cg(self, b, x, b_norm, max_iterations, tolerance, report, callback=None) -> None:
         r, z, p, q = self._buffers("r", "z", "p", "q")
         scal = wp.zeros(CG_SCALARS, dtype=wp.float64, device=self.device)
         lines = (self.shape[1], self.shape[2])
@@ -258,28 +271,11 @@ class DiffusionSolver:
             wp.launch(cg_shift_kernel, dim=1, device=self.device, inputs=[scal])
             report.iterations += 1
             report.residuals.append(float(np.max(np.where(b_norm > 0, rr * scale, 0.0))))
+            if callback is not None:
+                callback(report.iterations, report.residuals[-1])
             if report.residuals[-1] <= tolerance:
                 break
         report.residuals[-1] = self.residual(x, b, b_norm)
-
-
-def axis_coefficients(scattering, spacing):
-    """``sigma_hat_s / h_a**2`` per axis, as three RGB ``wp.vec3``."""
-    s = np.asarray(scattering, dtype=np.float64)
-    return [wp.vec3(*(s / float(h) ** 2).astype(np.float32)) for h in spacing]
-
-
-def gauss_seidel(x: wp.array3d, b: wp.array3d, coeffs, sweeps: int, reverse: bool = False) -> None:
-    """``sweeps`` red–black Gauss–Seidel sweeps of ``A x = b`` in place.
-
-    ``reverse`` visits black before red (the post-smoother that makes a V-cycle symmetric).
-    """
-    nx, ny, nz = x.shape
-    dim = (nx, ny, (nz + 1) // 2)
-    colors = (1, 0) if reverse else (0, 1)
-    for _ in range(int(sweeps)):
-        for color in colors:
-            wp.launch(red_black_kernel, dim=dim, device=x.device, inputs=[x, b, *coeffs, color])
 
 
 def diffuse_dct(b: np.ndarray, scattering, spacing) -> np.ndarray:
@@ -344,63 +340,6 @@ RZ_NEW = wp.constant(6)
 RR = wp.constant(9)
 CG_SCALARS = 12
 
-
-@wp.func
-def neighbours(x: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int, cx: wp.vec3, cy: wp.vec3,
-               cz: wp.vec3):
-    """Off-diagonal sum ``sum c_a x_nbr`` and diagonal ``1 + sum c_a`` over existing neighbours."""
-    nx = x.shape[0]
-    ny = x.shape[1]
-    nz = x.shape[2]
-    off = wp.vec3(0.0)
-    diag = wp.vec3(1.0, 1.0, 1.0)
-    if i > 0:
-        off += wp.cw_mul(cx, x[i - 1, j, k])
-        diag += cx
-    if i < nx - 1:
-        off += wp.cw_mul(cx, x[i + 1, j, k])
-        diag += cx
-    if j > 0:
-        off += wp.cw_mul(cy, x[i, j - 1, k])
-        diag += cy
-    if j < ny - 1:
-        off += wp.cw_mul(cy, x[i, j + 1, k])
-        diag += cy
-    if k > 0:
-        off += wp.cw_mul(cz, x[i, j, k - 1])
-        diag += cz
-    if k < nz - 1:
-        off += wp.cw_mul(cz, x[i, j, k + 1])
-        diag += cz
-    return off, diag
-
-
-@wp.func
-def diagonal(shape: wp.vec3i, i: int, j: int, k: int, cx: wp.vec3, cy: wp.vec3, cz: wp.vec3):
-    """Diagonal of ``A`` at a point (``1 + sum c_a`` over its existing neighbours)."""
-    d = wp.vec3(1.0, 1.0, 1.0)
-    if i > 0:
-        d += cx
-    if i < shape[0] - 1:
-        d += cx
-    if j > 0:
-        d += cy
-    if j < shape[1] - 1:
-        d += cy
-    if k > 0:
-        d += cz
-    if k < shape[2] - 1:
-        d += cz
-    return d
-
-
-@wp.func
-def add_channels(acc: wp.array(dtype=wp.float64), offset: int, v: wp.vec3):
-    wp.atomic_add(acc, offset + 0, wp.float64(v[0]))
-    wp.atomic_add(acc, offset + 1, wp.float64(v[1]))
-    wp.atomic_add(acc, offset + 2, wp.float64(v[2]))
-
-
 @wp.func
 def channel_ratio(acc: wp.array(dtype=wp.float64), num: int, den: int, c: int):
     d = acc[den + c]
@@ -410,66 +349,6 @@ def channel_ratio(acc: wp.array(dtype=wp.float64), num: int, den: int, c: int):
 
 
 # --- kernels -----------------------------------------------------------------------------------------
-@wp.kernel
-def red_black_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3), cx: wp.vec3,
-                     cy: wp.vec3, cz: wp.vec3, color: int):
-    """Gauss–Seidel update of the points with ``(i + j + k) % 2 == color``.
-
-    ``wp.tid() = (i, j, kk)``; the point is ``k = 2 kk + ((i + j + color) % 2)``.
-    ``cx, cy, cz`` are ``sigma_hat_s / h**2`` (RGB) along x, y, z.
-    """
-    i, j, kk = wp.tid()
-    k = 2 * kk + (i + j + color) % 2
-    if k >= x.shape[2]:
-        return
-    off, diag = neighbours(x, i, j, k, cx, cy, cz)
-    x[i, j, k] = wp.cw_div(b[i, j, k] + off, diag)
-
-
-@wp.kernel
-def apply_operator_kernel(x: wp.array3d(dtype=wp.vec3), y: wp.array3d(dtype=wp.vec3), cx: wp.vec3,
-                          cy: wp.vec3, cz: wp.vec3):
-    """``y = A x`` at point ``wp.tid() = (i, j, k)``."""
-    i, j, k = wp.tid()
-    off, diag = neighbours(x, i, j, k, cx, cy, cz)
-    y[i, j, k] = wp.cw_mul(diag, x[i, j, k]) - off
-
-
-@wp.kernel
-def residual_field_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
-                          r: wp.array3d(dtype=wp.vec3), cx: wp.vec3, cy: wp.vec3, cz: wp.vec3):
-    """``r = b - A x`` at point ``wp.tid() = (i, j, k)``."""
-    i, j, k = wp.tid()
-    off, diag = neighbours(x, i, j, k, cx, cy, cz)
-    r[i, j, k] = b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
-
-
-@wp.kernel
-def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3), cx: wp.vec3,
-                         cy: wp.vec3, cz: wp.vec3, acc: wp.array(dtype=wp.float64)):
-    """Add ``sum_i |b - A x|**2`` per channel of line ``wp.tid() = (j, k)`` to ``acc[0:3]``.
-
-    Threads walk along x so that neighbouring threads read neighbouring k (coalesced).
-    """
-    j, k = wp.tid()
-    s = wp.vec3(0.0)
-    for i in range(x.shape[0]):
-        off, diag = neighbours(x, i, j, k, cx, cy, cz)
-        r = b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
-        s += wp.cw_mul(r, r)
-    add_channels(acc, 0, s)
-
-
-@wp.kernel
-def sum_squares_kernel(a: wp.array3d(dtype=wp.vec3), acc: wp.array(dtype=wp.float64)):
-    """Add ``sum_i a**2`` per channel of line ``wp.tid() = (j, k)`` to ``acc[0:3]``."""
-    j, k = wp.tid()
-    s = wp.vec3(0.0)
-    for i in range(a.shape[0]):
-        s += wp.cw_mul(a[i, j, k], a[i, j, k])
-    add_channels(acc, 0, s)
-
-
 @wp.kernel
 def cg_init_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
                    r: wp.array3d(dtype=wp.vec3), z: wp.array3d(dtype=wp.vec3),
