@@ -241,9 +241,9 @@ def output_xml(scale_command="SetOutputScale", scale_default=1.0, rgba=True) -> 
     return "".join(parts)
 
 
-def _proxy(name: str, label: str, *property_xmls: str):
-    """Declare a filter proxy: image-data input, ``property_xmls`` in panel order, and the
-    ``vtkIllum`` menu and Volume-representation hints."""
+def _proxy(name: str, label: str, *property_xmls: str, ports=("Illumination",)):
+    """Declare a filter proxy: image-data input, ``property_xmls`` in panel order, output
+    ``ports`` (the first is shown as a volume), and the ``vtkIllum`` menu hint."""
 
     def decorate(cls):
         cls.paraview_label = label
@@ -258,8 +258,11 @@ def _proxy(name: str, label: str, *property_xmls: str):
         cls = smproperty.input(name="Input", port_index=0)(cls)
         for xml in property_xmls:
             cls = smproperty.xml(xml)(cls)
+        if len(ports) > 1:
+            cls = smproperty.xml("".join(f'<OutputPort name="{port}" index="{i}" />'
+                                         for i, port in enumerate(ports)))(cls)
         cls = smhint.xml(f'<ShowInMenu category="{MENU}" />'
-                         '<RepresentationType view="RenderView" type="Volume" />')(cls)
+                         '<RepresentationType view="RenderView" type="Volume" port="0" />')(cls)
         return smproxy.filter(name=name, label=label, support_reload=False)(cls)
 
     return decorate
@@ -396,13 +399,18 @@ def _choice(name: str, doc: str) -> str:
         _choice("Transmittance", "avsm: cached in adaptive volumetric shadow maps; "
                 "ray-marching: exact."),
         _choice("AVSMLookup", "Shadow-map lookup: trilinear or point."),
+        _choice("DistanceSampling", "Free-path sampling of the random walks."),
+        _choice("PhaseSampling", "Scattering directions of the random walks: hg or isotropic."),
         _number("double", "StepSize", "SetStepSize", 0.0,
                 "Ray-marching step (world units); 0: half the smallest spacing.", lo=0.0,
                 advanced=True),
-        output_xml(scale_default=0.5))
+        output_xml(scale_default=0.5),
+        ports=("Illumination", "Virtual Lights"))
 class ManyLights(IlluminatedRGBAOutput, ParaViewGlue, ManyLightsFilter):
     """Weber et al.'s virtual spherical lights gathered onto a light volume (port 0); the
     virtual lights as points (port 1)."""
+
+    memo_attributes = ("_latest_lights", "state")
 
 
 # === pvpython helpers =================================================================================
@@ -501,6 +509,7 @@ if _links is not None:
 
 __all__ = [
     "AmbientExtinction",
+    "ManyLights",
     "CacheStatistics",
     "ConvectionDiffusionLight",
     "LightTransmittance",

@@ -313,6 +313,12 @@ class IlluminatedVolume:
         self.release_textures()
         if renderer.GetVolumes().IsItemPresent(self.volume):
             renderer.RemoveVolume(self.volume)
+        window = renderer.GetRenderWindow()
+        if window is not None:  # free the GPU memory while the window's context exists
+            for texture in self.textures.values():
+                texture.texture.ReleaseGraphicsResources(window)
+                texture.key = None
+            self.volume.ReleaseGraphicsResources(window)
 
     # --- every render --------------------------------------------------------------------------
     def sync(self, renderer) -> None:

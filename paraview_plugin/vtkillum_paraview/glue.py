@@ -97,6 +97,9 @@ class ParaViewGlue:
     paraview_label = "vtkIllum"
     #: Whether the output stays on the data's grid (illumination resampled onto it).
     full_resolution_output = True
+    #: Attributes ``compute`` sets besides its arrays, restored when the remembered
+    #: illumination is reused (see :meth:`compute`).
+    memo_attributes: tuple = ()
 
     def __init__(self) -> None:
         super().__init__()
@@ -301,11 +304,14 @@ class ParaViewGlue:
         key = self._memo_key(volume, params, shape)
         if self._memo is not None and self._memo[0] == key:
             arrays = self._memo[1]
+            for name, value in self._memo[2].items():  # e.g. the virtual lights of port 1
+                setattr(self, name, value)
         else:
             self._memo = None
             light_params = _replace(params, output_shape=shape)
             arrays = convention_arrays(super().compute(volume, light_params), params.lights)
-            self._memo = (key, arrays)
+            self._memo = (key, arrays, {name: getattr(self, name, None)
+                                        for name in self.memo_attributes})
         if shape != tuple(params.output_shape):
             arrays = {k: resample_points(v, params.output_shape) for k, v in arrays.items()}
         return dict(arrays)
@@ -433,6 +439,9 @@ def _plain(value):
         return value
     if isinstance(value, (tuple, list)) and all(isinstance(v, (bool, int, float, str)) for v in value):
         return tuple(value)
+    if isinstance(value, dict) and all(isinstance(k, str) for k in value):
+        items = tuple(sorted((k, _plain(v)) for k, v in value.items()))
+        return items if all(v is not None or value[k] is None for k, v in items) else None
     return None
 
 

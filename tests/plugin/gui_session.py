@@ -239,9 +239,12 @@ def step_load():
 def step_select_loaded():
     for name, proxy in vtkillum_sources().items():
         simple.SetActiveSource(proxy)
-    v = simple.GetActiveView()
-    if v is not None:
-        simple.Render(v)
+    lit = 0
+    for v in simple.GetViews():
+        if v.GetXMLName() == "RenderView":
+            simple.Render(v)
+            lit += swapped_volumes(v)
+    summary["illuminated_volumes_after_load"] = lit
     log("loaded filters selected")
 
 

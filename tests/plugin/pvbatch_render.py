@@ -163,13 +163,16 @@ record["rgba_opacity_functions_differ"] = (
 simple.Delete(view)
 
 # --- 6: the other methods ------------------------------------------------------------------------------
-for label in ("ConvectionDiffusionLight", "AmbientExtinction", "PhotonDensity"):
+for label in ("ConvectionDiffusionLight", "AmbientExtinction", "PhotonDensity", "ManyLights"):
     proxy = globals()[f"vtkIllum{label}"](Input=reader)
     proxy.Lights = LIGHT
     if label == "ConvectionDiffusionLight":
         proxy.Scattering = [0.02, 0.02, 0.02]
     if label == "PhotonDensity":
         proxy.Photons = 20000
+    if label == "ManyLights":
+        proxy.Count = 16
+        proxy.AVSMResolution = 8
     view = new_view()
     simple.Show(proxy, view)
     shot(view, f"pv_{label}.png")

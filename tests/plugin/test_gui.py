@@ -102,6 +102,7 @@ def test_state_saved_deleted_and_loaded_again(gui):
     assert summary["after_delete"] == []
     assert len(summary["after_load"]) == len(LABELS)
     assert "vtkIllum" in (out / "session.pvsm").read_text()
+    assert summary["illuminated_volumes_after_load"] >= 1  # lit again after the state load
 
 
 def test_a_wrong_light_names_the_row_and_column_without_a_traceback(gui):

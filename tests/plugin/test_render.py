@@ -100,6 +100,7 @@ def test_filters_show_as_illuminated_volumes_coloured_by_the_data(run):
     assert record["swapped_ConvectionDiffusionLight"] == 1
     assert record["swapped_AmbientExtinction"] == 1
     assert record["swapped_PhotonDensity"] == 1
+    assert record["swapped_ManyLights"] == 1
 
 
 @pytest.mark.parametrize("anisotropy, name", [(0.0, "pv_g0.png"), (0.6, "pv_g06.png")])

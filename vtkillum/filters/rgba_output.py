@@ -1,11 +1,13 @@
 """An ``illuminated_rgba`` output that any standard volume mapper renders directly.
 
-ParaView's volume representation cannot take a custom mapper from a Python
-plugin, but it renders a 4-component array without a colour map
+The baked route, for where the illumination cannot be applied per sample at render
+time (ParaView with a remote server or several ranks: the plugin's render-view
+illumination, ``paraview_plugin/vtkillum_paraview/display.py``, needs the data in
+the client). Every volume mapper renders a 4-component array without a colour map
 (``MapScalars = 0``, ``MultiComponentsMapping = 1``): RGB is the sample colour,
 the fourth component goes through the scalar-opacity function. This module adds
 such an array to the output of an illumination filter (one that produces the RGB
-fluence ``fluence``)::
+fluence ``fluence``, in the illumination convention ``sum_l T_l E_l + phi_s``)::
 
     rgb   = clip(Exposure * albedo * color(s) * fluence / (4 pi), 0, 1) ** (1 / Gamma)
     alpha = opacity(s)                    (per opacity unit distance u)
@@ -41,6 +43,9 @@ Simplifications
   ``ambient_radiance`` (the light reaching each point through the ambient
   extinction) taken at the sample itself: the gather over the ambient sphere of
   Ament et al. (which the ``ambient-scattering`` render method does) is skipped.
+* The light is taken as isotropic (``fluence / 4 pi``): no Henyey-Greenstein phase
+  function for the direct light (exact only for ``Anisotropy`` 0), which the
+  per-sample route applies.
 * The product ``color * phi`` is interpolated between grid points by the mapper
   (not ``color`` and ``phi`` separately), and Phong terms (``S``) are not applied.
 * ``uint8`` output quantises colour and opacity to 1/255 (``float32`` keeps them);
