@@ -96,11 +96,15 @@ class DiffusionReport:
         Relative residual before the first and after each iteration.
     converged : bool
         Whether the last residual is at or below the tolerance.
+    fallback : bool
+        Physical model: the multigrid iteration diverged and the solve went back to its
+        best iterate and on with Gauss–Seidel sweeps.
     """
 
     iterations: int = 0
     residuals: list = field(default_factory=list)
     converged: bool = False
+    fallback: bool = False
 
 
 def residual_floor(scattering, spacing) -> float:

@@ -351,14 +351,32 @@ class RadiativeDiffusion:
         if cold and method == "multigrid" and len(self.levels) > 1:
             self._nested_start(rhs, x)
             self.update_coefficients(x)
+            res, floor = self.residual(x, rhs, q_norm)
+        # The lagged-coefficient V-cycle can diverge where the limited coefficients jump by
+        # orders of magnitude between cells (seen on CUDA at 128x128x89): keep the best
+        # iterate, and on divergence (non-finite, or 10x worse than the best) go back to it
+        # and continue with red-black Gauss-Seidel sweeps, which always converge (slowly).
+        best_res = res if np.isfinite(res) else np.inf
+        best = wp.clone(x) if method == "multigrid" else None
+        smoothing_only = method != "multigrid"
         for _ in range(int(max_iterations)):
-            if method == "multigrid":
-                self.vcycle(x, rhs)
-            else:
+            if smoothing_only:
                 relax(top, x, rhs, 1)
+            else:
+                self.vcycle(x, rhs)
             self.update_coefficients(x)
             res, floor = self.residual(x, rhs, q_norm)
             report.iterations += 1
+            if best is not None and not smoothing_only:
+                if not np.isfinite(res) or res > 10.0 * best_res:
+                    wp.copy(x, best)
+                    self.update_coefficients(x)
+                    res, floor = self.residual(x, rhs, q_norm)
+                    smoothing_only = True
+                    report.fallback = True
+                elif res < best_res:
+                    best_res = res
+                    wp.copy(best, x)
             report.residuals.append(res)
             if callback is not None:
                 callback(report.iterations, res)
@@ -426,6 +444,8 @@ class RadiativeDiffusion:
         wp.launch(residual_norm_kernel, dim=(self.shape[1], self.shape[2]), device=self.device,
                   inputs=[x, q, *top.coefficients, top.sigma_tr, self.min_sigma, self._norms])
         n = np.sqrt(self._norms.numpy())
+        if not np.all(np.isfinite(n)):  # a NaN iterate must not read as "converged"
+            return float("inf"), 4.0 * float(np.finfo(np.float32).eps)
         scale = n[3:]
         rel = np.where(n[:3] > 0, n[:3] / np.maximum(scale, 1e-300), 0.0)
         rel = np.where((scale == 0) & (n[:3] > 0), 1.0, rel)
