@@ -33,22 +33,22 @@ import time
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
 
-import numpy as np  # noqa: E402
-import vtkmodules.vtkRenderingVolumeOpenGL2  # noqa: E402,F401  (the GPU volume mapper)
-from vtkmodules.vtkRenderingCore import (  # noqa: E402
+import numpy as np
+import vtkmodules.vtkRenderingVolumeOpenGL2  # noqa: F401  (the GPU volume mapper)
+from vtkmodules.vtkRenderingCore import (
     vtkLight,
     vtkRenderer,
     vtkRenderWindow,
     vtkVolume,
     vtkVolumeProperty,
 )
-from vtkmodules.vtkRenderingVolumeOpenGL2 import vtkOpenGLGPUVolumeRayCastMapper  # noqa: E402
+from vtkmodules.vtkRenderingVolumeOpenGL2 import vtkOpenGLGPUVolumeRayCastMapper
 
-from vtkillum.data import procedural  # noqa: E402
-from vtkillum.filters import ConvectionDiffusionLightFilter  # noqa: E402
-from vtkillum.io.convert import image_data_from_volume  # noqa: E402
-from vtkillum.mappers import IlluminatedVolume, apply_camera_to_vtk  # noqa: E402
-from vtkillum.mappers.camera_bridge import apply_scene_to_volume_property  # noqa: E402
+from vtkillum.data import procedural
+from vtkillum.filters import ConvectionDiffusionLightFilter
+from vtkillum.io.convert import image_data_from_volume
+from vtkillum.mappers import IlluminatedVolume, apply_camera_to_vtk
+from vtkillum.mappers.camera_bridge import apply_scene_to_volume_property
 
 #: The light (travel direction, irradiance) of both renderers.
 LIGHT = ((1.0, -1.0, -1.0), (3.0, 3.0, 3.0))

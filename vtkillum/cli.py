@@ -427,7 +427,7 @@ def run_info(args) -> int:
         print("ambient-scattering tables:")
         for line in describe_tables():
             print(f"  {line}")
-    except ImportError:  # noqa: PERF203
+    except ImportError:
         pass
     print(_builtin_names())
     return 0
@@ -858,7 +858,7 @@ class _progress_bar:
                             leave=False, bar_format="{l_bar}{bar}| {elapsed}<{remaining}")
 
             def progress(fraction: float, detail: str | None = None) -> None:
-                target = int(round(100 * min(max(float(fraction), 0.0), 1.0)))
+                target = round(100 * min(max(float(fraction), 0.0), 1.0))
                 if detail:
                     self.bar.set_postfix_str(detail, refresh=False)
                 if target > self.bar.n:
@@ -894,7 +894,7 @@ def _duration(seconds: float) -> str:
     """``42 s``, ``3 min 20 s``, ``1 h 05 min``."""
     if not np.isfinite(seconds):
         return "?"
-    seconds = int(round(seconds))
+    seconds = round(seconds)
     if seconds < 60:
         return f"{seconds} s"
     if seconds < 3600:
