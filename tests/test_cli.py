@@ -117,12 +117,22 @@ def test_scene_for_a_builtin_is_its_default_scene(tmp_path, capsys):
 
 
 def test_method_choices_come_from_the_registry(capsys):
+    from vtkillum.cli import HIDDEN_METHODS
+
     assert main(["render", "--help"]) == 0
     out = capsys.readouterr().out
     unwrapped = re.sub(r"-\n\s*", "-", out)  # argparse may wrap a name after its hyphen
     for name in METHODS:
-        assert name in unwrapped
+        assert (name in unwrapped) == (name not in HIDDEN_METHODS)
     assert "gamma 2.2" in " ".join(out.split())  # the tone map is documented
+    assert "--exposure" in out and "auto" in out
+
+
+def test_illumination_is_not_offered_by_the_cli(tmp_path, capsys):
+    """Issue 13: ``--method illumination`` was offered by --help but always failed."""
+    status, _, err = run(capsys, "render", "builtin:ct:16", "--method", "illumination",
+                         "--output", tmp_path / "x.png")
+    assert_user_error(status, err, "illumination")
 
 
 # --- user errors: one line, exit status 2 ------------------------------------------------------
@@ -205,12 +215,32 @@ def test_progress_bar_follows_the_render():
 
     volume = load_builtin("builtin:ct:16")
     stream = io.StringIO()
-    bar = _progress_bar(False, "single 8x4000", stream=stream)
+    bar = _progress_bar(False, "single 8x4000", stream=stream, mode="bar")
     with bar as progress:
         render(volume, builtin_scene("builtin:ct:16", volume), "single", 8, 4000, "cpu", progress)
         assert bar.bar.n == 100  # the render reported completion
     assert "single 8x4000" in stream.getvalue()
     assert _progress_bar(True, "quiet").__enter__() is None
+
+
+def test_progress_lines_when_output_is_not_a_terminal():
+    """Issue 13: with stderr redirected, progress is a line every few seconds."""
+    import io
+
+    from vtkillum.cli import _progress_bar
+
+    stream = io.StringIO()  # not a tty: lines
+    bar = _progress_bar(False, "path 64x64", stream=stream, interval=0.0)
+    with bar as progress:
+        for k in range(1, 5):
+            progress(k / 4, f"{k}/4 spp")
+    lines = stream.getvalue().splitlines()
+    assert len(lines) == 3  # not at 100 %: the summary line says that
+    assert lines[0].startswith("path 64x64: 25 %, 1/4 spp,") and "left" in lines[0]
+    quiet = io.StringIO()
+    with _progress_bar(False, "slow", stream=quiet, interval=3600.0) as progress:
+        progress(0.5)
+    assert quiet.getvalue() == ""  # at most one line per interval
 
 
 # --- issue 15: reliability -----------------------------------------------------------------------

@@ -3,9 +3,18 @@
 ::
 
     vtkillum demo --output demo.png
+    vtkillum export builtin:ct -o head.nii.gz        # a built-in dataset as a file
+    vtkillum render head.nii.gz --output head.png     # data-aware defaults, auto exposure
     vtkillum render builtin:ct:96 --method single --size 512 512 --output ct.png
     vtkillum render head.nii.gz --scene head.json --method path --spp 256 --output head.npy
     vtkillum scene --dataset head.nii.gz --output head.json   # a starter scene to edit
+    vtkillum info                                     # version, devices, tables
+
+Without a scene file (or where it gives none) a file is rendered with the data-aware
+defaults of :mod:`vtkillum.core.defaults`: a transfer function from the histogram, a
+camera that respects the image's orientation (an anterior view, superior up, for
+medical formats) and one key light from the upper front-left. PNG output is exposed
+automatically unless ``--exposure`` gives a factor.
 
 User mistakes (missing files, bad scene fields, unknown methods or datasets, an output
 that cannot be written, an image too large for the memory) print one line
@@ -54,11 +63,29 @@ ALPHA_SUFFIX = ".alpha"
 
 DEMO_DATASET = "builtin:plume"
 
+#: Methods the command line offers (``illumination`` needs an illumination volume, which
+#: only the Python API can hand over).
+HIDDEN_METHODS = ("illumination",)
+
+#: A ``path`` render whose first pass predicts more than this many seconds prints its
+#: estimate before going on.
+LONG_RENDER_SECONDS = 10.0
+
+#: Seconds between progress lines when stderr is not a terminal
+#: (``VTKILLUM_PROGRESS_INTERVAL`` overrides).
+PROGRESS_INTERVAL = 5.0
+
+#: Output formats of ``export``.
+EXPORT_FORMATS = (".vti", ".nii", ".nii.gz", ".mha", ".mhd")
+
 OUTPUT_HELP = """\
 output formats (by extension):
   .png  8-bit RGB picture: the linear radiance L composited over the scene
         background (L + (1 - alpha) * background), multiplied by the exposure,
         clipped to [0, 1] and raised to 1/2.2 (gamma 2.2), see vtkillum.core.tonemap.
+        The exposure is automatic by default (--exposure auto: the 99.5th
+        percentile of the pixels the volume covers becomes white); give a
+        factor (e.g. --exposure 1) for the same scaling in every picture.
   .npy  linear radiance, float32 array (H, W, 3), row 0 at the top, background NOT
         included; alpha (1 - transmittance, float32 (H, W)) goes to a second file
         next to it, <name>.alpha.npy, so that any background can be composited later.
@@ -116,7 +143,7 @@ def build_parser() -> argparse.ArgumentParser:
     from vtkillum import __version__
     from vtkillum.core.render import METHODS
 
-    methods = sorted(METHODS)
+    methods = sorted(m for m in METHODS if m not in HIDDEN_METHODS)
     parser = _Parser(
         prog="vtkillum",
         description="Global illumination for direct volume rendering.",
@@ -167,6 +194,28 @@ def build_parser() -> argparse.ArgumentParser:
     scene.add_argument("--output", "-o", required=True, help="scene JSON file to write")
     _add_input_options(scene)
     scene.set_defaults(run=run_scene)
+
+    # export
+    export = sub.add_parser(
+        "export", help="write a volume (e.g. a built-in dataset) to a file",
+        description="Write INPUT (builtin:NAME[:SIZE] or a volume file) as .vti, .nii/.nii.gz "
+                    "or .mha/.mhd, keeping its placement (origin, spacing, direction). "
+                    "Built-in datasets are in millimetres in an RAS-like frame: a NIfTI "
+                    "export records that, so a render of it shows an anterior view.",
+    )
+    export.add_argument("input", help="builtin:NAME[:SIZE] or a volume file")
+    export.add_argument("--output", "-o", required=True,
+                        help="file to write: " + ", ".join(EXPORT_FORMATS))
+    _add_input_options(export)
+    export.set_defaults(run=run_export)
+
+    # info
+    info = sub.add_parser(
+        "info", help="show the version, the devices available and the data shipped",
+        description="Print the versions of vtkillum and its libraries, the warp devices "
+                    "(and which one renders by default), the ambient-scattering tables "
+                    "and the built-in datasets.")
+    info.set_defaults(run=run_info)
     return parser
 
 
@@ -187,17 +236,20 @@ def _add_render_options(parser, methods, default_method: str, default_size) -> N
                              f"{default_size[0]} {default_size[1]})")
     parser.add_argument("--device", default=None,
                         help="warp device: cpu, cuda, cuda:N (default: CUDA when present; the "
-                             "VTKILLUM_DEVICE environment variable overrides)")
+                             "VTKILLUM_DEVICE environment variable overrides; 'vtkillum info' "
+                             "lists them)")
     parser.add_argument("--spp", type=int, help="samples per pixel (methods that take them, "
                                                 "e.g. path); default from the scene file")
-    parser.add_argument("--exposure", default="1",
-                        help="PNG exposure: a positive factor, or 'auto' (the 99.5th "
-                             "percentile of the radiance maps to white); default 1")
+    parser.add_argument("--exposure", default="auto",
+                        help="PNG exposure: 'auto' (default: the 99.5th percentile of the "
+                             "pixels the volume covers maps to white) or a positive factor "
+                             "(1: radiance 1 is white)")
     parser.add_argument("--option", action="append", default=[], metavar="KEY=VALUE",
                         help="extra method option, VALUE in JSON (e.g. step_size=0.5, "
                              "jitter=false); repeatable")
     parser.add_argument("--quiet", "-q", action="store_true",
-                        help="no progress bar or summary line")
+                        help="no progress, estimate or summary line (progress is a bar on a "
+                             "terminal, else a line every few seconds)")
 
 
 # --- commands -----------------------------------------------------------------------------------
@@ -218,6 +270,9 @@ def run_render(args) -> int:
     width, height = _check_size(args.size)
     exposure = _parse_exposure(args.exposure)
     options = _parse_options(args.option)
+    if args.method in HIDDEN_METHODS:
+        raise UserError(f"--method {args.method} needs an illumination volume, which only the "
+                        "Python API can give (vtkillum.core.raycast.render_illuminated)")
     fn = method_function(args.method)
     if args.spp is not None:
         if args.spp < 1:
@@ -228,13 +283,20 @@ def run_render(args) -> int:
         options["spp"] = args.spp
     device = resolve_device(args.device)
 
-    volume, scene = load_input(args.input, args.scene, args.array, args.component)
+    volume, scene = load_input(args.input, args.scene, args.array, args.component,
+                               aspect=width / height)
     check_memory(args.method, width, height, device, volume)
     start = time.perf_counter()
+    interrupted = None
     try:
         with _progress_bar(args.quiet, f"{args.method} {width}x{height}") as progress:
-            result = render(volume, scene, args.method, width, height, device, progress,
-                            **options)
+            if args.method == "path":
+                result, interrupted = render_path_with_estimate(
+                    volume, scene, width, height, device, progress, quiet=args.quiet,
+                    **options)
+            else:
+                result = render(volume, scene, args.method, width, height, device, progress,
+                                **options)
     except ValueError as err:
         if args.scene is None or str(err).startswith(str(args.scene)):
             raise
@@ -242,10 +304,75 @@ def run_render(args) -> int:
         raise ValueError(f"{err} (scene file {args.scene})") from err
     elapsed = time.perf_counter() - start
     written = write_result(outputs[0], result, scene.background, exposure)
+    if interrupted is not None:
+        done, wanted = interrupted
+        print(f"vtkillum: interrupted: wrote {', '.join(str(p) for p in written)} with {done} "
+              f"of {wanted} samples per pixel ({width}x{height}, {elapsed:.1f} s)",
+              file=sys.stderr)
+        return 130
     if not args.quiet:
         print(f"wrote {', '.join(str(p) for p in written)} ({width}x{height}, {args.method}, "
               f"{result.info.get('device', device)}, {elapsed:.1f} s)")
     return 0
+
+
+def render_path_with_estimate(volume, scene, width, height, device, progress=None,
+                              quiet=False, stream=None, spp=None, max_bounces=None, seed=None,
+                              **options):
+    """The ``path`` method, pass by pass, for the command line.
+
+    The first pass (one sample per pixel) is timed; when it predicts more than
+    :data:`LONG_RENDER_SECONDS` the estimate is printed (unless ``quiet``). Ctrl-C (SIGINT)
+    stops after the pass under way: the image of the passes done is returned.
+
+    Returns ``(result, interrupted)``: ``interrupted`` is ``None``, or ``(done, spp)``
+    samples per pixel when Ctrl-C stopped the render.
+    """
+    import signal
+    import threading
+
+    from vtkillum.core.pathtrace import PathTracer
+
+    if options:
+        raise ValueError(f"path: unknown option(s) {sorted(options)}; the path tracer takes spp, "
+                         "max_bounces and seed")
+    defaults = scene.options["path"]
+    spp = int(defaults["spp"] if spp is None else spp)
+    if spp < 1:
+        raise ValueError(f"path: spp must be a positive integer, got {spp}")
+    tracer = PathTracer(volume, scene, width, height, device=device,
+                        seed=defaults["seed"] if seed is None else seed,
+                        max_bounces=defaults["max_bounces"] if max_bounces is None
+                        else max_bounces)
+    stop = {"requested": False}
+    previous = None
+    if threading.current_thread() is threading.main_thread():
+        def request_stop(signum, frame):
+            if stop["requested"]:  # a second Ctrl-C: stop at once
+                raise KeyboardInterrupt
+            stop["requested"] = True
+
+        previous = signal.signal(signal.SIGINT, request_stop)
+    try:
+        start = time.perf_counter()
+        tracer.run(1)
+        first = time.perf_counter() - start
+        estimate = first * spp
+        if not quiet and estimate > LONG_RENDER_SECONDS:
+            print(f"path: {spp} samples per pixel at {width}x{height} on {device}: about "
+                  f"{_duration(estimate)} (one sample per pixel took {first:.2f} s); Ctrl-C "
+                  "stops and writes the image so far", file=stream or sys.stderr, flush=True)
+        if progress is not None:
+            progress(1 / spp, f"1/{spp} spp")
+        while tracer.passes < spp and not stop["requested"]:
+            tracer.run(1)
+            if progress is not None:
+                progress(tracer.passes / spp, f"{tracer.passes}/{spp} spp")
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGINT, previous)
+    result = tracer.result()
+    return result, ((tracer.passes, spp) if tracer.passes < spp else None)
 
 
 def run_scene(args) -> int:
@@ -260,14 +387,65 @@ def run_scene(args) -> int:
     return 0
 
 
+def run_export(args) -> int:
+    output = Path(args.output)
+    if not output.name.lower().endswith(EXPORT_FORMATS):
+        raise UserError(f"output {args.output!r}: the extension must be one of "
+                        f"{', '.join(EXPORT_FORMATS)}")
+    _check_target(output, f"output {args.output!r}")
+    volume, frame = load_input_volume(args.input, args.array, args.component)
+    write_volume(volume, output, frame)
+    print(f"wrote {output} ({'x'.join(map(str, volume.dims))} points, spacing "
+          f"{', '.join(f'{v:g}' for v in volume.spacing)})")
+    return 0
+
+
+def run_info(args) -> int:
+    import platform
+
+    import warp as wp
+
+    from vtkillum import __version__
+    from vtkillum.core.device import ENV_VAR, describe_devices
+
+    versions = [f"python {platform.python_version()}", f"numpy {np.__version__}",
+                f"warp {wp.config.version}"]
+    try:
+        from vtkmodules.vtkCommonCore import vtkVersion
+
+        versions.append(f"vtk {vtkVersion.GetVTKVersion()}")
+    except ImportError:
+        versions.append("vtk missing")
+    print(f"vtkillum {__version__} ({', '.join(versions)})")
+    print("devices (pick one with --device NAME or the environment variable "
+          f"{ENV_VAR}):")
+    for line in describe_devices():
+        print(f"  {line}")
+    try:
+        from vtkillum.core.ambient.table import describe_tables
+
+        print("ambient-scattering tables:")
+        for line in describe_tables():
+            print(f"  {line}")
+    except ImportError:
+        pass
+    print(_builtin_names())
+    return 0
+
+
 # --- building blocks (usable from Python too) -----------------------------------------------------
-def load_input(spec, scene_path=None, array=None, component=None):
+def load_input(spec, scene_path=None, array=None, component=None, aspect: float = 1.0):
     """Load ``spec`` (file or ``builtin:...``) and its scene.
 
-    Returns ``(volume, scene)``: the scene from ``scene_path`` when given, else the
-    built-in dataset's recommended scene, else the generic :class:`Scene` defaults.
+    Returns ``(volume, scene)``. A built-in dataset gets its recommended scene unless
+    ``scene_path`` is given. A file gets the scene file's settings, and for what the scene
+    file does not give (or all of it without one) the data-aware defaults of
+    :func:`vtkillum.core.defaults.default_scene`: transfer function from the histogram,
+    a camera for the image's orientation (:func:`anatomical_frame`) framing the
+    foreground at ``aspect`` (width / height), one key light.
     """
-    from vtkillum.core.scene import Scene, load_scene
+    from vtkillum.core.defaults import default_scene
+    from vtkillum.core.scene import load_scene
     from vtkillum.data.builtin import builtin_scene, is_builtin, load_builtin
 
     if is_builtin(spec):
@@ -279,8 +457,146 @@ def load_input(spec, scene_path=None, array=None, component=None):
     from vtkillum.io.readers import read_volume
 
     volume = read_volume(spec, array=array, component=_parse_component(component))
-    scene = load_scene(scene_path) if scene_path else Scene()
+    scene = load_scene(scene_path) if scene_path else None
+    fill = {"transfer_function", "camera", "lights"}
+    if scene_path:
+        given = _scene_fields(scene_path)
+        fill = {f for f in fill if f not in given}
+    scene = default_scene(volume, anatomical_frame(spec), base=scene, fill=fill, aspect=aspect)
     return volume, scene
+
+
+def _scene_fields(path) -> set:
+    try:
+        data = json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return set()
+    return set(data) if isinstance(data, dict) else set()
+
+
+def anatomical_frame(path) -> str | None:
+    """``"LPS"`` when ``path``'s world coordinates are anatomical, else ``None``.
+
+    The readers (:mod:`vtkillum.io.readers`) put NIfTI, DICOM and MetaImage data, and NRRD
+    files with an anatomical ``space`` (RAS, LAS, LPS), in LPS coordinates (+x left,
+    +y posterior, +z superior); other files carry no anatomical meaning.
+    """
+    from vtkillum.io.readers import NRRD_SPACES, volume_format
+
+    try:
+        fmt = volume_format(path)
+    except ValueError:
+        return None
+    if fmt in ("nifti", "dicom", "metaimage"):
+        return "LPS"
+    if fmt == "nrrd":
+        try:
+            with open(path, "rb") as f:
+                head = f.read(1 << 16).split(b"\n\n")[0].decode("latin-1")
+        except OSError:
+            return None
+        for line in head.splitlines():
+            key, sep, value = line.partition(":")
+            if sep and key.strip().lower() == "space":
+                space = value.strip().lower()
+                anatomical = {k for k in NRRD_SPACES if k in ("lps", "ras", "las") or "-" in k
+                              and k.split("-")[0] in ("left", "right")}
+                return "LPS" if space in anatomical else None
+    return None
+
+
+def load_input_volume(spec, array=None, component=None):
+    """The volume named by ``spec`` and its anatomical frame (``"RAS"`` for built-in
+    datasets, :func:`anatomical_frame` for files)."""
+    from vtkillum.data.builtin import is_builtin, load_builtin
+
+    if is_builtin(spec):
+        if array is not None or component is not None:
+            raise UserError("--array and --component apply to files, not built-in datasets")
+        return load_builtin(spec), "RAS"
+    from vtkillum.io.readers import read_volume
+
+    volume = read_volume(spec, array=array, component=_parse_component(component))
+    return volume, anatomical_frame(spec)
+
+
+#: RAS <-> LPS: negate x and y.
+_FLIP_XY = np.diag([-1.0, -1.0, 1.0])
+
+
+def write_volume(volume, path, frame: str | None = "LPS") -> Path:
+    """Write ``volume`` as .vti, .nii/.nii.gz or .mha/.mhd (by extension), atomically.
+
+    ``frame`` is the anatomical frame of ``volume``'s world coordinates (``"RAS"`` for
+    the built-in datasets, ``"LPS"`` for what the medical readers return, ``None``:
+    none). NIfTI and MetaImage files are written in their conventions (NIfTI: RAS in
+    the s- and q-form; MetaImage: LPS), so that :func:`vtkillum.io.readers.read_volume`
+    reads back the same voxels at the same anatomical places (in LPS); ``None`` is
+    written as if LPS, which keeps the coordinates unchanged on reading back. .vti
+    keeps the world coordinates as they are.
+    """
+    from vtkillum.io.convert import image_data_from_volume
+
+    path = Path(path)
+    name = path.name.lower()
+    image = image_data_from_volume(volume, "scalars")
+    direction = np.asarray(volume.direction, dtype=np.float64)
+    origin = np.asarray(volume.origin, dtype=np.float64)
+    if frame is not None and str(frame).upper() == "RAS" and not name.endswith(".vti"):
+        direction, origin = _FLIP_XY @ direction, _FLIP_XY @ origin  # to LPS
+    if name.endswith(".vti"):
+        from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
+
+        writer = vtkXMLImageDataWriter()
+        writer.SetDataModeToAppended()
+        writer.SetCompressorTypeToZLib()
+    elif name.endswith((".mha", ".mhd")):
+        from vtkmodules.vtkIOImage import vtkMetaImageWriter
+
+        image.SetOrigin(*origin)
+        image.SetDirectionMatrix(*direction.ravel())
+        writer = vtkMetaImageWriter()
+        writer.SetCompression(name.endswith(".mha"))
+        if name.endswith(".mhd"):  # the raw data go next to the header
+            raw = path.with_suffix(".raw")
+            writer.SetRAWFileName(str(raw))
+    elif name.endswith((".nii", ".nii.gz")):
+        from vtkmodules.vtkCommonMath import vtkMatrix4x4
+        from vtkmodules.vtkIOImage import vtkNIFTIImageWriter
+
+        # The NIfTI writer takes the grid without placement plus the RAS affine.
+        image.SetOrigin(0.0, 0.0, 0.0)
+        image.SetDirectionMatrix(1, 0, 0, 0, 1, 0, 0, 0, 1)
+        affine = np.eye(4)
+        affine[:3, :3] = _FLIP_XY @ direction
+        affine[:3, 3] = _FLIP_XY @ origin
+        matrix = vtkMatrix4x4()
+        for r in range(4):
+            for c in range(4):
+                matrix.SetElement(r, c, affine[r, c])
+        writer = vtkNIFTIImageWriter()
+        writer.SetSFormMatrix(matrix)
+        if np.linalg.det(affine[:3, :3]) > 0:
+            writer.SetQFormMatrix(matrix)
+    else:
+        raise UserError(f"output {str(path)!r}: the extension must be one of "
+                        f"{', '.join(EXPORT_FORMATS)}")
+    writer.SetInputData(image)
+    # VTK writers take a file name: write next to the target and rename into place.
+    suffix = "".join(path.suffixes[-2:]) if name.endswith(".nii.gz") else path.suffix
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
+    os.close(fd)
+    try:
+        writer.SetFileName(tmp)
+        writer.Write()
+        if writer.GetErrorCode() or os.path.getsize(tmp) == 0:
+            raise OSError(f"{path}: {writer.GetClassName()} could not write the file")
+        os.chmod(tmp, _file_mode(path))
+        os.replace(tmp, path)
+    finally:
+        if os.path.lexists(tmp):
+            os.unlink(tmp)
+    return path
 
 
 def explicit_scene(scene, volume):
@@ -309,7 +625,8 @@ def write_result(output: Path, result, background, exposure) -> list[Path]:
     writes ``UP.NPY`` and ``UP.alpha.NPY``). All files are written to temporary files in
     their directories and renamed into place together (:func:`write_atomically`).
     """
-    from vtkillum.core.tonemap import auto_exposure, tonemap, write_png
+    from vtkillum.core.defaults import auto_exposure
+    from vtkillum.core.tonemap import tonemap, write_png
 
     output = Path(output)
     radiance = np.asarray(result.radiance, dtype=np.float32)
@@ -504,28 +821,67 @@ def _parse_options(items) -> dict:
 
 
 class _progress_bar:
-    """Context manager yielding a ``progress(fraction)`` callback drawing a tqdm bar.
+    """Context manager yielding a ``progress(fraction, detail=None)`` callback.
 
-    The bar goes to ``stream`` (default stderr, where it is drawn only on a terminal:
-    tqdm's ``disable=None``) and is never drawn with ``--quiet``.
+    On a terminal (``stream``, default stderr, is a tty) it draws a tqdm bar; elsewhere
+    (output redirected to a file, a CI log) it prints a line every
+    :data:`PROGRESS_INTERVAL` seconds (``VTKILLUM_PROGRESS_INTERVAL`` overrides) with
+    the fraction done, the time spent and the time left. ``mode`` forces ``"bar"`` or
+    ``"lines"``. Nothing is shown with ``quiet`` (the callback is then ``None``).
     """
 
-    def __init__(self, quiet: bool, description: str, stream=None):
+    def __init__(self, quiet: bool, description: str, stream=None, mode: str = "auto",
+                 interval: float | None = None):
         self.quiet, self.description, self.stream, self.bar = quiet, description, stream, None
+        self.mode = mode
+        if interval is None:
+            try:
+                interval = float(os.environ.get("VTKILLUM_PROGRESS_INTERVAL", PROGRESS_INTERVAL))
+            except ValueError:
+                interval = PROGRESS_INTERVAL
+        self.interval = interval
+        self.lines = 0
 
     def __enter__(self):
         if self.quiet:
             return None
-        from tqdm import tqdm
+        stream = self.stream if self.stream is not None else sys.stderr
+        mode = self.mode
+        if mode == "auto":
+            try:
+                mode = "bar" if stream.isatty() else "lines"
+            except (AttributeError, ValueError):
+                mode = "lines"
+        if mode == "bar":
+            from tqdm import tqdm
 
-        self.bar = tqdm(total=100, desc=self.description, unit="%", file=self.stream,
-                        disable=None if self.stream is None else False, leave=False,
-                        bar_format="{l_bar}{bar}| {elapsed}<{remaining}")
+            self.bar = tqdm(total=100, desc=self.description, unit="%", file=stream,
+                            leave=False, bar_format="{l_bar}{bar}| {elapsed}<{remaining}")
 
-        def progress(fraction: float) -> None:
-            target = int(round(100 * min(max(float(fraction), 0.0), 1.0)))
-            if target > self.bar.n:
-                self.bar.update(target - self.bar.n)
+            def progress(fraction: float, detail: str | None = None) -> None:
+                target = round(100 * min(max(float(fraction), 0.0), 1.0))
+                if detail:
+                    self.bar.set_postfix_str(detail, refresh=False)
+                if target > self.bar.n:
+                    self.bar.update(target - self.bar.n)
+
+            return progress
+
+        start = time.perf_counter()
+        state = {"last": start}
+
+        def progress(fraction: float, detail: str | None = None) -> None:
+            now = time.perf_counter()
+            fraction = min(max(float(fraction), 0.0), 1.0)
+            if now - state["last"] < self.interval or fraction >= 1.0:
+                return
+            state["last"] = now
+            spent = now - start
+            left = spent * (1 - fraction) / fraction if fraction > 0 else float("nan")
+            extra = f", {detail}" if detail else ""
+            print(f"{self.description}: {100 * fraction:.0f} %{extra}, {_duration(spent)} "
+                  f"spent, about {_duration(left)} left", file=stream, flush=True)
+            self.lines += 1
 
         return progress
 
@@ -533,6 +889,18 @@ class _progress_bar:
         if self.bar is not None:
             self.bar.close()
         return False
+
+
+def _duration(seconds: float) -> str:
+    """``42 s``, ``3 min 20 s``, ``1 h 05 min``."""
+    if not np.isfinite(seconds):
+        return "?"
+    seconds = round(seconds)
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60:02d} s"
+    return f"{seconds // 3600} h {(seconds % 3600) // 60:02d} min"
 
 
 def _builtin_names() -> str:

@@ -242,6 +242,7 @@ def test_missing_albedo_is_generated_on_demand_and_cached(tmp_path, monkeypatch)
     monkeypatch.setattr(table_module, "ON_DEMAND",
                         {"n_theta": 6, "n_sigma": 5, "n_g": 3, "samples": 16})
     monkeypatch.setattr(table_module, "_LOADED", {})
+    monkeypatch.setattr(table_module, "load_albedo_tables", lambda: None)  # none installed
     with pytest.raises(FileNotFoundError, match="python -m vtkillum.core.ambient.table"):
         load_table(0.55, generate=False)
     t = load_table(0.55, device="cpu", progress=False)
@@ -259,3 +260,164 @@ def test_command_line(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "Monte-Carlo error" in text and "paths/s" in text and out.exists()
     assert PreintegrationTable.load(out).shape == (4, 3, 3)
+
+
+# --- issue 13: tables over albedo, interpolated; chunked, interruptible generation -------------
+from vtkillum.core.ambient.table import (  # noqa: E402
+    AlbedoTables,
+    albedo_zero_table,
+    interpolate_albedo,
+)
+
+
+@pytest.fixture(scope="module")
+def small_stack():
+    """Tables at three albedos (6 theta x 5 sigma x 3 g, 64 paths: fast, noisy)."""
+    return AlbedoTables([generate_table(albedo=a, n_theta=6, n_sigma=5, n_g=3, samples=64,
+                                        seed=2, device="cpu", progress=False)
+                         for a in (0.9, 0.5, 0.8)])
+
+
+def test_albedo_tables_file_round_trip(small_stack, tmp_path):
+    path = small_stack.save(tmp_path / "stack.npz")
+    back = AlbedoTables.load(path)
+    np.testing.assert_array_equal(back.albedos, [0.5, 0.8, 0.9])  # sorted
+    for a, b in zip(small_stack.tables, back.tables):
+        pos = a.radiance > 0
+        assert np.all(back.at(a.albedo).radiance[~pos] == 0)
+        assert np.all(np.abs(np.log(b.radiance[pos]) - np.log(a.radiance[pos]))
+                      <= 2.0**-11 * np.abs(np.log(a.radiance[pos])) + 1e-6)
+        np.testing.assert_allclose(b.rel_stderr, np.minimum(a.rel_stderr, 0.255), atol=5e-4)
+        np.testing.assert_array_equal(b.transmittance, a.transmittance)
+        assert (b.albedo, b.samples, b.seed) == (a.albedo, a.samples, a.seed)
+    with pytest.raises(ValueError, match="not an ambient-scattering table"):
+        PreintegrationTable.load(path)  # a multi-albedo file is not a single table
+    np.savez(tmp_path / "junk.npz", x=np.zeros(2))
+    with pytest.raises(ValueError, match="multi-albedo"):
+        AlbedoTables.load(tmp_path / "junk.npz")
+
+
+def test_interpolation_between_albedos(small_stack):
+    lo, hi = small_stack.tables[1], small_stack.tables[2]  # 0.8, 0.9
+    t = small_stack.at(0.85)
+    assert t.albedo == pytest.approx(0.85) and "interpolated" in t.info
+    both = (lo.radiance > 0) & (hi.radiance > 0)
+    np.testing.assert_allclose(t.radiance[both], np.sqrt(lo.radiance * hi.radiance)[both],
+                               rtol=1e-4)
+    assert small_stack.at(0.9) is hi  # tabulated albedos as they are
+    # below the first albedo: towards the exact albedo-0 table
+    zero = small_stack.at(0.0)
+    np.testing.assert_allclose(zero.radiance, albedo_zero_table(lo).radiance)
+    mid = small_stack.at(0.25)
+    first = small_stack.tables[0]
+    ok = (first.radiance > 0) & (zero.radiance > 0)
+    np.testing.assert_allclose(mid.radiance[ok], np.sqrt(zero.radiance * first.radiance)[ok],
+                               rtol=1e-4)
+    with pytest.raises(ValueError, match="outside"):
+        small_stack.at(0.95)
+    with pytest.raises(ValueError, match="other axes"):
+        AlbedoTables([lo, generate_table(albedo=0.7, n_theta=4, n_sigma=5, n_g=3, samples=8,
+                                         device="cpu", progress=False)])
+    with pytest.raises(ValueError, match="different axes"):
+        interpolate_albedo(lo, albedo_zero_table(generate_table(
+            albedo=0.1, n_theta=4, n_sigma=3, n_g=1, samples=4, device="cpu",
+            progress=False)), 0.5)
+
+
+def test_albedo_zero_table_is_what_the_path_tracer_gives():
+    t = generate_table(albedo=0.0, n_theta=5, sigma=[0.0, 0.3, 0.6, 0.9], n_g=3,
+                       samples=4000, seed=5, device="cpu", progress=False)
+    exact = albedo_zero_table(t)
+    assert np.all(np.abs(t.radiance - exact.radiance) <= 5 * t.stderr + 1e-5 * exact.radiance)
+    np.testing.assert_allclose(t.transmittance, exact.transmittance, atol=0.03)
+
+
+def test_geometric_interpolation_is_as_good_as_the_noise():
+    """Interpolating 0.8 and 0.9 to 0.85 differs from a table made at 0.85 by about the
+    tables' own Monte-Carlo noise (L1, radiance-weighted)."""
+    kw = dict(n_theta=12, n_sigma=12, n_g=3, samples=2048, device="cpu", progress=False)
+    lo, mid, hi = (generate_table(albedo=a, seed=7 + n, **kw)
+                   for n, a in enumerate((0.8, 0.85, 0.9)))
+    got = interpolate_albedo(lo, hi, 0.85)
+    l1 = np.abs(got.radiance - mid.radiance).sum() / mid.radiance.sum()
+    noise = np.abs(mid.stderr).sum() / mid.radiance.sum()
+    assert l1 < 1.5 * noise + 0.005, (l1, noise)
+
+
+def test_load_table_interpolates_from_the_shipped_stack(small_stack, tmp_path, monkeypatch):
+    data = tmp_path / "data"
+    data.mkdir()
+    small_stack.save(data / table_module.ALBEDOS_FILENAME)
+    monkeypatch.setattr(table_module, "DATA_DIR", data)
+    monkeypatch.setenv("VTKILLUM_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(table_module, "_LOADED", {})
+
+    def no_generation(*args, **kwargs):
+        raise AssertionError("nothing may be generated")
+
+    monkeypatch.setattr(table_module, "generate_table", no_generation)
+    t = load_table(0.83)  # generate=True, but the stack covers it
+    assert t.albedo == pytest.approx(0.83) and t.shape == small_stack.shape
+    assert load_table(0.83) is t  # kept
+    with pytest.raises(FileNotFoundError, match="ambient_tables_albedo.npz"):
+        load_table(0.97, generate=False)
+    lines = table_module.describe_tables()
+    assert any("albedos 0.5, 0.8, 0.9" in line for line in lines)
+    # a table for exactly that albedo wins over the stack
+    small_stack.tables[0].save(data / table_module.table_filename(0.5))
+    monkeypatch.setattr(table_module, "_LOADED", {})
+    assert load_table(0.5).info.get("interpolated") is None
+
+
+def test_shipped_single_albedo_table_still_first(shipped):
+    assert load_table(0.9) is shipped or load_table(0.9).shape == shipped.shape
+
+
+def test_generation_is_chunked_and_the_same(monkeypatch):
+    """Launches of at most PATHS_PER_LAUNCH paths (Ctrl-C is seen between them); the
+    chunking does not change the table."""
+    kw = dict(albedo=0.8, n_theta=6, n_sigma=5, n_g=3, samples=16, seed=4, device="cpu")
+    # 90 entries: with these budgets one path per entry per pass, entries in chunks of
+    # 89, 50 or 37 (seeds depend on the pass and the entry, not on the chunk)
+    tables = []
+    for budget in (89, 50, 37):
+        monkeypatch.setitem(table_module.PATHS_PER_LAUNCH, "cpu", budget)
+        seen = []
+        tables.append(generate_table(progress=seen.append, **kw))
+        assert len(seen) >= 16 * 3  # passes x (two entry chunks at least, a front chunk)
+    for t in tables[1:]:
+        np.testing.assert_array_equal(t.radiance, tables[0].radiance)
+        np.testing.assert_array_equal(t.transmittance, tables[0].transmittance)
+
+
+def test_ctrl_c_stops_generation_and_writes_nothing(monkeypatch, tmp_path, capsys):
+    calls = []
+
+    def interrupt(fraction):
+        calls.append(fraction)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        generate_table(n_theta=6, n_sigma=5, n_g=3, samples=16, device="cpu", progress=interrupt)
+    assert len(calls) == 2
+
+    def raise_interrupt(**kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(table_module, "generate_table", raise_interrupt)
+    out = tmp_path / "t.npz"
+    assert table_module.main(["--device", "cpu", "--quiet", "--out", str(out)]) == 130
+    assert table_module.main(["--device", "cpu", "--quiet", "--albedos", "0.5,0.9",
+                              "--out", str(out)]) == 130
+    assert not out.exists() and "interrupted" in capsys.readouterr().err
+
+
+def test_command_line_writes_a_multi_albedo_file(tmp_path, capsys):
+    out = tmp_path / "stack.npz"
+    assert table_module.main(["--device", "cpu", "--albedos", "0.6,0.9", "--theta", "4",
+                              "--sigma", "3", "--g", "1", "--samples", "8", "--quiet",
+                              "--out", str(out)]) == 0
+    assert "albedos 0.6, 0.9" in capsys.readouterr().out
+    stack = AlbedoTables.load(out)
+    assert stack.shape == (4, 3, 1) and stack.at(0.7).albedo == pytest.approx(0.7)

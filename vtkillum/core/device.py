@@ -15,20 +15,107 @@ import warp as wp
 ENV_VAR = "VTKILLUM_DEVICE"
 
 
+#: Lines that warp's native library prints on a machine without an NVIDIA driver; they are
+#: expected there (the CPU is used) and dropped. ``vtkillum info`` says which devices exist.
+_EXPECTED_NATIVE_MESSAGES = ("Could not find or load the NVIDIA CUDA driver",)
+
+
 @lru_cache(maxsize=1)
 def init_warp() -> None:
-    """Initialise warp once, quietly (no start-up banner)."""
+    """Initialise warp once, quietly.
+
+    No start-up banner (``wp.config.log_level``), and no "Warp CUDA warning: Could not
+    find or load the NVIDIA CUDA driver" on a machine without one: warp's native library
+    prints it straight to file descriptor 2 while it initialises, so that descriptor is
+    captured for the duration of ``wp.init()`` and everything else it printed is passed on.
+    """
     wp.config.quiet = True
     # warp >= 1.10 prints its banner through a logger with levels (30: warnings only).
     if isinstance(getattr(wp.config, "log_level", None), int):
         wp.config.log_level = max(wp.config.log_level, 30)
-    wp.init()
+    with _native_stderr_filtered(_EXPECTED_NATIVE_MESSAGES):
+        wp.init()
+
+
+class _native_stderr_filtered:
+    """Capture file descriptor 2 (C-level stderr) and re-emit it without the given lines.
+
+    Falls back to doing nothing where descriptor 2 cannot be duplicated (no stderr).
+    """
+
+    def __init__(self, drop):
+        self.drop, self.saved, self.capture = tuple(drop), None, None
+
+    def __enter__(self):
+        import sys
+        import tempfile
+
+        try:
+            sys.stderr.flush()
+        except (AttributeError, ValueError, OSError):
+            pass
+        try:
+            self.saved = os.dup(2)
+        except OSError:
+            return self
+        self.capture = tempfile.TemporaryFile()
+        os.dup2(self.capture.fileno(), 2)
+        return self
+
+    def __exit__(self, *exc):
+        if self.saved is None:
+            return False
+        import sys
+
+        os.dup2(self.saved, 2)
+        os.close(self.saved)
+        self.capture.seek(0)
+        text = self.capture.read().decode("utf-8", "replace")
+        self.capture.close()
+        kept = [line for line in text.splitlines(keepends=True)
+                if not any(d in line for d in self.drop)]
+        if kept:
+            try:
+                sys.stderr.write("".join(kept))
+                sys.stderr.flush()
+            except (AttributeError, ValueError, OSError):
+                pass
+        return False
 
 
 def available_devices() -> list[str]:
     """Names of the warp devices on this machine, e.g. ``['cpu', 'cuda:0']``."""
     init_warp()
     return [str(d) for d in wp.get_devices()]
+
+
+def describe_devices() -> list[str]:
+    """One line per warp device (name, model, memory), plus why CUDA is absent if it is.
+
+    What ``vtkillum info`` prints; the default device is marked.
+    """
+    init_warp()
+    default = resolve_device(None) if not os.environ.get(ENV_VAR, "").strip() else None
+    lines = []
+    for d in wp.get_devices():
+        name = str(d)
+        if d.is_cuda:
+            what = f"{d.name}, {d.total_memory / 2**30:.0f} GiB"
+        else:
+            import platform
+
+            what = f"{platform.processor() or platform.machine() or 'CPU'}, {os.cpu_count()} " \
+                   "logical cores (warp runs kernels on one)"
+        mark = " (default)" if name == default else ""
+        lines.append(f"{name}{mark}: {what}")
+    if not wp.is_cuda_available():
+        try:
+            driver = wp.get_cuda_driver_version()
+        except Exception:  # noqa: BLE001 - only a detail of the message
+            driver = None
+        why = "no NVIDIA CUDA driver found" if not driver else "no CUDA device visible"
+        lines.append(f"cuda: not available ({why}); rendering runs on the CPU")
+    return lines
 
 
 def resolve_device(device: str | None = None) -> str:

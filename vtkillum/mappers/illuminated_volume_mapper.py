@@ -102,6 +102,24 @@ in every case, which is the 8-bit read-back alone (the quantised warp image and 
 OpenGL image agree to 1e-6; every pixel lies within half an 8-bit level of the warp
 radiance); the per-case values are in that module's docstring.
 
+Performance (software OpenGL included)
+--------------------------------------
+The shader is written for GPUs and for Mesa's llvmpipe (OSMesa), which runs it on the
+CPU and pays for much of the code behind a branch not taken:
+
+* per ray (``il_initLayout``, ``il_initRay``): the texture-to-local matrix, every grid's
+  texture scale and bias and every texture's unpacking ``texel * A + B`` (no
+  ``textureSize``, branch or matrix product per sample), the phase of each directional
+  light (the ray's and the light's directions are fixed);
+* per sample: the data value and σt first; the colour (six more table fetches) only
+  where σt > 0; table entries found with a mask and a shift, not integer division;
+* the gradient (six more data fetches) is compiled only when the scene's shading has a
+  diffuse or specular term (``IL_PHONG``); a scene that adds or removes one rebuilds
+  the shader.
+
+``benchmarks/bench_opengl.py`` compares the frame time with VTK's own volumetric shadows
+(``docs/benchmarks.md``).
+
 Simplifications and limits
 --------------------------
 * Samples lie at ``t0 + (k + ξ) Δ`` from the box entry, ``ξ`` a per-pixel hash in
@@ -199,6 +217,34 @@ GLSL_LAYOUT_DEC = """//VTK::Shading::Dec
 // vtkillum: illumination-volume shading (vtkillum/mappers/illuminated_volume_mapper.py)
 // --- layout: this mapper's textures (another host replaces this block) ---
 #define IL_MAX_LIGHTS %(max_lights)d
+#define IL_OPTICS_ROW %(row)d
+#define IL_OPTICS_SHIFT %(shift)d
+#define IL_PHONG %(phong)d
+
+mat4 il_texToLocal;  // VTK's texture coordinates of the box -> local frame (set per ray)
+
+// Per-ray constants of the layout (il_initLayout): for each grid, texture coordinate =
+// clamp(p, 0, extent) * scale + bias (point-centred, clamped to the box like the warp
+// samplers); for each texture, value = texel * A + B (VTK either normalises a texture,
+// v * scale + bias in [0, 1] over in_scalarsRange, or leaves it raw).
+vec3 il_dataScale;
+vec3 il_dataBias;
+float il_dataA;
+float il_dataB;
+float il_optA;
+float il_optB;
+vec3 il_taScale;
+vec3 il_taBias;
+vec4 il_taA;
+vec4 il_taB;
+vec3 il_tbScale;
+vec3 il_tbBias;
+vec4 il_tbA;
+vec4 il_tbB;
+vec3 il_scScale;
+vec3 il_scBias;
+vec4 il_scA;
+vec4 il_scB;
 
 // World position -> the volume's local frame [0, il_extent].
 vec3 il_toLocal(vec3 w)
@@ -212,38 +258,59 @@ vec3 il_dirToLocal(vec3 w)
   return vec3(dot(w, il_axis0), dot(w, il_axis1), dot(w, il_axis2));
 }
 
-// Texture coordinate of local position p on a point-centred grid of n points over
-// [0, extent] (clamped to the box, like the warp samplers).
-vec3 il_gridTex(vec3 p, vec3 n)
+void il_gridMap(vec3 n, out vec3 scale, out vec3 bias)
 {
-  return (clamp(p / il_extent, 0.0, 1.0) * (n - 1.0) + 0.5) / n;
+  scale = (n - 1.0) / (n * il_extent);
+  bias = 0.5 / n;
 }
 
-// A value from VTK's texture of port `port`, component c: VTK either normalises it
-// (v * scale + bias in [0, 1] over in_scalarsRange) or leaves it raw (scale 1, bias 0).
-float il_unpack(float texel, float scale, float bias, vec2 range)
+float il_unpackA(float scale, float bias, vec2 range)
 {
-  float v = texel * scale + bias;
-  return (scale == 1.0 && bias == 0.0) ? v : mix(range.x, range.y, v);
+  return (scale == 1.0 && bias == 0.0) ? 1.0 : scale * (range.y - range.x);
+}
+
+float il_unpackB(float scale, float bias, vec2 range)
+{
+  return (scale == 1.0 && bias == 0.0) ? 0.0 : range.x + bias * (range.y - range.x);
+}
+
+// The per-ray constants above (call once per ray, before any fetch).
+void il_initLayout()
+{
+  il_gridMap(vec3(textureSize(in_volume[%(data)d], 0)), il_dataScale, il_dataBias);
+  il_gridMap(vec3(textureSize(in_volume[%(ta)d], 0)), il_taScale, il_taBias);
+  il_gridMap(vec3(textureSize(in_volume[%(tb)d], 0)), il_tbScale, il_tbBias);
+  il_gridMap(vec3(textureSize(in_volume[%(sc)d], 0)), il_scScale, il_scBias);
+  il_dataA = il_unpackA(in_volume_scale[%(data)d].r, in_volume_bias[%(data)d].r,
+                        in_scalarsRange[%(data4)d]);
+  il_dataB = il_unpackB(in_volume_scale[%(data)d].r, in_volume_bias[%(data)d].r,
+                        in_scalarsRange[%(data4)d]);
+  il_optA = il_unpackA(in_volume_scale[%(opt)d].r, in_volume_bias[%(opt)d].r,
+                       in_scalarsRange[%(opt4)d]);
+  il_optB = il_unpackB(in_volume_scale[%(opt)d].r, in_volume_bias[%(opt)d].r,
+                       in_scalarsRange[%(opt4)d]);
+  for (int c = 0; c < 4; ++c)
+  {
+    il_taA[c] = il_unpackA(in_volume_scale[%(ta)d][c], in_volume_bias[%(ta)d][c],
+                           in_scalarsRange[%(ta4)d + c]);
+    il_taB[c] = il_unpackB(in_volume_scale[%(ta)d][c], in_volume_bias[%(ta)d][c],
+                           in_scalarsRange[%(ta4)d + c]);
+    il_tbA[c] = il_unpackA(in_volume_scale[%(tb)d][c], in_volume_bias[%(tb)d][c],
+                           in_scalarsRange[%(tb4)d + c]);
+    il_tbB[c] = il_unpackB(in_volume_scale[%(tb)d][c], in_volume_bias[%(tb)d][c],
+                           in_scalarsRange[%(tb4)d + c]);
+    il_scA[c] = il_unpackA(in_volume_scale[%(sc)d][c], in_volume_bias[%(sc)d][c],
+                           in_scalarsRange[%(sc4)d + c]);
+    il_scB[c] = il_unpackB(in_volume_scale[%(sc)d][c], in_volume_bias[%(sc)d][c],
+                           in_scalarsRange[%(sc4)d + c]);
+  }
 }
 
 // Data value (data units) at local position p, trilinear.
 float il_scalar(vec3 p)
 {
-  vec3 n = vec3(textureSize(in_volume[%(data)d], 0));
-  return il_unpack(texture3D(in_volume[%(data)d], il_gridTex(p, n)).r,
-                   in_volume_scale[%(data)d].r, in_volume_bias[%(data)d].r,
-                   in_scalarsRange[%(data4)d]);
-}
-
-// Component c (0-2 colour, 3 sigma_t) of optics-table entry i; entry i's four values sit
-// at x = 4 (i %% OPTICS_ROW) + c, y = i / OPTICS_ROW of a one-component image.
-float il_opticsValue(int i, int c)
-{
-  int w = textureSize(in_volume[%(opt)d], 0).x / 4;
-  return il_unpack(texelFetch(in_volume[%(opt)d], ivec3(4 * (i %% w) + c, i / w, 0), 0).r,
-                   in_volume_scale[%(opt)d].r, in_volume_bias[%(opt)d].r,
-                   in_scalarsRange[%(opt4)d]);
+  vec3 tex = clamp(p, vec3(0.0), il_extent) * il_dataScale + il_dataBias;
+  return texture3D(in_volume[%(data)d], tex).r * il_dataA + il_dataB;
 }
 
 // Continuous table index of data value s (clamped: constant outside the table).
@@ -252,12 +319,21 @@ float il_tableCoord(float s)
   return clamp((s - il_tableLo) * il_tableScale, 0.0, float(il_tableSize - 1));
 }
 
+// Component c (0-2 colour, 3 sigma_t) of optics-table entry i, still packed (texel); entry
+// i's four values sit at x = 4 (i %% OPTICS_ROW) + c, y = i / OPTICS_ROW of a one-component
+// image (OPTICS_ROW a power of two: a mask and a shift, no integer division).
+float il_opticsTexel(int i, int c)
+{
+  ivec3 at = ivec3(4 * (i & (IL_OPTICS_ROW - 1)) + c, i >> IL_OPTICS_SHIFT, 0);
+  return texelFetch(in_volume[%(opt)d], at, 0).r;
+}
+
 // sigma_t (1/world units) of data value s: linear between table entries (lookup_sigma_t).
 float il_sigmaT(float s)
 {
   float x = il_tableCoord(s);
   int i = min(int(x), il_tableSize - 2);
-  return mix(il_opticsValue(i, 3), il_opticsValue(i + 1, 3), x - float(i));
+  return mix(il_opticsTexel(i, 3), il_opticsTexel(i + 1, 3), x - float(i)) * il_optA + il_optB;
 }
 
 // Colour (rgb) and sigma_t (a) of data value s (lookup_color, lookup_sigma_t).
@@ -265,41 +341,41 @@ vec4 il_optics(float s)
 {
   float x = il_tableCoord(s);
   int i = min(int(x), il_tableSize - 2);
-  vec4 a = vec4(il_opticsValue(i, 0), il_opticsValue(i, 1), il_opticsValue(i, 2),
-                il_opticsValue(i, 3));
-  vec4 b = vec4(il_opticsValue(i + 1, 0), il_opticsValue(i + 1, 1), il_opticsValue(i + 1, 2),
-                il_opticsValue(i + 1, 3));
-  return mix(a, b, x - float(i));
+  vec4 a = vec4(il_opticsTexel(i, 0), il_opticsTexel(i, 1), il_opticsTexel(i, 2),
+                il_opticsTexel(i, 3));
+  vec4 b = vec4(il_opticsTexel(i + 1, 0), il_opticsTexel(i + 1, 1), il_opticsTexel(i + 1, 2),
+                il_opticsTexel(i + 1, 3));
+  return mix(a, b, x - float(i)) * il_optA + il_optB;
+}
+
+// Colour (rgb) of data value s (lookup_color): what il_optics(s).rgb is, for samples whose
+// sigma_t (il_sigmaT) is known to be > 0 (empty samples never fetch their colour).
+vec3 il_color(float s)
+{
+  float x = il_tableCoord(s);
+  int i = min(int(x), il_tableSize - 2);
+  vec3 a = vec3(il_opticsTexel(i, 0), il_opticsTexel(i, 1), il_opticsTexel(i, 2));
+  vec3 b = vec3(il_opticsTexel(i + 1, 0), il_opticsTexel(i + 1, 1), il_opticsTexel(i + 1, 2));
+  return mix(a, b, x - float(i)) * il_optA + il_optB;
 }
 
 // Light l's cached transmittance T_grid,l at local position p, trilinear.
 float il_gridTransmittance(int l, vec3 p)
 {
+  vec3 q = clamp(p, vec3(0.0), il_extent);
   if (l < 4)
   {
-    vec3 n = vec3(textureSize(in_volume[%(ta)d], 0));
-    return il_unpack(texture3D(in_volume[%(ta)d], il_gridTex(p, n))[l],
-                     in_volume_scale[%(ta)d][l], in_volume_bias[%(ta)d][l],
-                     in_scalarsRange[%(ta4)d + l]);
+    return texture3D(in_volume[%(ta)d], q * il_taScale + il_taBias)[l] * il_taA[l] + il_taB[l];
   }
   int c = l - 4;
-  vec3 n = vec3(textureSize(in_volume[%(tb)d], 0));
-  return il_unpack(texture3D(in_volume[%(tb)d], il_gridTex(p, n))[c],
-                   in_volume_scale[%(tb)d][c], in_volume_bias[%(tb)d][c],
-                   in_scalarsRange[%(tb4)d + c]);
+  return texture3D(in_volume[%(tb)d], q * il_tbScale + il_tbBias)[c] * il_tbA[c] + il_tbB[c];
 }
 
 // Scattered fluence phi_s (RGB) at local position p, trilinear.
 vec3 il_scatteredFluence(vec3 p)
 {
-  vec3 n = vec3(textureSize(in_volume[%(sc)d], 0));
-  vec4 t = texture3D(in_volume[%(sc)d], il_gridTex(p, n));
-  return vec3(
-    il_unpack(t.x, in_volume_scale[%(sc)d].x, in_volume_bias[%(sc)d].x, in_scalarsRange[%(sc4)d]),
-    il_unpack(t.y, in_volume_scale[%(sc)d].y, in_volume_bias[%(sc)d].y,
-              in_scalarsRange[%(sc4)d + 1]),
-    il_unpack(t.z, in_volume_scale[%(sc)d].z, in_volume_bias[%(sc)d].z,
-              in_scalarsRange[%(sc4)d + 2]));
+  vec3 tex = clamp(p, vec3(0.0), il_extent) * il_scScale + il_scBias;
+  return texture3D(in_volume[%(sc)d], tex).xyz * il_scA.xyz + il_scB.xyz;
 }
 """
 
@@ -310,6 +386,7 @@ GLSL_SHADING_DEC = """
 #define IL_PI 3.14159265358979
 vec3 il_dir;    // unit ray direction, local frame (set per ray)
 float il_step;  // sample spacing, world units (set per ray)
+float il_rayPhase[IL_MAX_LIGHTS];  // p_HG(w_l . d) of directional lights (set per ray)
 
 // Henyey-Greenstein, normalised to 1 over the sphere (warp_common.hg_phase).
 float il_hg(float cosTheta, float g)
@@ -394,6 +471,20 @@ float il_cachedTransmittance(int l, vec3 p, vec3 w, float dist)
   return t;
 }
 
+// Per ray: the phase of every directional light (its direction and the ray's are fixed).
+void il_initRay(vec3 d)
+{
+  for (int l = 0; l < IL_MAX_LIGHTS; ++l)
+  {
+    il_rayPhase[l] = 0.0;
+    if (l < il_numLights && il_lights[4 * l] < 0.5)
+    {
+      vec3 v = vec3(il_lights[4 * l + 1], il_lights[4 * l + 2], il_lights[4 * l + 3]);
+      il_rayPhase[l] = il_hg(dot(-v, d), il_g);
+    }
+  }
+}
+
 // sum_l p_HG(w_l . d) T_l(p) E_l(p) for a ray travelling along d (raycast.cached_direct_light).
 vec3 il_directLight(vec3 p, vec3 d)
 {
@@ -404,7 +495,8 @@ vec3 il_directLight(vec3 p, vec3 d)
     float dist;
     vec3 e;
     il_incidence(l, p, w, dist, e);
-    acc += (il_hg(dot(w, d), il_g) * il_cachedTransmittance(l, p, w, dist)) * e;
+    float phase = il_lights[4 * l] < 0.5 ? il_rayPhase[l] : il_hg(dot(w, d), il_g);
+    acc += (phase * il_cachedTransmittance(l, p, w, dist)) * e;
   }
   return acc;
 }
@@ -427,9 +519,13 @@ vec3 il_normal(vec3 p, vec3 d)
 }
 
 // S = ka + kd mean|n.w_l| + ks mean max(n.h_l, 0)^shininess (raycast.phong_factor).
+// IL_PHONG (0 or 1) is defined by the host: 0 when kd = ks = 0 (the default), so that the
+// gradient (six more data fetches per sample) is compiled only where shading needs it;
+// software rasterisers (llvmpipe) pay for code behind a branch not taken.
 float il_phong(vec3 p, vec3 d)
 {
   float ka = il_shading.x;
+#if IL_PHONG
   float kd = il_shading.y;
   float ks = il_shading.z;
   if (kd == 0.0 && ks == 0.0)
@@ -458,6 +554,9 @@ float il_phong(vec3 p, vec3 d)
     }
   }
   return ka + (kd * diff + ks * spec) / float(il_numLights);
+#else
+  return ka;
+#endif
 }
 
 // J / sigma_t at p for a ray along d:
@@ -481,10 +580,19 @@ vec3 il_source(vec3 p, vec3 d, vec3 color)
 # deterministic steps through sharp surfaces into noise without repeating per tile.
 GLSL_RAY_INIT = """//VTK::Shading::Init
   {
+    il_initLayout();
     mat4 il_texToWorld = in_volumeMatrix[0] * in_textureDatasetMatrix[0];
+    // texture coordinates of the box -> the local frame, once per ray
+    mat4 il_worldToLocal = mat4(vec4(il_axis0.x, il_axis1.x, il_axis2.x, 0.0),
+                                vec4(il_axis0.y, il_axis1.y, il_axis2.y, 0.0),
+                                vec4(il_axis0.z, il_axis1.z, il_axis2.z, 0.0),
+                                vec4(-dot(il_origin, il_axis0), -dot(il_origin, il_axis1),
+                                     -dot(il_origin, il_axis2), 1.0));
+    il_texToLocal = il_worldToLocal * il_texToWorld;
     vec3 il_stepWorld = (il_texToWorld * vec4(g_dirStep, 0.0)).xyz;
     il_step = length(il_stepWorld);
     il_dir = il_dirToLocal(il_stepWorld / il_step);
+    il_initRay(il_dir);
     float il_xi = 0.5;
     if (il_jitter != 0)
     {
@@ -507,16 +615,16 @@ GLSL_RAY_INIT = """//VTK::Shading::Init
 GLSL_SAMPLE = """
     if (!g_skip)
     {
-      vec3 il_p = il_toLocal((in_volumeMatrix[0] * in_textureDatasetMatrix[0] *
-        vec4(g_dataPos, 1.0)).xyz);
+      vec3 il_p = (il_texToLocal * vec4(g_dataPos, 1.0)).xyz;
       vec3 il_tol = 1.0e-5 * il_extent;
       bool il_inside = all(greaterThanEqual(il_p, -il_tol)) &&
         all(lessThanEqual(il_p, il_extent + il_tol));
-      vec4 il_opt = il_inside ? il_optics(il_scalar(il_p)) : vec4(0.0);
-      if (il_opt.a > 0.0)
+      float il_s = il_inside ? il_scalar(il_p) : 0.0;
+      float il_sigma = il_inside ? il_sigmaT(il_s) : 0.0;
+      if (il_sigma > 0.0)
       {
-        float il_alpha = 1.0 - exp(-il_opt.a * il_step);
-        vec3 il_src = il_exposure * il_source(il_p, il_dir, il_opt.rgb);
+        float il_alpha = 1.0 - exp(-il_sigma * il_step);
+        vec3 il_src = il_exposure * il_source(il_p, il_dir, il_color(il_s));
         g_fragColor.rgb += ((1.0 - g_fragColor.a) * il_alpha) * il_src;
         g_fragColor.a += (1.0 - g_fragColor.a) * il_alpha;
       }
@@ -524,11 +632,19 @@ GLSL_SAMPLE = """
 """
 
 
-def glsl_layout_dec(max_lights: int = MAX_LIGHTS) -> str:
-    """:data:`GLSL_LAYOUT_DEC` with this mapper's port numbers filled in."""
+def glsl_layout_dec(max_lights: int = MAX_LIGHTS, phong: bool = True) -> str:
+    """:data:`GLSL_LAYOUT_DEC` with this mapper's port numbers filled in.
+
+    ``phong``: compile the diffuse and specular terms (``IL_PHONG``; without them the
+    shader takes ``S = ka`` and never computes a gradient).
+    """
     ports = {"data": DATA_PORT, "opt": OPTICS_PORT, "ta": DIRECT_PORT_A, "tb": DIRECT_PORT_B,
              "sc": SCATTERED_PORT}
-    values = {"max_lights": int(max_lights), **ports}
+    shift = int(OPTICS_ROW).bit_length() - 1
+    if 1 << shift != OPTICS_ROW:
+        raise ValueError("OPTICS_ROW must be a power of two")
+    values = {"max_lights": int(max_lights), "row": OPTICS_ROW, "shift": shift,
+              "phong": int(bool(phong)), **ports}
     values.update({f"{k}4": 4 * v for k, v in ports.items()})
     return GLSL_LAYOUT_DEC % values
 
@@ -607,8 +723,8 @@ class IlluminatedVolume(vtkMultiVolume):
             self.SetVolume(volume, port)
             self.volumes.append(volume)
         shader = self.GetShaderProperty()
-        shader.AddFragmentShaderReplacement("//VTK::Shading::Dec", True,
-                                            glsl_layout_dec() + GLSL_SHADING_DEC, False)
+        self._phong = None
+        self._set_shader_declarations(phong=False)
         shader.AddFragmentShaderReplacement("//VTK::Shading::Init", True, GLSL_RAY_INIT, False)
         shader.AddFragmentShaderReplacement("//VTK::Shading::Impl", True, GLSL_SAMPLE, False)
         self.inputs.uniforms = shader.GetFragmentCustomUniforms()
@@ -642,6 +758,8 @@ class IlluminatedVolume(vtkMultiVolume):
                 f"the OpenGL mapper takes at most {MAX_LIGHTS} lights, the scene has "
                 f"{len(scene.lights)}; render with the compute path (ComputeVolumeRenderer)"
             )
+        _, kd, ks, _ = shading_terms(scene.shading)
+        self._set_shader_declarations(phong=kd > 0 or ks > 0)
         grid = self._grid_summary()
         apply_scene_to_volume_property(scene, grid, self.volumes[DATA_PORT].GetProperty())
         self.mapper.SetSampleDistance(scene.resolved_step_size(grid))
@@ -650,6 +768,14 @@ class IlluminatedVolume(vtkMultiVolume):
         self.Modified()
         if self._ready:
             self.check()
+
+    def _set_shader_declarations(self, phong: bool) -> None:
+        """(Re)declare the shader functions; a change of ``phong`` recompiles the shader."""
+        if phong == self._phong:
+            return
+        self._phong = bool(phong)
+        self.GetShaderProperty().AddFragmentShaderReplacement(
+            "//VTK::Shading::Dec", True, glsl_layout_dec(phong=phong) + GLSL_SHADING_DEC, False)
 
     @property
     def lights(self) -> list:

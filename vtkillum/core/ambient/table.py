@@ -71,14 +71,34 @@ Storage
 ``FORMAT_VERSION``; the radiance is stored as float16 ``ln L̃o`` (relative
 quantisation error ≤ 0.4 % down to ``L̃o ≈ e⁻¹⁶``, below the Monte-Carlo error of
 a few thousand paths) and the relative standard error as float16.
-:func:`load_table` finds the shipped table for ``Λ = 0.9``
-(``vtkillum/data/ambient_table_a0.9.npz``) or a cached one for another albedo,
-and generates a missing one on demand (with a progress bar).
+:func:`load_table` finds, in this order: a table for exactly that albedo (the shipped
+``Λ = 0.9`` one, ``vtkillum/data/ambient_table_a0.9.npz``, or one in the cache folder);
+the **multi-albedo table** (:class:`AlbedoTables`, ``vtkillum/data/ambient_tables_albedo.npz``
+or the cache folder), interpolated to the albedo asked for (no waiting); and only when
+neither is there, a table generated on demand (minutes on a CPU, with a progress bar)
+and cached.
+
+Multi-albedo table
+------------------
+One file holds tables of the same axes at the albedos :data:`ALBEDO_NODES`
+(``ln L̃o`` and the relative error as float16, ``T̃`` as float32, per albedo). Between two
+albedos ``L̃o`` and ``T̃`` are interpolated geometrically (linearly in ``ln``, linearly in
+``Λ``; linearly where an entry is 0); below the first albedo towards the exact table of
+``Λ = 0`` (``L̃o = U``, ``T̃ = e^(-2σ̃t)``: nothing scatters). On test tables generated at
+0.5 ... 1.0 this interpolation over gaps of 0.2 (at 0.6), 0.1 (at 0.8, 0.85) and 0.03
+(0.975) left errors at the Monte-Carlo noise of the tables (L1 1-3 %), better than a
+linear blend of ``L̃o`` (2-5 %) or interpolation in ``ln(1 - Λ)``.
 
 Command line (prints the generation time and the Monte-Carlo error)::
 
     python -m vtkillum.core.ambient.table --device cuda --albedo 0.9 \\
         --theta 256 --sigma 256 --g 19 --samples 16384 --out table.npz
+    # the multi-albedo file (8 albedos, 128 x 128 x 19, a few MiB):
+    python -m vtkillum.core.ambient.table --device cuda --albedos default \\
+        --out vtkillum/data/ambient_tables_albedo.npz
+
+Generation runs in launches of at most :data:`PATHS_PER_LAUNCH` paths (about a second
+on a CPU), so Ctrl-C stops it promptly (nothing is written then).
 """
 
 from __future__ import annotations
@@ -112,8 +132,9 @@ PAPER_SHAPE = (256, 256, 19)
 ON_DEMAND = {"n_theta": 64, "n_sigma": 64, "n_g": 19, "samples": 512}
 #: Interactions after which a path is cut (see the module docstring).
 MAX_EVENTS = 4096
-#: Paths traced per kernel launch (one launch is one progress step).
-PATHS_PER_LAUNCH = {"cpu": 1 << 21, "cuda": 1 << 27}
+#: Paths traced per kernel launch at most (one launch is one progress step; on the CPU
+#: about a second, so that Ctrl-C, seen between launches, stops a generation promptly).
+PATHS_PER_LAUNCH = {"cpu": 1 << 19, "cuda": 1 << 27}
 #: The front transmittance of each (σ̃t, g) gets ``samples * ceil(n_theta / this)`` paths.
 FRONT_THREAD_DIVISOR = 8
 #: Salt of the per-launch seeds (see :func:`~vtkillum.core.warp_common.stream_seed`).
@@ -123,6 +144,17 @@ ERROR_FLOOR = 1.0e-4
 
 DATA_DIR = Path(__file__).resolve().parents[2] / "data"
 CACHE_ENV = "VTKILLUM_CACHE_DIR"
+
+#: Albedos of the shipped multi-albedo file (:data:`ALBEDOS_FILENAME`): dense towards 1,
+#: where multiple scattering grows fastest. Below the first, the table is interpolated
+#: towards the exact albedo-0 table (:func:`albedo_zero_table`).
+ALBEDO_NODES = (0.5, 0.7, 0.8, 0.9, 0.95, 0.98, 0.99, 1.0)
+#: Resolution and paths per entry of each albedo of that file (a few MiB in all).
+ALBEDOS_SHAPE = {"n_theta": 128, "n_sigma": 128, "n_g": 19, "samples": 131072}
+#: File name of the multi-albedo table (in the package's data folder or the cache).
+ALBEDOS_FILENAME = "ambient_tables_albedo.npz"
+#: Version of the multi-albedo ``.npz`` layout.
+ALBEDOS_FORMAT_VERSION = 1
 
 
 @dataclass
@@ -356,6 +388,212 @@ class PreintegrationTable:
                        seed=int(data["seed"]), info=json.loads(str(data["info"])))
 
 
+# --- several albedos ------------------------------------------------------------------------------
+def albedo_zero_table(like: PreintegrationTable) -> PreintegrationTable:
+    """The exact table of albedo 0 on ``like``'s axes: ``L̃o = U`` (:func:`unscattered`),
+    ``T̃ = e^(-2σ̃t)``, no Monte-Carlo error."""
+    th, sg, gg = np.meshgrid(like.theta, like.sigma, like.g, indexing="ij")
+    radiance = unscattered(th, sg, gg)
+    trans = np.broadcast_to(np.exp(-2.0 * like.sigma)[:, None], (like.sigma.size, like.g.size))
+    return PreintegrationTable(radiance, np.zeros_like(radiance), like.theta, like.sigma,
+                               like.g, 0.0, like.samples, trans, np.zeros_like(trans),
+                               like.seed, {"exact": "albedo 0: unscattered light only"})
+
+
+def _geometric(a: np.ndarray, b: np.ndarray, w: float) -> np.ndarray:
+    """``a^(1-w) b^w`` where both are > 0, ``(1-w) a + w b`` elsewhere (float64)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    out = (1 - w) * a + w * b
+    positive = (a > 0) & (b > 0)
+    with np.errstate(divide="ignore"):
+        geo = np.exp((1 - w) * np.log(np.where(positive, a, 1.0))
+                     + w * np.log(np.where(positive, b, 1.0)))
+    out[positive] = geo[positive]
+    return out
+
+
+def interpolate_albedo(lo: PreintegrationTable, hi: PreintegrationTable,
+                       albedo: float) -> PreintegrationTable:
+    """The table at ``albedo`` between two tables of the same axes (module docstring:
+    geometric in ``L̃o`` and ``T̃``, linear in ``Λ``; errors blended linearly)."""
+    if lo.shape != hi.shape or not (np.array_equal(lo.theta, hi.theta)
+                                    and np.array_equal(lo.sigma, hi.sigma)
+                                    and np.array_equal(lo.g, hi.g)):
+        raise ValueError("tables of different axes cannot be interpolated")
+    albedo = float(albedo)
+    if hi.albedo == lo.albedo:
+        w = 0.0
+    else:
+        w = float(np.clip((albedo - lo.albedo) / (hi.albedo - lo.albedo), 0.0, 1.0))
+    if w == 0.0 and albedo == lo.albedo:
+        return lo
+    if w == 1.0 and albedo == hi.albedo:
+        return hi
+    radiance = _geometric(lo.radiance, hi.radiance, w)
+    trans = _geometric(lo.transmittance, hi.transmittance, w)
+    info = {"interpolated": f"albedo {albedo:g} between the tables of {lo.albedo:g} and "
+                            f"{hi.albedo:g}", "sources": [lo.info, hi.info]}
+    samples = min(t.samples for t in (lo, hi) if t.albedo > 0) if max(lo.albedo, hi.albedo) > 0 \
+        else lo.samples
+    return PreintegrationTable(
+        radiance, (1 - w) * lo.rel_stderr + w * hi.rel_stderr, lo.theta, lo.sigma, lo.g,
+        albedo, samples, trans,
+        (1 - w) * lo.transmittance_stderr + w * hi.transmittance_stderr, lo.seed, info)
+
+
+class AlbedoTables:
+    """Preintegration tables of the same axes at several albedos, interpolated between.
+
+    Parameters
+    ----------
+    tables : sequence of PreintegrationTable
+        One per albedo (distinct albedos, the same θ, σ̃t and g axes).
+
+    Examples
+    --------
+    >>> stack = AlbedoTables.load(DATA_DIR / ALBEDOS_FILENAME)   # doctest: +SKIP
+    >>> stack.at(0.93).albedo                                    # doctest: +SKIP
+    0.93
+    """
+
+    def __init__(self, tables) -> None:
+        tables = sorted(tables, key=lambda t: t.albedo)
+        if not tables:
+            raise ValueError("AlbedoTables needs at least one table")
+        first = tables[0]
+        for t in tables[1:]:
+            if t.shape != first.shape or not (np.allclose(t.theta, first.theta)
+                                              and np.allclose(t.sigma, first.sigma)
+                                              and np.allclose(t.g, first.g)):
+                raise ValueError(f"the table of albedo {t.albedo:g} has other axes than the "
+                                 f"one of albedo {first.albedo:g}")
+        albedos = [t.albedo for t in tables]
+        if len(set(albedos)) != len(albedos):
+            raise ValueError(f"albedos must be distinct, got {albedos}")
+        self.tables = tables
+
+    @property
+    def albedos(self) -> np.ndarray:
+        return np.array([t.albedo for t in self.tables])
+
+    @property
+    def shape(self) -> tuple[int, int, int]:
+        return self.tables[0].shape
+
+    def covers(self, albedo: float) -> bool:
+        """Whether ``albedo`` lies in [0, the largest albedo] (below the first, the exact
+        albedo-0 table is the other end of the interpolation)."""
+        return 0.0 <= float(albedo) <= float(self.albedos[-1]) + 1e-9
+
+    def at(self, albedo: float) -> PreintegrationTable:
+        """The table at ``albedo`` (interpolated; a tabulated albedo is returned as is)."""
+        albedo = float(albedo)
+        if not self.covers(albedo):
+            raise ValueError(f"albedo {albedo:g} is outside the tables' range [0, "
+                             f"{self.albedos[-1]:g}]")
+        a = self.albedos
+        exact = np.flatnonzero(np.abs(a - albedo) <= 1e-9)
+        if exact.size:
+            return self.tables[int(exact[0])]
+        if albedo < a[0]:
+            return interpolate_albedo(albedo_zero_table(self.tables[0]), self.tables[0], albedo)
+        k = int(np.searchsorted(a, albedo)) - 1
+        return interpolate_albedo(self.tables[k], self.tables[k + 1], albedo)
+
+    # --- files ---------------------------------------------------------------------------------
+    def save(self, path) -> Path:
+        """Write one compressed ``.npz``.
+
+        Per albedo: ``ln L̃o`` as float16 (its low and high bytes stored apart, which
+        deflate compresses a third better), the relative error in per mille as uint8
+        (255: 25.5 % or more), ``T̃`` and its error as float32.
+        """
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        radiance = np.stack([t.radiance for t in self.tables]).astype(np.float64)
+        with np.errstate(divide="ignore"):
+            log_l = np.log(radiance)
+        first = self.tables[0]
+        tmp = path.with_name(f".{path.name}.tmp.npz")
+        rel = np.stack([t.rel_stderr for t in self.tables]).astype(np.float64)
+        np.savez_compressed(
+            tmp,
+            albedos_format_version=np.int32(ALBEDOS_FORMAT_VERSION),
+            albedos=self.albedos,
+            log_radiance_bytes=_split_bytes(log_l.astype(np.float16)),
+            rel_stderr_permille=np.clip(np.round(1000 * rel), 0, 255).astype(np.uint8),
+            theta=first.theta, sigma=first.sigma, g=first.g,
+            samples=np.array([t.samples for t in self.tables], np.int64),
+            seeds=np.array([t.seed for t in self.tables], np.int64),
+            info=np.array(json.dumps([t.info for t in self.tables])),
+            transmittance=np.stack([t.transmittance for t in self.tables]).astype(np.float32),
+            transmittance_stderr=np.stack([t.transmittance_stderr for t in self.tables])
+            .astype(np.float32),
+        )
+        os.replace(tmp, path)
+        return path
+
+    @classmethod
+    def load(cls, path) -> "AlbedoTables":
+        """Read a multi-albedo file written by :meth:`save`."""
+        path = Path(path)
+        try:
+            data = np.load(path, allow_pickle=False)
+        except FileNotFoundError:
+            raise FileNotFoundError(f"multi-albedo table {path} does not exist") from None
+        except Exception as err:
+            raise ValueError(f"{path} is not a readable .npz table ({err})") from err
+        with data:
+            needed = {"albedos_format_version", "albedos", "log_radiance_bytes",
+                      "rel_stderr_permille", "theta",
+                      "sigma", "g", "samples", "seeds", "info", "transmittance",
+                      "transmittance_stderr"}
+            missing = needed - set(data.files)
+            if missing:
+                raise ValueError(f"{path}: not a multi-albedo ambient-scattering table (missing "
+                                 f"{sorted(missing)})")
+            version = int(data["albedos_format_version"])
+            if version != ALBEDOS_FORMAT_VERSION:
+                raise ValueError(f"{path}: multi-albedo format version {version}, this vtkillum "
+                                 f"reads version {ALBEDOS_FORMAT_VERSION}; regenerate it with "
+                                 f"python -m vtkillum.core.ambient.table --albedos default "
+                                 f"--out {path}")
+            infos = json.loads(str(data["info"]))
+            log_l = _join_bytes(data["log_radiance_bytes"], np.float16)
+            rel = data["rel_stderr_permille"].astype(np.float32) / 1000
+            tables = []
+            for n, albedo in enumerate(data["albedos"]):
+                tables.append(PreintegrationTable(
+                    radiance=np.exp(log_l[n].astype(np.float64)),
+                    rel_stderr=rel[n],
+                    theta=data["theta"], sigma=data["sigma"], g=data["g"],
+                    albedo=float(albedo), samples=int(data["samples"][n]),
+                    transmittance=data["transmittance"][n],
+                    transmittance_stderr=data["transmittance_stderr"][n],
+                    seed=int(data["seeds"][n]), info=dict(infos[n], file=str(path))))
+        return cls(tables)
+
+
+def _split_bytes(values: np.ndarray) -> np.ndarray:
+    """``(itemsize,) + shape`` uint8: byte ``k`` of every value in plane ``k``."""
+    v = np.ascontiguousarray(values)
+    return np.moveaxis(v.view(np.uint8).reshape(v.shape + (v.dtype.itemsize,)), -1, 0).copy()
+
+
+def _join_bytes(planes: np.ndarray, dtype) -> np.ndarray:
+    """Inverse of :func:`_split_bytes`."""
+    return np.ascontiguousarray(np.moveaxis(planes, 0, -1)).view(dtype)[..., 0]
+
+
+def generate_albedo_tables(albedos=ALBEDO_NODES, progress=True, **kwargs) -> AlbedoTables:
+    """:func:`generate_table` at each albedo (same axes, seed and samples)."""
+    albedos = [float(a) for a in albedos]
+    if not albedos:
+        raise ValueError("albedos: give at least one albedo")
+    return AlbedoTables([generate_table(albedo=a, progress=progress, **kwargs) for a in albedos])
+
+
 # --- generation -----------------------------------------------------------------------------------
 def table_axes(n_theta: int = 256, n_sigma: int = 256, n_g: int = 19,
                sigma_max: float = SIGMA_MAX, g_max: float = G_MAX):
@@ -431,24 +669,41 @@ def generate_table(albedo: float = 0.9, n_theta: int = 256, n_sigma: int = 256, 
     d_sq = wp.zeros(n_entries, dtype=wp.float64, device=device)
     d_passed = wp.zeros(n_front * reps, dtype=wp.float64, device=device)
 
+    # Launches are bounded to PATHS_PER_LAUNCH paths: a pass of `per_launch` paths per
+    # entry is split into chunks of entries, so that on the CPU one launch takes about a
+    # second and Ctrl-C (seen between launches) stops the generation promptly. Entry e
+    # of pass k always uses rand_init(stream_seed(seed, k), e): chunking does not change
+    # the table.
     budget = PATHS_PER_LAUNCH["cpu" if device == "cpu" else "cuda"]
     per_launch = int(max(1, min(samples, budget // max(n_entries, 1))))
-    n_launches = (samples + per_launch - 1) // per_launch
+    n_passes = (samples + per_launch - 1) // per_launch
+    chunk = max(1, budget // per_launch)
+    entry_chunks = [(a, min(a + chunk, n_entries)) for a in range(0, n_entries, chunk)]
+    n_threads = n_front * reps
+    front_chunks = [(a, min(a + chunk, n_threads)) for a in range(0, n_threads, chunk)]
+    n_launches = n_passes * (len(entry_chunks) + len(front_chunks))
     report = _progress_reporter(progress, n_launches, f"ambient table (albedo {albedo:g})")
     t0 = time.perf_counter()
     done = 0
-    for launch in range(n_launches):
+    launched = 0
+    for launch in range(n_passes):
         paths = min(per_launch, samples - done)
         launch_seed = stream_seed(seed, launch, LAUNCH_SALT)
-        wp.launch(preintegration_kernel, dim=n_entries,
-                  inputs=[d_theta, d_sigma, d_g, float(albedo), launch_seed, paths, MAX_EVENTS,
-                          d_sum, d_sq], device=device)
-        wp.launch(front_transmittance_kernel, dim=n_front * reps,
-                  inputs=[d_sigma, d_g, reps, float(albedo), launch_seed ^ 0x5BD1E995, paths,
-                          MAX_EVENTS, d_passed], device=device)
-        wp.synchronize_device(device)
+        for a, b in entry_chunks:
+            wp.launch(preintegration_kernel, dim=b - a,
+                      inputs=[d_theta, d_sigma, d_g, float(albedo), launch_seed, paths,
+                              MAX_EVENTS, a, d_sum, d_sq], device=device)
+            wp.synchronize_device(device)
+            launched += 1
+            report(launched)
+        for a, b in front_chunks:
+            wp.launch(front_transmittance_kernel, dim=b - a,
+                      inputs=[d_sigma, d_g, reps, float(albedo), launch_seed ^ 0x5BD1E995, paths,
+                              MAX_EVENTS, a, d_passed], device=device)
+            wp.synchronize_device(device)
+            launched += 1
+            report(launched)
         done += paths
-        report(launch + 1)
         if max_seconds is not None and time.perf_counter() - t0 > max_seconds and done >= 2:
             break
     report(None)
@@ -560,9 +815,26 @@ def cache_dir() -> Path:
 _LOADED: dict = {}
 
 
+def albedo_tables_paths() -> list[Path]:
+    """Where a multi-albedo file is looked for: the package's data folder, then the cache."""
+    return [DATA_DIR / ALBEDOS_FILENAME, cache_dir() / ALBEDOS_FILENAME]
+
+
+def load_albedo_tables() -> AlbedoTables | None:
+    """The multi-albedo tables (shipped, else cached), or ``None`` when there is none."""
+    for candidate in albedo_tables_paths():
+        if candidate.exists():
+            key = ("albedos", str(candidate.resolve()))
+            if key not in _LOADED:
+                _LOADED[key] = AlbedoTables.load(candidate)
+            return _LOADED[key]
+    return None
+
+
 def load_table(albedo: float = 0.9, path=None, generate: bool = True, device: str | None = None,
                progress=True) -> PreintegrationTable:
-    """The table for ``albedo``: shipped, cached, or generated now and cached.
+    """The table for ``albedo``: its own file, interpolated from the multi-albedo file,
+    or (only when neither exists) generated now and cached.
 
     Parameters
     ----------
@@ -571,8 +843,9 @@ def load_table(albedo: float = 0.9, path=None, generate: bool = True, device: st
     path : str or Path, optional
         Load exactly this file instead (its albedo is not checked against ``albedo``).
     generate : bool
-        Generate a missing table (``ON_DEMAND`` resolution and paths) and store it in
-        :func:`cache_dir`; otherwise a missing table raises ``FileNotFoundError``.
+        Generate a table that is neither shipped, cached nor covered by the multi-albedo
+        file (``ON_DEMAND`` resolution and paths) and store it in :func:`cache_dir`;
+        otherwise that raises ``FileNotFoundError``.
     device, progress
         As for :func:`generate_table`.
     """
@@ -596,15 +869,24 @@ def load_table(albedo: float = 0.9, path=None, generate: bool = True, device: st
                                  "delete it so that it is regenerated")
             _LOADED[key] = table
             return table
+    stack = load_albedo_tables()
+    if stack is not None and stack.covers(albedo):
+        table = _LOADED[key] = stack.at(albedo)
+        return table
+    command = (f"python -m vtkillum.core.ambient.table --albedo {albedo:g} "
+               f"--out {cache_dir() / table_filename(albedo)}")
     if not generate:
         raise FileNotFoundError(
-            f"no ambient-scattering table for albedo {albedo:g} in {DATA_DIR} or {cache_dir()}; "
-            f"generate one with python -m vtkillum.core.ambient.table --albedo {albedo:g} "
-            f"--out {cache_dir() / table_filename(albedo)}"
-        )
+            f"no ambient-scattering table for albedo {albedo:g} in {DATA_DIR} or {cache_dir()} "
+            f"(neither its own file nor {ALBEDOS_FILENAME}); generate one with {command}")
     sys.stderr.write(f"vtkillum: generating the ambient-scattering table for albedo {albedo:g} "
-                     f"(once; cached in {cache_dir()})\n")
-    table = generate_table(albedo=albedo, device=device, progress=progress, **ON_DEMAND)
+                     f"(once; cached in {cache_dir()}; no {ALBEDOS_FILENAME} is installed to "
+                     "interpolate from)\n")
+    try:
+        table = generate_table(albedo=albedo, device=device, progress=progress, **ON_DEMAND)
+    except KeyboardInterrupt:
+        sys.stderr.write("vtkillum: table generation interrupted; nothing cached\n")
+        raise
     try:
         # reloaded so that this session sees the same (float16-stored) values as later ones
         table = PreintegrationTable.load(table.save(cache_dir() / table_filename(albedo)))
@@ -612,6 +894,28 @@ def load_table(albedo: float = 0.9, path=None, generate: bool = True, device: st
         sys.stderr.write(f"vtkillum: could not cache the table ({err})\n")
     _LOADED[key] = table
     return table
+
+
+def describe_tables() -> list[str]:
+    """One line per table file found (what ``vtkillum info`` prints)."""
+    lines = []
+    for folder, where in ((DATA_DIR, "shipped"), (cache_dir(), "cached")):
+        for f in sorted(folder.glob("ambient_table_a*.npz")) if folder.exists() else []:
+            lines.append(f"albedo {f.name[len('ambient_table_a'):-4]}: {f} ({where})")
+        stack_file = folder / ALBEDOS_FILENAME
+        if stack_file.exists():
+            try:
+                stack = AlbedoTables.load(stack_file)
+                albedos = ", ".join(f"{a:g}" for a in stack.albedos)
+                lines.append(f"albedos {albedos} ({'x'.join(map(str, stack.shape))}), any "
+                             f"albedo in [0, {stack.albedos[-1]:g}] interpolated: {stack_file} "
+                             f"({where})")
+            except (OSError, ValueError) as err:
+                lines.append(f"{stack_file}: unreadable ({err})")
+    if not any("albedos" in line for line in lines):
+        lines.append(f"no multi-albedo table ({ALBEDOS_FILENAME}): albedos without their own "
+                     "table are generated on first use (minutes on a CPU)")
+    return lines
 
 
 # --- kernels --------------------------------------------------------------------------------------
@@ -642,14 +946,15 @@ def absorb_or_scatter(d: wp.vec3, g: float, albedo: float, state: wp.uint32):
 @wp.kernel
 def preintegration_kernel(theta: wp.array(dtype=wp.float32), sigma: wp.array(dtype=wp.float32),
                           g: wp.array(dtype=wp.float32), albedo: float, seed: int, paths: int,
-                          max_events: int, total: wp.array(dtype=wp.float64),
+                          max_events: int, first: int, total: wp.array(dtype=wp.float64),
                           total_sq: wp.array(dtype=wp.float64)):
     """Trace ``paths`` paths for one table entry and add their sum and sum of squares.
 
-    ``wp.tid()`` indexes the entries with θ fastest: ``tid = (ig * n_sigma + isig) * n_theta
-    + it``. Units: the sphere has radius 1, ``sigma`` is its extinction (1/radius).
+    ``first + wp.tid()`` indexes the entries with θ fastest: ``tid = (ig * n_sigma + isig)
+    * n_theta + it`` (a launch covers a chunk of entries starting at ``first``). Units: the
+    sphere has radius 1, ``sigma`` is its extinction (1/radius).
     """
-    tid = wp.tid()
+    tid = first + wp.tid()
     n_t = theta.shape[0]
     n_s = sigma.shape[0]
     it = tid % n_t
@@ -692,16 +997,17 @@ def preintegration_kernel(theta: wp.array(dtype=wp.float32), sigma: wp.array(dty
 @wp.kernel
 def front_transmittance_kernel(sigma: wp.array(dtype=wp.float32), g: wp.array(dtype=wp.float32),
                                threads_per_entry: int, albedo: float, seed: int, paths: int,
-                               max_events: int, passed: wp.array(dtype=wp.float64)):
+                               max_events: int, first: int, passed: wp.array(dtype=wp.float64)):
     """Trace ``paths`` photons along the unit sphere's axis; count those leaving through z > 0.
 
-    ``wp.tid()`` indexes ``(ig * n_sigma + isig) * threads_per_entry + rep``: each (σ̃t, g)
+    ``first + wp.tid()`` indexes ``(ig * n_sigma + isig) * threads_per_entry + rep`` (a
+    launch covers a chunk of threads starting at ``first``): each (σ̃t, g)
     entry is shared by ``threads_per_entry`` threads whose counts the host adds up.
     Photons enter at the south pole ``(0, 0, -1)`` travelling along ``+z`` (the front's
     centre line, the path of eq. 16's θ = 0 look-up); one counts 1 when it leaves the
     sphere through the far hemisphere.
     """
-    tid = wp.tid()
+    tid = first + wp.tid()
     n_s = sigma.shape[0]
     entry = tid // threads_per_entry
     isg = entry % n_s
@@ -736,13 +1042,21 @@ def main(argv=None) -> int:
                     "(Ament et al. 2013, section 4.1) and write it as .npz.")
     ap.add_argument("--device", default=None, help="warp device: cpu, cuda, cuda:N (default auto)")
     ap.add_argument("--albedo", type=float, default=0.9, help="albedo inside the sphere")
-    ap.add_argument("--theta", type=int, default=PAPER_SHAPE[0], help="theta samples in [0, pi]")
-    ap.add_argument("--sigma", type=int, default=PAPER_SHAPE[1],
-                    help="extinction samples in [0, sigma-max]")
-    ap.add_argument("--g", type=int, default=PAPER_SHAPE[2], help="g samples in [-g-max, g-max]")
+    ap.add_argument("--albedos", default=None,
+                    help="write a multi-albedo file instead: comma-separated albedos, or "
+                         f"'default' ({', '.join(f'{a:g}' for a in ALBEDO_NODES)} at "
+                         f"{ALBEDOS_SHAPE['n_theta']} theta x {ALBEDOS_SHAPE['n_sigma']} sigma "
+                         f"x {ALBEDOS_SHAPE['n_g']} g, {ALBEDOS_SHAPE['samples']} paths per "
+                         "entry, unless --theta/--sigma/--g/--samples are given)")
+    ap.add_argument("--theta", type=int, default=None,
+                    help=f"theta samples in [0, pi] (default {PAPER_SHAPE[0]})")
+    ap.add_argument("--sigma", type=int, default=None,
+                    help=f"extinction samples in [0, sigma-max] (default {PAPER_SHAPE[1]})")
+    ap.add_argument("--g", type=int, default=None,
+                    help=f"g samples in [-g-max, g-max] (default {PAPER_SHAPE[2]})")
     ap.add_argument("--sigma-max", type=float, default=SIGMA_MAX)
     ap.add_argument("--g-max", type=float, default=G_MAX)
-    ap.add_argument("--samples", type=int, default=1024, help="paths per entry")
+    ap.add_argument("--samples", type=int, default=None, help="paths per entry (default 1024)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--max-seconds", type=float, default=None,
                     help="stop early after this wall time (records the paths traced)")
@@ -751,10 +1065,19 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     device = resolve_device(args.device)
     name = wp.get_device(device).name if device != "cpu" else "cpu"
-    table = generate_table(albedo=args.albedo, n_theta=args.theta, n_sigma=args.sigma,
-                           n_g=args.g, samples=args.samples, seed=args.seed, device=device,
-                           progress=not args.quiet, sigma_max=args.sigma_max, g_max=args.g_max,
-                           max_seconds=args.max_seconds)
+    if args.albedos is not None:
+        return _main_albedos(args, device, name)
+    try:
+        table = generate_table(albedo=args.albedo, n_theta=args.theta or PAPER_SHAPE[0],
+                               n_sigma=args.sigma or PAPER_SHAPE[1],
+                               n_g=args.g or PAPER_SHAPE[2], samples=args.samples or 1024,
+                               seed=args.seed, device=device, progress=not args.quiet,
+                               sigma_max=args.sigma_max, g_max=args.g_max,
+                               max_seconds=args.max_seconds)
+    except KeyboardInterrupt:
+        print("interrupted: no table written (--max-seconds stops early with a usable table)",
+              file=sys.stderr)
+        return 130
     table.info["device_name"] = name
     out = Path(args.out) if args.out else cache_dir() / table_filename(args.albedo)
     table.save(out)
@@ -771,6 +1094,48 @@ def main(argv=None) -> int:
     print(f"outgoing energy: {energy.max():.4f} max, at sigma_max {energy[-1].min():.4f}"
           f"-{energy[-1].max():.4f}; front transmittance stderr max "
           f"{table.transmittance_stderr.max():.2g}")
+    print(f"wrote {out} ({out.stat().st_size / 2**20:.2f} MiB)")
+    return 0
+
+
+def _main_albedos(args, device, name) -> int:
+    """``--albedos``: generate and write a multi-albedo file."""
+    if args.albedos.strip().lower() == "default":
+        albedos = list(ALBEDO_NODES)
+    else:
+        try:
+            albedos = [float(a) for a in args.albedos.split(",") if a.strip()]
+        except ValueError:
+            print(f"--albedos: expected comma-separated numbers or 'default', got "
+                  f"{args.albedos!r}", file=sys.stderr)
+            return 2
+    shape = dict(ALBEDOS_SHAPE)
+    for key, value in (("n_theta", args.theta), ("n_sigma", args.sigma), ("n_g", args.g),
+                       ("samples", args.samples)):
+        if value is not None:
+            shape[key] = value
+    start = time.perf_counter()
+    try:
+        stack = generate_albedo_tables(albedos, progress=not args.quiet, seed=args.seed,
+                                       device=device, sigma_max=args.sigma_max,
+                                       g_max=args.g_max, max_seconds=args.max_seconds,
+                                       **shape)
+    except KeyboardInterrupt:
+        print("interrupted: no table written", file=sys.stderr)
+        return 130
+    for table in stack.tables:
+        table.info["device_name"] = name
+    out = Path(args.out) if args.out else cache_dir() / ALBEDOS_FILENAME
+    stack.save(out)
+    print(f"tables {' x '.join(map(str, stack.shape))} (theta x sigma x g) at albedos "
+          f"{', '.join(f'{a:g}' for a in stack.albedos)}")
+    for table in stack.tables:
+        err = table.error_summary()
+        print(f"  albedo {table.albedo:g}: {table.samples} paths/entry, "
+              f"{table.info['seconds']:.1f} s, relative error median "
+              f"{100 * err['median_rel_stderr']:.2f} %, 95th pct "
+              f"{100 * err['p95_rel_stderr']:.2f} %")
+    print(f"device {device} ({name}): {time.perf_counter() - start:.1f} s in all")
     print(f"wrote {out} ({out.stat().st_size / 2**20:.2f} MiB)")
     return 0
 

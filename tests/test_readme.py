@@ -1,0 +1,126 @@
+"""The README runs as written: its code blocks, in order, in an empty directory, headless.
+
+How the blocks are run (documented in the README's first lines and its "Headless /
+servers / GPUs" section):
+
+* ``bash`` blocks run with ``bash -euo pipefail`` and ``python`` blocks with this
+  interpreter, all in one temporary directory (later blocks read what earlier ones
+  wrote), with ``VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow``,
+  ``PYVISTA_OFF_SCREEN=true`` and no ``DISPLAY``: the snippets end in a screenshot
+  (``vtkillum.mappers.window.show``, pyvista's ``show(screenshot=...)``) and open no window.
+  ``vtkillum`` is this checkout's command line (``python -m vtkillum.cli``).
+* Set-up commands are not run again, the test already runs in that environment: the
+  parts of a command chain that create or activate a virtual environment, ``pip install``
+  and ``bash .ci/run`` (which runs this test).
+* ParaView blocks (``LoadPlugin``, ``paraview_plugin/pvbatch_env.py``) need Debian's
+  ParaView and are covered by ``tests/plugin``.
+* ``json`` blocks must be valid scene files.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+
+SETUP = re.compile(r"^\s*(python3? -m venv\b|\. \.venv/bin/activate|source \.venv/bin/activate"
+                   r"|(python3? -m )?pip install\b|bash \.ci/run\b)")
+PARAVIEW = ("LoadPlugin(", "pvbatch_env.py", "pvpython", "pvbatch ")
+
+#: What the README's blocks must have written (file -> it is a picture to look at).
+OUTPUTS = {"demo.png": True, "head.nii.gz": False, "head.png": True, "head.json": False,
+           "head_exposure1.png": True, "plume.png": True, "head.npy": False,
+           "head.alpha.npy": False, "vtk.png": True, "head.vti": False, "pyvista.png": True}
+
+
+def blocks(text: str):
+    """``(language, code)`` of every fenced block, in order."""
+    return [(m.group(1), m.group(2)) for m in
+            re.finditer(r"^```(\w*)\n(.*?)^```", text, flags=re.DOTALL | re.MULTILINE)]
+
+
+def runnable_bash(code: str) -> str:
+    """The block without its set-up commands (see the module docstring)."""
+    lines = []
+    for line in code.splitlines():
+        parts = [p for p in line.split("&&") if not SETUP.match(p)]
+        if parts:
+            lines.append("&&".join(parts).strip())
+    return "\n".join(lines)
+
+
+def test_readme_has_no_paths_outside_the_repository():
+    text = README.read_text()
+    assert "../" not in text
+    for target in re.findall(r"\]\(([^)#][^)]*)\)", text):  # markdown links and images
+        if "://" not in target:
+            assert (ROOT / target).exists(), f"README links to {target}, which does not exist"
+
+
+def test_readme_blocks_run_as_written(tmp_path):
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    shim = bin_dir / "vtkillum"
+    shim.write_text(f'#!/bin/sh\nexec "{sys.executable}" -m vtkillum.cli "$@"\n')
+    shim.chmod(0o755)
+    work = tmp_path / "work"
+    work.mkdir()
+    env = dict(os.environ)
+    for name in ("DISPLAY", "WAYLAND_DISPLAY", "VTKILLUM_DEVICE"):
+        env.pop(name, None)
+    env.update(PATH=f"{bin_dir}{os.pathsep}{env.get('PATH', '')}",
+               PYTHONPATH=str(ROOT) + os.pathsep + env.get("PYTHONPATH", ""),
+               VTK_DEFAULT_OPENGL_WINDOW="vtkOSOpenGLRenderWindow",
+               PYVISTA_OFF_SCREEN="true", VTKILLUM_CACHE_DIR=str(tmp_path / "cache"))
+    ran = 0
+    for n, (language, code) in enumerate(blocks(README.read_text())):
+        if any(marker in code for marker in PARAVIEW):
+            continue
+        if language == "json":
+            from vtkillum.core.scene import Scene
+
+            Scene.from_dict(json.loads(code))
+            continue
+        if language == "bash":
+            command = ["bash", "-euo", "pipefail", "-c", runnable_bash(code)]
+        elif language == "python":
+            script = tmp_path / f"block{n}.py"
+            script.write_text(code)
+            command = [sys.executable, str(script)]
+        else:
+            continue
+        done = subprocess.run(command, cwd=work, env=env, capture_output=True, text=True,
+                              timeout=600, check=False)
+        assert done.returncode == 0, (f"README block {n} ({language}) failed:\n{code}\n"
+                                      f"--- stdout\n{done.stdout}\n--- stderr\n{done.stderr}")
+        for alarming in ("Warp CUDA warning", "bad X server", "Traceback"):
+            assert alarming not in done.stderr, f"block {n} printed {alarming!r}:\n{done.stderr}"
+        ran += 1
+    assert ran >= 8
+    from vtkillum.core.tonemap import read_png
+
+    for name, picture in OUTPUTS.items():
+        path = work / name
+        assert path.exists() and path.stat().st_size > 0, f"the README did not write {name}"
+        if picture:
+            rgb = read_png(path).astype(int)
+            assert (np.abs(rgb - rgb[0, 0]).max(-1) > 10).mean() > 0.05, f"{name} is blank"
+
+
+@pytest.mark.parametrize("line, expected", [
+    ("python3 -m venv .venv && . .venv/bin/activate && pip install . && vtkillum demo",
+     "vtkillum demo"),
+    ("bash .ci/run", ""),
+    ("vtkillum render a.vti -o b.png", "vtkillum render a.vti -o b.png"),
+])
+def test_setup_commands_are_left_out(line, expected):
+    assert runnable_bash(line) == expected
