@@ -1,124 +1,67 @@
-"""Render the README's VTK and pyvista pictures off screen, with the README's code.
+"""Render the README's VTK and pyvista pictures off screen, with the README's own code.
 
-    python examples/readme_pictures.py [--out docs/images] [--size 400]
+    python examples/readme_pictures.py [--out docs/images]
 
-Writes ``readme_vtk.png`` (the VTK section: a smoke plume lit by a
+Runs, in a temporary directory and without a display, the README's
+``vtkillum export builtin:ct -o head.vti`` command and its two Python blocks that
+write ``vtk.png`` (the VTK section: a smoke plume lit by a
 ``ConvectionDiffusionLightFilter`` through :class:`vtkillum.mappers.IlluminatedVolume`)
-and ``readme_pyvista.png`` (the pyvista section: the CT head phantom at 128³, smoothed by
-a Gaussian of one voxel like a scanner's point-spread function and standing in for
-``head.vti``, lit by ``grid.illum.transmittance`` and shown with
-``add_illuminated_volume``; unsmoothed, the phantom's voxelised skin shows terraces as
-contour rings, in ``single`` as much as here). The code between the ``README`` markers is the README's,
-except that the windows render off screen and are saved instead of shown.
+and ``pyvista.png`` (the pyvista section: the CT head phantom lit by
+``grid.illum.transmittance`` and shown with ``add_illuminated_volume``), exactly as the
+README has them (``tests/test_readme.py`` runs every block the same way), and copies
+the pictures to ``<out>/readme_vtk.png`` and ``<out>/readme_pyvista.png``.
 """
 
-# ruff: noqa: I001  (the README's code is kept as the README has it, imports included)
 from __future__ import annotations
 
 import argparse
 import os
+import re
+import shutil
+import subprocess
+import sys
 import tempfile
 from pathlib import Path
 
-os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")  # headless VTK
+ROOT = Path(__file__).resolve().parents[1]
+#: README picture -> the file it is copied to.
+PICTURES = {"vtk.png": "readme_vtk.png", "pyvista.png": "readme_pyvista.png"}
 
 
-def vtk_picture(path: Path, size: int) -> None:
-    # --- README (VTK) ---------------------------------------------------------------------
-    from vtkmodules.vtkRenderingCore import vtkRenderer, vtkRenderWindow
-    import vtkmodules.vtkRenderingVolumeOpenGL2  # noqa: F401  (the GPU volume mapper)
-    from vtkillum.data.procedural import smoke_plume, default_scene
-    from vtkillum.filters import ConvectionDiffusionLightFilter
-    from vtkillum.io.convert import image_data_from_volume
-    from vtkillum.mappers import IlluminatedVolume, apply_camera_to_vtk
-
-    volume = smoke_plume(shape=(48, 48, 72))
-    scene = default_scene("plume", volume)            # transfer function, g, lights, camera
-    image = image_data_from_volume(volume)            # or any reader's vtkImageData output
-
-    light = ConvectionDiffusionLightFilter()          # or LightTransmittanceFilter
-    light.SetInputData(image)
-    light.SetTransferFunction(scene.transfer_function)  # or SetColorTransferFunction/SetScalarOpacity
-    light.AddDirectionalLight((1, -1, -1), (3, 3, 3))
-    light.SetScattering(0.02, 0.02, 0.02)
-
-    renderer = vtkRenderer()
-    renderer.AddVolume(IlluminatedVolume(image, scene, illumination=light.GetOutputPort(),
-                                         exposure=4 * 3.14159 / 3))
-    apply_camera_to_vtk(scene.camera, renderer.GetActiveCamera())
-    window = vtkRenderWindow()
-    window.AddRenderer(renderer)
-    # --- end README (off screen instead of an interactor) -----------------------------------
-    window.SetOffScreenRendering(1)
-    window.SetSize(size, size)
-    renderer.ResetCameraClippingRange()
-    window.Render()
-    _save_window(window, path)
-    window.Finalize()
-
-
-def pyvista_picture(path: Path, size: int) -> None:
-    import pyvista as pv
-
-    from vtkillum.data.procedural import ct_phantom
-    from vtkillum.io.convert import image_data_from_volume
-
-    from scipy.ndimage import gaussian_filter
-
-    from vtkillum.core.volume import Volume
-
-    phantom = ct_phantom(128)
-    smooth = Volume(gaussian_filter(phantom.scalars, 1.0), spacing=phantom.spacing,
-                    origin=phantom.origin)
-    with tempfile.TemporaryDirectory() as tmp:
-        head = Path(tmp) / "head.vti"
-        pv.wrap(image_data_from_volume(smooth, "density")).save(head)
-        cwd = os.getcwd()
-        os.chdir(tmp)
-        try:
-            # --- README (pyvista) ---------------------------------------------------------
-            import pyvista as pv
-            import vtkillum
-
-            grid = pv.read("head.vti")                        # any pv.ImageData
-            lit = grid.illum.transmittance(vtkillum.DirectionalLight((1, -1, -1), (3, 3, 3)),
-                                           cmap="bone", opacity="linear")
-            pl = pv.Plotter(off_screen=True, window_size=(size, size))
-            pl.set_background("black")
-            vtkillum.add_illuminated_volume(pl, grid, illumination=lit, cmap="bone",
-                                            opacity="linear")
-            # --- end README (pl.show() replaced by a screenshot) ---------------------------
-            pl.screenshot(str(path.resolve() if path.is_absolute() else Path(cwd) / path))
-            pl.close()
-        finally:
-            os.chdir(cwd)
-
-
-def _save_window(window, path: Path) -> None:
-    from vtkmodules.vtkIOImage import vtkPNGWriter
-    from vtkmodules.vtkRenderingCore import vtkWindowToImageFilter
-
-    grab = vtkWindowToImageFilter()
-    grab.SetInput(window)
-    grab.SetInputBufferTypeToRGB()
-    grab.ReadFrontBufferOff()
-    grab.Update()
-    writer = vtkPNGWriter()
-    writer.SetFileName(str(path))
-    writer.SetInputConnection(grab.GetOutputPort())
-    writer.Write()
+def readme_blocks() -> list[tuple[str, str]]:
+    """``(language, code)`` of the README's fenced blocks, in order."""
+    text = (ROOT / "README.md").read_text()
+    return [(m.group(1), m.group(2)) for m in
+            re.finditer(r"^```(\w*)\n(.*?)^```", text, flags=re.DOTALL | re.MULTILINE)]
 
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", default="docs/images", help="directory for the pictures")
-    parser.add_argument("--size", type=int, default=400, help="width and height in pixels")
+    parser.add_argument("--out", default=str(ROOT / "docs" / "images"),
+                        help="directory for the pictures (default docs/images)")
     opts = parser.parse_args(argv)
     out = Path(opts.out)
     out.mkdir(parents=True, exist_ok=True)
-    vtk_picture(out / "readme_vtk.png", opts.size)
-    pyvista_picture(out / "readme_pyvista.png", opts.size)
-    print(f"wrote {out / 'readme_vtk.png'} and {out / 'readme_pyvista.png'}")
+    env = dict(os.environ, VTK_DEFAULT_OPENGL_WINDOW="vtkOSOpenGLRenderWindow",
+               PYVISTA_OFF_SCREEN="true",
+               PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    env.pop("DISPLAY", None)
+    export = [sys.executable, "-m", "vtkillum.cli", "export", "builtin:ct", "-o", "head.vti"]
+    with tempfile.TemporaryDirectory() as tmp:
+        subprocess.run(export, cwd=tmp, env=env, check=True)
+        for language, code in readme_blocks():
+            if language != "python" or not any(f'"{name}"' in code for name in PICTURES):
+                continue
+            script = Path(tmp) / "block.py"
+            script.write_text(code)
+            subprocess.run([sys.executable, str(script)], cwd=tmp, env=env, check=True)
+        for name, target in PICTURES.items():
+            source = Path(tmp) / name
+            if not source.exists():
+                print(f"the README's code did not write {name}", file=sys.stderr)
+                return 1
+            shutil.copyfile(source, out / target)
+            print(f"wrote {out / target}")
     return 0
 
 

@@ -202,6 +202,7 @@ def test_a_diverging_v_cycle_falls_back_to_the_best_iterate_and_gauss_seidel(dev
                 x.fill_(wp.vec3(float("nan"), float("nan"), float("nan")))
 
     monkeypatch.setattr(RadiativeDiffusion, "vcycle", flaky)
+    rd.graphs.enabled = False  # the fault is injected from Python: no replays of a capture
     x = wp.zeros(rd.shape, dtype=wp.vec3, device=device)
     report = rd.solve(q, x, 20000, 1e-6, cold=True)
     assert report.fallback and report.converged
@@ -209,3 +210,22 @@ def test_a_diverging_v_cycle_falls_back_to_the_best_iterate_and_gauss_seidel(dev
     dense = sigma > 0
     np.testing.assert_allclose(x.numpy()[dense], reference.numpy()[dense], rtol=2e-3,
                                atol=1e-3 * reference.numpy().max())
+
+
+def test_replayed_iterations_equal_launch_by_launch(device):
+    """The outer iterations and the nested start replay captured graphs
+    (:mod:`vtkillum.core.graphs`); the solution and the iteration count are those of the
+    same solve launched kernel by kernel."""
+    results = []
+    for enabled in (True, False):
+        rd, q, _ = random_scene(device, "levermore-pomraning", shape=(12, 10, 9))
+        rd.graphs.enabled = enabled
+        x = wp.zeros(rd.shape, dtype=wp.vec3, device=device)
+        first = rd.solve(q, x, 200, 1e-5, cold=True)
+        x2 = wp.clone(x)  # a second solve from there replays the recorded graphs
+        rd.solve(q, x2, 3, 1e-9)
+        results.append((first.iterations, x.numpy(), x2.numpy(), len(rd.graphs)))
+    (it_g, x_g, x2_g, n_graphs), (it_p, x_p, x2_p, _) = results
+    assert n_graphs >= 2 and it_g == it_p
+    np.testing.assert_allclose(x_g, x_p, rtol=1e-6, atol=1e-7 * np.abs(x_p).max())
+    np.testing.assert_allclose(x2_g, x2_p, rtol=1e-6, atol=1e-7 * np.abs(x2_p).max())

@@ -103,6 +103,7 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
+from vtkillum.core.graphs import array_key
 from vtkillum.core.lights import DIRECTIONAL, POINT
 from vtkillum.core.warp_common import grid_point
 
@@ -185,7 +186,8 @@ def sweep_plan(kind: int, vec, shape, spacing) -> SweepPlan:
 
 
 def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: float = 0.0,
-                  out: wp.array3d | None = None, scheme: str = "characteristics") -> wp.array3d:
+                  out: wp.array3d | None = None, scheme: str = "characteristics",
+                  graphs=None) -> wp.array3d:
     """Steady-state upwind transmittance of one light, exactly, in one ordered sweep.
 
     Parameters
@@ -205,6 +207,9 @@ def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: flo
         Where to write (same shape and device as ``sigma``); allocated when omitted.
     scheme : str
         ``"characteristics"`` (default), ``"exponential"`` or ``"upwind"`` (the paper's).
+    graphs : vtkillum.core.graphs.LaunchGraphs, optional
+        Replay the sweep (one launch per wavefront) from a captured graph, recorded once
+        per light, grid and arrays.
 
     Returns
     -------
@@ -226,15 +231,25 @@ def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: flo
         out = wp.empty(shape, dtype=wp.float32, device=device)
     secondary = [a for a in range(3) if a != plan.primary]
     dim = (shape[secondary[0]], shape[secondary[1]])
-    cmd = wp.launch(
-        upwind_sweep_kernel, dim=dim, device=device, record_cmd=True,
-        inputs=[sigma, out, 0, plan.primary, wp.vec3i(*plan.lo), wp.vec3i(*plan.hi),
-                wp.vec3i(*plan.inflow), int(kind), wp.vec3(*vec.astype(np.float32)),
-                wp.vec3(*spacing.astype(np.float32)), float(source_radius), scheme_id],
-    )
-    for m in range(plan.wavefronts):
-        cmd.set_param_at_index(2, m)
-        cmd.launch()
+    vec32 = vec.astype(np.float32)
+    spacing32 = spacing.astype(np.float32)
+
+    def sweep():
+        cmd = wp.launch(
+            upwind_sweep_kernel, dim=dim, device=device, record_cmd=True,
+            inputs=[sigma, out, 0, plan.primary, wp.vec3i(*plan.lo), wp.vec3i(*plan.hi),
+                    wp.vec3i(*plan.inflow), int(kind), wp.vec3(*vec32), wp.vec3(*spacing32),
+                    float(source_radius), scheme_id],
+        )
+        for m in range(plan.wavefronts):
+            cmd.set_param_at_index(2, m)
+            cmd.launch()
+
+    if graphs is None:
+        sweep()
+    else:
+        graphs.run(("convect", int(kind), tuple(vec32.tolist()), tuple(spacing32.tolist()),
+                    float(source_radius), scheme_id) + array_key(sigma, out), sweep)
     return out
 
 

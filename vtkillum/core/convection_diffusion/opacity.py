@@ -104,11 +104,12 @@ def light_grid_sigma(volume, transfer_function, unit_distance: float, shape,
 
 
 def light_grid_optics(volume, transfer_function, unit_distance: float, shape,
-                      device: str | None = None, medium: Medium | None = None):
+                      device: str | None = None, medium: Medium | None = None, out=None):
     """Mean extinction and mean ``color * sigma_t`` over each light-grid point's footprint.
 
     Parameters are those of :func:`light_grid_sigma` (the transfer function's colours
-    matter here).
+    matter here); ``out``, optional, is a ``(sigma, color_sigma)`` pair to overwrite
+    (kept across edits, so that captured launches that read them stay valid).
 
     Returns
     -------
@@ -123,8 +124,11 @@ def light_grid_optics(volume, transfer_function, unit_distance: float, shape,
         medium = make_medium(volume, transfer_function, unit_distance, device=device)
     h = light_grid_spacing(volume.extent, shape)
     sub = np.clip(np.ceil(h / volume.spacing - 1e-6), 1, MAX_SUBSAMPLES).astype(int)
-    sigma = wp.empty(tuple(shape), dtype=wp.float32, device=device)
-    color_sigma = wp.empty(tuple(shape), dtype=wp.vec3, device=device)
+    if out is not None and tuple(out[0].shape) == tuple(shape):
+        sigma, color_sigma = out
+    else:
+        sigma = wp.empty(tuple(shape), dtype=wp.float32, device=device)
+        color_sigma = wp.empty(tuple(shape), dtype=wp.vec3, device=device)
     wp.launch(light_grid_optics_kernel, dim=tuple(shape), device=device,
               inputs=[medium, wp.vec3(*h.astype(np.float32)), wp.vec3i(*sub), sigma,
                       color_sigma])

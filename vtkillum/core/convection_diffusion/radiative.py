@@ -148,6 +148,7 @@ import warp as wp
 from vtkillum.core.convection_diffusion.diffusion import DiffusionReport
 from vtkillum.core.convection_diffusion.multigrid import prolong_add_kernel, restrict_kernel
 from vtkillum.core.convection_diffusion.stencil import add_channels, sum_squares_kernel
+from vtkillum.core.graphs import LaunchGraphs, array_key
 
 #: Flux limiters (see the module docstring).
 LIMITERS = {"levermore-pomraning": 0, "wilson": 1, "larsen": 2, "none": 3}
@@ -244,6 +245,8 @@ class RadiativeDiffusion:
         self._norms = wp.zeros(6, dtype=wp.float64, device=device)
         self._rhs = None
         self._has_medium = False
+        #: Captured outer iterations and nested starts (:mod:`~vtkillum.core.graphs`).
+        self.graphs = LaunchGraphs(device)
 
     # --- public ----------------------------------------------------------------------------
     def set_medium(self, sigma: wp.array3d, color_sigma: wp.array3d, albedo: float,
@@ -349,7 +352,11 @@ class RadiativeDiffusion:
             return report
         top = self.levels[0]
         if cold and method == "multigrid" and len(self.levels) > 1:
-            self._nested_start(rhs, x)
+            for coarse in self.levels[1:]:  # allocated before a capture, kept
+                if coarse.q is None:
+                    coarse.q = wp.zeros(coarse.shape, dtype=wp.vec3, device=self.device)
+                    coarse.sol = wp.zeros(coarse.shape, dtype=wp.vec3, device=self.device)
+            self.graphs.run(("nested",) + array_key(rhs, x), lambda: self._nested_start(rhs, x))
             self.update_coefficients(x)
             res, floor = self.residual(x, rhs, q_norm)
         # The lagged-coefficient V-cycle can diverge where the limited coefficients jump by
@@ -360,12 +367,8 @@ class RadiativeDiffusion:
         best = wp.clone(x) if method == "multigrid" else None
         smoothing_only = method != "multigrid"
         for _ in range(int(max_iterations)):
-            if smoothing_only:
-                relax(top, x, rhs, 1)
-            else:
-                self.vcycle(x, rhs)
-            self.update_coefficients(x)
-            res, floor = self.residual(x, rhs, q_norm)
+            self._outer_iteration(x, rhs, smoothing_only)
+            res, floor = self._read_residual()
             report.iterations += 1
             if best is not None and not smoothing_only:
                 if not np.isfinite(res) or res > 10.0 * best_res:
@@ -385,6 +388,22 @@ class RadiativeDiffusion:
                 break
         return report
 
+    def _outer_iteration(self, x: wp.array3d, rhs: wp.array3d, smoothing_only: bool) -> None:
+        """One outer iteration, replayed from a captured graph: a V-cycle (or one red-black
+        sweep), the lagged coefficients of the new iterate and its residual norms
+        (read by :meth:`_read_residual`)."""
+        top = self.levels[0]
+
+        def record():
+            if smoothing_only:
+                relax(top, x, rhs, 1)
+            else:
+                self.vcycle(x, rhs)
+            self.update_coefficients(x)
+            self._launch_residual(x, rhs)
+
+        self.graphs.run(("outer", smoothing_only) + array_key(x, rhs), record)
+
     def _nested_start(self, q: wp.array3d, x: wp.array3d) -> None:
         """Initial guess by nested iteration (full multigrid) for a cold start, into ``x``.
 
@@ -397,7 +416,7 @@ class RadiativeDiffusion:
         levels = self.levels
         for fine, coarse in zip(levels, levels[1:]):
             src = q if fine is levels[0] else fine.q
-            if coarse.q is None:
+            if coarse.q is None:  # called directly, not through solve()
                 coarse.q = wp.zeros(coarse.shape, dtype=wp.vec3, device=self.device)
                 coarse.sol = wp.zeros(coarse.shape, dtype=wp.vec3, device=self.device)
             wp.launch(restrict_kernel, dim=coarse.shape, device=self.device,
@@ -439,10 +458,18 @@ class RadiativeDiffusion:
     def residual(self, x: wp.array3d, q: wp.array3d, q_norm=None) -> tuple[float, float]:
         """Relative correction ``max_c ||diag(A)^-1 (Q - A x)||_c / ||x||_c`` over the medium
         and its neighbours, and its float32 floor (see the module docstring)."""
+        self._launch_residual(x, q)
+        return self._read_residual()
+
+    def _launch_residual(self, x: wp.array3d, q: wp.array3d) -> None:
+        """Sums of :meth:`residual` into ``self._norms`` (device work only)."""
         top = self.levels[0]
         self._norms.zero_()
         wp.launch(residual_norm_kernel, dim=(self.shape[1], self.shape[2]), device=self.device,
                   inputs=[x, q, *top.coefficients, top.sigma_tr, self.min_sigma, self._norms])
+
+    def _read_residual(self) -> tuple[float, float]:
+        """:meth:`residual` from the sums of :meth:`_launch_residual`."""
         n = np.sqrt(self._norms.numpy())
         if not np.all(np.isfinite(n)):  # a NaN iterate must not read as "converged"
             return float("inf"), 4.0 * float(np.finfo(np.float32).eps)

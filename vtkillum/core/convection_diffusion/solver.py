@@ -78,6 +78,7 @@ from vtkillum.core.convection_diffusion.opacity import (
 from vtkillum.core.convection_diffusion.radiative import LIMITERS, RadiativeDiffusion
 from vtkillum.core.convection_diffusion.reconstruction import filter_along_surfaces
 from vtkillum.core.device import resolve_device
+from vtkillum.core.graphs import LaunchGraphs
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.lights import DIRECTIONAL, pack_lights
 from vtkillum.core.volume import array_digest
@@ -253,6 +254,7 @@ class ConvectionDiffusionSolver:
         self._tolerance_reached = 0.0  # tolerance of the last converged solve
         self._source_radius = 0.0
         self._model = None
+        self._graphs = LaunchGraphs(self.device)  # captured convection sweeps
         self.shape = None
         self.spacing = None
 
@@ -318,7 +320,8 @@ class ConvectionDiffusionSolver:
                                  scalars=self._scalars[1])
             self._scalars = (volume_key, medium.scalars)
             self._sigma, self._color_sigma = light_grid_optics(
-                volume, transfer_function, unit_distance, shape, self.device, medium=medium)
+                volume, transfer_function, unit_distance, shape, self.device, medium=medium,
+                out=None if self._sigma is None else (self._sigma, self._color_sigma))
             self._color_key = color_key
             self._color_version += 1
             if opacity_key != self._opacity_key:
@@ -341,8 +344,10 @@ class ConvectionDiffusionSolver:
             else:
                 t = time.perf_counter()
                 out = cached[1] if cached is not None else None
+                if out is None:  # allocated outside the captured sweep
+                    out = wp.empty(shape, dtype=wp.float32, device=self.device)
                 T = convect_light(self._sigma, spacing, key[0], vecs[i], r_s, out=out,
-                                  scheme=self.convection_scheme)
+                                  scheme=self.convection_scheme, graphs=self._graphs)
                 fresh[key] = (self._opacity_version, T)
                 stats.convected.append(i)
                 stats.ms["convection"].append(_elapsed_ms(t, self.device))
