@@ -40,9 +40,9 @@ from vtkillum.core.device import resolve_device
 
 
 def timed(fn, device, repeats):
-    """Median wall ms of ``fn(r)`` over ``repeats`` calls (after each, the device is idle)."""
+    """Median wall ms of ``fn(1) ... fn(repeats)`` (after each, the device is idle)."""
     samples = []
-    for r in range(repeats):
+    for r in range(1, repeats + 1):  # fn(0) came last: every call is an edit
         wp.synchronize_device(device)
         t0 = time.perf_counter()
         fn(r)
@@ -76,9 +76,10 @@ def kernel_profile(fn, device):
 def cd_rows(rows, device, repeats, model):
     print(f"\n### Convection–diffusion, light simulation after a TF edit ({model} model), "
           f"device {device_name(device)}\n")
-    print("| data | light volume | lights | start | graphs ms | launch by launch ms | launches "
-          "| memsets | kernel ms (sum) | top kernels (count, ms) |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("| data | light volume | lights | start | graphs ms | opacity / convection per light / "
+          "composition / diffusion ms | launch by launch ms | launches | memsets | "
+          "kernel ms (sum) | top kernels (count, ms) |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     for label, dims, light_dims, count in rows:
         vol = synthetic(dims)
         lights = make_lights(vol, count)
@@ -104,13 +105,23 @@ def cd_rows(rows, device, repeats, model):
                 edit(1)  # upload, allocate, compile, record
                 edit(0)
                 cds[graphs] = (cd, edit, timed(edit, device, repeats))
-            prof = kernel_profile(functools.partial(cds[False][1], 0), device)
+            cds[False][1](0)  # then edit(1) changes the transfer function, whatever came last
+            prof = kernel_profile(functools.partial(cds[False][1], 1), device)
+            cds[True][1](0)
+            st = cds[True][1](1)  # one more edit, for its stages
+            flags = "".join(f", {name}" for name in ("fallback", "stalled")
+                            if st.diffusion is not None and getattr(st.diffusion, name))
+            rd = cds[True][0]._radiative[1]
+            flags += f", {cds[True][0]._graphs.captures + rd.graphs.captures} captures"
+            stages = (f"{st.ms.get('opacity', 0):.2f} / "
+                      f"{np.mean(st.ms.get('convection') or [0]):.2f} / "
+                      f"{st.ms.get('composition', 0):.2f} / {st.ms.get('diffusion', 0):.2f}")
             its = f"{np.median(iterations):.0f}" if iterations else "?"
             cells = "| — | — | — | — |" if prof is None else (
                 f"| {prof[0]} | {prof[1]} | {prof[2]:.2f} | "
                 + "; ".join(f"{n} ({c}, {ms:.2f})" for n, (c, ms) in prof[3]) + " |")
             print(f"| {label} | {'x'.join(map(str, light_dims))} | {count} | "
-                  f"{'warm' if warm else 'cold'} ({its} it) | {cds[True][2]:.2f} | "
+                  f"{'warm' if warm else 'cold'} ({its} it{flags}) | {cds[True][2]:.2f} | {stages} | "
                   f"{cds[False][2]:.2f} {cells}")
 
 

