@@ -80,6 +80,7 @@ from vtkillum.core.convection_diffusion.stencil import (
     sum_squares_kernel,
 )
 from vtkillum.core.device import resolve_device
+from vtkillum.core.graphs import LaunchGraphs, array_key
 
 SOLVERS = ("multigrid", "cg", "gauss-seidel", "dct")
 
@@ -168,6 +169,8 @@ class DiffusionSolver:
         self._norms = wp.zeros(6, dtype=wp.float64, device=self.device)
         self._work = {}
         self._multigrid = None
+        #: Captured iterations (multigrid, Gauss-Seidel; :mod:`~vtkillum.core.graphs`).
+        self.graphs = LaunchGraphs(self.device)
         if method == "multigrid":
             self._multigrid = Multigrid(self.shape, self.spacing, s, self.device)
 
@@ -212,10 +215,15 @@ class DiffusionSolver:
             self._cg(b, x, b_norm, max_iterations, tolerance, report, callback)
         else:
             step = self._multigrid.vcycle if self.method == "multigrid" else self._gs_sweep
-            for _ in range(int(max_iterations)):
+
+            def iteration():  # replayed from a captured graph (vtkillum.core.graphs)
                 step(x, b)
+                self._launch_residual(x, b)
+
+            for _ in range(int(max_iterations)):
+                self.graphs.run((self.method,) + array_key(x, b), iteration)
                 report.iterations += 1
-                report.residuals.append(self.residual(x, b, b_norm))
+                report.residuals.append(self._read_residual(b_norm))
                 if callback is not None:
                     callback(report.iterations, report.residuals[-1])
                 if report.residuals[-1] <= tolerance:
@@ -227,9 +235,15 @@ class DiffusionSolver:
         """Relative residual ``max_c ||b - A x||_c / ||b||_c`` (0 for a zero ``b``)."""
         if b_norm is None:
             b_norm = self._b_norm(b)
+        self._launch_residual(x, b)
+        return self._read_residual(b_norm)
+
+    def _launch_residual(self, x: wp.array3d, b: wp.array3d) -> None:
         self._norms.zero_()
         wp.launch(residual_norm_kernel, dim=(self.shape[1], self.shape[2]), device=self.device,
                   inputs=[x, b, *self.coeffs, self._norms])
+
+    def _read_residual(self, b_norm) -> float:
         r = np.sqrt(self._norms.numpy()[:3])
         return float(np.max(np.where(b_norm > 0, r / np.maximum(b_norm, 1e-300), 0.0)))
 

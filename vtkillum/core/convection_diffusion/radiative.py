@@ -303,13 +303,9 @@ class RadiativeDiffusion:
                 wp.launch(restrict_kernel, dim=level.shape, device=self.device,
                           inputs=[phi, level.phi, self._ratio(fine, level)])
                 phi = level.phi
-            nx, ny, nz = level.shape
-            for axis, k, dim in ((0, level.kx, (nx - 1, ny, nz)), (1, level.ky, (nx, ny - 1, nz)),
-                                 (2, level.kz, (nx, ny, nz - 1))):
-                wp.launch(face_coefficient_kernel, dim=dim, device=self.device,
-                          inputs=[phi, level.sigma_tr, k, axis, level.h, self.d_max, lim])
-            wp.launch(leak_kernel, dim=level.shape, device=self.device,
-                      inputs=[phi, level.sigma_tr, level.leak, level.h, self.d_max, lim])
+            wp.launch(coefficients_kernel, dim=level.shape, device=self.device,
+                      inputs=[phi, level.sigma_tr, level.kx, level.ky, level.kz, level.leak,
+                              level.h, self.d_max, lim])
 
     def solve(self, q: wp.array3d, x: wp.array3d, max_iterations: int = 100,
               tolerance: float = 1e-4, method: str = "multigrid", callback=None,
@@ -715,18 +711,15 @@ def medium_kernel(sigma: wp.array3d(dtype=wp.float32), color_sigma: wp.array3d(d
     sigma_tr[i, j, k] = wp.vec3(st) - g * ss
 
 
-@wp.kernel
-def face_coefficient_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
-                            k_out: wp.array3d(dtype=wp.vec3), axis: int, h: wp.vec3, d_max: float,
-                            limiter: int):
-    """``k = D_f / h_axis^2`` of the face between point ``wp.tid()`` and its +``axis`` neighbour.
+@wp.func
+def face_coefficient(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
+                     p: wp.vec3i, axis: int, h: wp.vec3, d_max: float, limiter: int):
+    """``k = D_f / h_axis^2`` of the face between point ``p`` and its +``axis`` neighbour.
 
     Face means of ``sigma_tr`` and ``phi``; face gradient from the two points (normal)
     and the mean of their central differences (tangential).
     """
-    i, j, k = wp.tid()
-    p = wp.vec3i(i, j, k)
-    q = wp.vec3i(i, j, k)
+    q = wp.vec3i(p[0], p[1], p[2])
     q[axis] = q[axis] + 1
     a = phi[p[0], p[1], p[2]]
     b = phi[q[0], q[1], q[2]]
@@ -739,25 +732,24 @@ def face_coefficient_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d
     s = 0.5 * (sigma_tr[p[0], p[1], p[2]] + sigma_tr[q[0], q[1], q[2]])
     f = 0.5 * (a + b)
     d = limited_vec(s, grad_sq, f, d_max, limiter)
-    k_out[i, j, k] = d / (h[axis] * h[axis])
+    return d / (h[axis] * h[axis])
 
 
-@wp.kernel
-def leak_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
-                leak: wp.array3d(dtype=wp.vec3), h: wp.vec3, d_max: float, limiter: int):
-    """Marshak leakage ``b = sum_box faces 2 D / ((4 D + h_a) h_a)`` of cell ``wp.tid()``.
+@wp.func
+def leak_at(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3), p: wp.vec3i,
+            h: wp.vec3, d_max: float, limiter: int):
+    """Marshak leakage ``b = sum_box faces 2 D / ((4 D + h_a) h_a)`` of cell ``p``.
 
     Zero for interior cells (1/world units).
     """
-    i, j, k = wp.tid()
-    p = wp.vec3i(i, j, k)
     out = wp.vec3(0.0)
     on_box = False
     for a in range(3):
         if p[a] == 0 or p[a] == phi.shape[a] - 1:
             on_box = True
     if on_box:
-        d = limited_vec(sigma_tr[i, j, k], gradient_sq(phi, p, h), phi[i, j, k], d_max, limiter)
+        d = limited_vec(sigma_tr[p[0], p[1], p[2]], gradient_sq(phi, p, h), phi[p[0], p[1], p[2]],
+                        d_max, limiter)
         for a in range(3):
             faces = float(0.0)
             if p[a] == 0:
@@ -769,7 +761,25 @@ def leak_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.ve
                 out += faces * wp.vec3(2.0 * d[0] / ((4.0 * d[0] + ha) * ha),
                                        2.0 * d[1] / ((4.0 * d[1] + ha) * ha),
                                        2.0 * d[2] / ((4.0 * d[2] + ha) * ha))
-    leak[i, j, k] = out
+    return out
+
+
+@wp.kernel
+def coefficients_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
+                        kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
+                        kz: wp.array3d(dtype=wp.vec3), leak: wp.array3d(dtype=wp.vec3),
+                        h: wp.vec3, d_max: float, limiter: int):
+    """The lagged coefficients of cell ``wp.tid()``: its +x, +y and +z faces (where the
+    neighbour exists) and its box-face leakage, in one pass over ``phi``."""
+    i, j, k = wp.tid()
+    p = wp.vec3i(i, j, k)
+    if i < phi.shape[0] - 1:
+        kx[i, j, k] = face_coefficient(phi, sigma_tr, p, 0, h, d_max, limiter)
+    if j < phi.shape[1] - 1:
+        ky[i, j, k] = face_coefficient(phi, sigma_tr, p, 1, h, d_max, limiter)
+    if k < phi.shape[2] - 1:
+        kz[i, j, k] = face_coefficient(phi, sigma_tr, p, 2, h, d_max, limiter)
+    leak[i, j, k] = leak_at(phi, sigma_tr, p, h, d_max, limiter)
 
 
 @wp.kernel

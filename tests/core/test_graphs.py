@@ -1,0 +1,75 @@
+"""Captured launch sequences (:mod:`vtkillum.core.graphs`) replay what they recorded."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import warp as wp
+
+from vtkillum.core.convection_diffusion.diffusion import DiffusionSolver
+from vtkillum.core.graphs import ENV, LaunchGraphs, array_key, graphs_enabled
+
+
+@wp.kernel
+def _axpy(x: wp.array(dtype=float), y: wp.array(dtype=float), a: float):
+    i = wp.tid()
+    y[i] = y[i] + a * x[i]
+
+
+def test_replay_runs_the_recorded_sequence_each_call(device):
+    x = wp.array(np.arange(8, dtype=np.float32), device=device)
+    y = wp.zeros(8, dtype=float, device=device)
+    graphs = LaunchGraphs(device, enabled=True)
+
+    def record():
+        y.zero_()
+        for _ in range(3):
+            wp.launch(_axpy, dim=8, inputs=[x, y, 2.0], device=device)
+
+    for _ in range(3):
+        y.fill_(100.0)
+        graphs.run(("axpy",) + array_key(x, y), record)
+        np.testing.assert_allclose(y.numpy(), 6.0 * np.arange(8))
+    assert graphs.captures == 1 and graphs.replays == 3 and len(graphs) == 1
+    z = wp.zeros(8, dtype=float, device=device)  # other arrays: another key, another capture
+    assert array_key(x, z) != array_key(x, y)
+
+
+def test_disabled_graphs_launch_directly(device, monkeypatch):
+    monkeypatch.setenv(ENV, "0")
+    assert not graphs_enabled()
+    graphs = LaunchGraphs(device)
+    calls = []
+    graphs.run("k", lambda: calls.append(1))
+    graphs.run("k", lambda: calls.append(1))
+    assert calls == [1, 1] and len(graphs) == 0
+
+
+def test_a_failing_capture_falls_back_to_plain_launches(device):
+    graphs = LaunchGraphs(device, enabled=True)
+    runs = []
+
+    def record():
+        runs.append(1)
+        if len(runs) == 1:
+            raise RuntimeError("not capturable")
+
+    with pytest.warns(RuntimeWarning, match="capture failed"):
+        graphs.run("k", record)
+    assert len(runs) == 2 and not graphs.enabled
+
+
+@pytest.mark.parametrize("method", ["multigrid", "gauss-seidel"])
+def test_paper_diffusion_replays_equal_launch_by_launch(device, method):
+    shape, h, s = (12, 10, 9), (0.2, 0.25, 0.3), (0.3, 0.2, 0.1)
+    b_host = np.random.default_rng(1).random(shape + (3,)).astype(np.float32)
+    out = []
+    for enabled in (True, False):
+        solver = DiffusionSolver(shape, h, s, method=method, device=device)
+        solver.graphs.enabled = enabled
+        b = wp.array(b_host, dtype=wp.vec3, device=device)
+        x = wp.clone(b)
+        report = solver.solve(b, x, 40, 1e-5)
+        out.append((report.iterations, x.numpy()))
+    assert out[0][0] == out[1][0]
+    np.testing.assert_allclose(out[0][1], out[1][1], rtol=1e-6, atol=1e-7)
