@@ -5,8 +5,9 @@ flux-limited radiative-transfer diffusion; ``paper``: Zhang & Ma's eq. 23):
 
 1. **Stages** at the data / light-volume sizes and light counts of the paper's
    Table 1: ms for the opacity volume, the convection of one light (mean over the
-   lights), the composition, the diffusion (multigrid, cold start, iterations), the
-   whole light simulation after a transfer-function edit, and a 512² render
+   lights), the composition, the diffusion (multigrid from the previous solution, the
+   default, and from a cold start; iterations), the whole light simulation after a
+   transfer-function edit beside the paper's, and a 512² render
    (ray-casting kernel only) that uses the light volume. One table per model.
 2. **Light-volume sizes** of the paper's Table 2: absorption (one light) and
    scattering (diffusion of each model, cold start) ms.
@@ -60,6 +61,10 @@ PAPER_TABLE_1 = [
     ("Blood Vessels", (256, 256, 256), (128, 128, 128), 1),
     ("Foot", (128, 128, 128), (64, 64, 64), 1),
 ]
+#: Zhang & Ma 2013, Table 1: light simulation (ms) on a GeForce GTX 460M.
+PAPER_LIGHT_MS = {"Parts": 83, "Vortex (teaser)": 91, "Machine Room": 86, "Teapot": 54,
+                  "Pillars": 49, "Buckyball": 22, "Vortex": 79, "Smoke": 54, "Bonsai": 54,
+                  "Blood Vessels": 52, "Foot": 23}
 
 TF_A = TransferFunction([0.0, 0.45, 1.0], [0.0, 0.0, 0.6], [[1, 1, 1], [1, 0.9, 0.7], [1, 1, 1]])
 TF_B = TransferFunction([0.0, 0.5, 1.0], [0.0, 0.0, 0.7], [[1, 1, 1], [0.8, 0.9, 1.0], [1, 1, 1]])
@@ -115,20 +120,23 @@ def stage_table(rows, device, repeats, render_size, model) -> None:
 
     name = device_name(device)
     print(f"\n### 1. Stages (ms), {model} model, device {name}: short characteristics, "
-          "multigrid diffusion from a cold start, after a transfer-function edit\n")
-    print("| data | data size | light volume | lights | opacity | convection / light | "
-          "composition | diffusion (iters) | light simulation | render "
+          "multigrid diffusion after a transfer-function edit, from the previous solution "
+          "(warm, the default) and from a cold start; paper: GTX 460M\n")
+    print("| data | data size | light volume | lights | start | opacity | convection / light | "
+          "composition | diffusion (iters) | light simulation | paper | speed-up | render "
           f"{render_size}² |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for label, dims, light_dims, count in rows:
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for (label, dims, light_dims, count), warm in (
+            (row, warm) for row in rows for warm in (True, False)):
         vol = synthetic(dims)
         lights = make_lights(vol, count)
         h = vol.extent / (np.asarray(light_dims) - 1)
         scattering = (2.0 * h.max()) ** 2
         cd = ConvectionDiffusionSolver(light_volume_shape=light_dims, scattering=[scattering] * 3,
-                                       diffusion_model=model, warm_start=False, device=device)
-        cd.update(vol, TF_A, vol.mean_spacing(), lights, volume_key=label, albedo=ALBEDO,
-                  anisotropy=ANISOTROPY)  # upload, allocate
+                                       diffusion_model=model, warm_start=warm, device=device)
+        for tf in (TF_A, TF_B, TF_A):  # upload, allocate, record the launch graphs
+            cd.update(vol, tf, vol.mean_spacing(), lights, volume_key=label, albedo=ALBEDO,
+                      anisotropy=ANISOTROPY)
         samples = []
         for r in range(repeats):  # transfer-function edits: every stage runs
             tf = TF_B if r % 2 == 0 else TF_A
@@ -147,9 +155,12 @@ def stage_table(rows, device, repeats, render_size, model) -> None:
         render_ms = np.median([1000.0 * render_illuminated(
             vol, scene, render_size, render_size, device, illumination=ilv).info["render_s"]
             for _ in range(max(1, repeats // 2))])
+        paper = PAPER_LIGHT_MS.get(label)
+        versus = f"{paper} | {paper / med[4]:.1f}×" if paper else "— | —"
         print(f"| {label} | {'x'.join(map(str, dims))} | {'x'.join(map(str, light_dims))} | "
-              f"{count} | {med[0]:.2f} | {med[1]:.2f} | {med[2]:.2f} | {med[3]:.2f} "
-              f"({med[5]:.0f}) | {med[4]:.2f} | {render_ms:.2f} |")
+              f"{count} | {'warm' if warm else 'cold'} | {med[0]:.2f} | {med[1]:.2f} | "
+              f"{med[2]:.2f} | {med[3]:.2f} ({med[5]:.0f}) | {med[4]:.2f} | {versus} | "
+              f"{render_ms:.2f} |")
 
 
 def light_size_table(sizes, device, repeats) -> None:
@@ -333,6 +344,10 @@ def parse_sizes(values):
     return rows
 
 
+#: The tables ``--tables`` can pick (module docstring, items 1-5).
+TABLES = ("stages", "sizes", "residual", "iterated", "series")
+
+
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--device", default=None, help="cpu or cuda (default: cuda if present)")
@@ -345,6 +360,8 @@ def main(argv=None) -> None:
     ap.add_argument("--series-size", type=int, default=64)
     ap.add_argument("--render-size", type=int, default=512)
     ap.add_argument("--repeats", type=int, default=5)
+    ap.add_argument("--tables", nargs="+", default=list(TABLES), choices=list(TABLES),
+                    help="which tables to print (default: all)")
     args = ap.parse_args(argv)
     device = resolve_device(args.device)
     # Compile every kernel once so that no table includes compilation.
@@ -353,12 +370,17 @@ def main(argv=None) -> None:
         ConvectionDiffusionSolver(scattering=[0.1] * 3, diffusion_model=model,
                                   device=device).update(warm, TF_A, warm.mean_spacing(),
                                                         make_lights(warm, 2))
-    for model in ("physical", "paper"):
-        stage_table(parse_sizes(args.sizes), device, args.repeats, args.render_size, model)
-    light_size_table(args.light_sizes, device, args.repeats)
-    residual_table(args.solver_size, device, args.repeats)
-    iterated_table(args.iterated_size, device)
-    time_series_table(args.series_size, device)
+    if "stages" in args.tables:
+        for model in ("physical", "paper"):
+            stage_table(parse_sizes(args.sizes), device, args.repeats, args.render_size, model)
+    if "sizes" in args.tables:
+        light_size_table(args.light_sizes, device, args.repeats)
+    if "residual" in args.tables:
+        residual_table(args.solver_size, device, args.repeats)
+    if "iterated" in args.tables:
+        iterated_table(args.iterated_size, device)
+    if "series" in args.tables:
+        time_series_table(args.series_size, device)
 
 
 if __name__ == "__main__":
