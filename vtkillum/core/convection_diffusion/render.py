@@ -49,6 +49,10 @@ def render_convection_diffusion(volume, scene, width, height, device=None, progr
     flux_limiter : str
         Physical model: ``"levermore-pomraning"`` (default), ``"wilson"``, ``"larsen"`` or
         ``"none"``; not a scene field.
+    delta_scaling : bool
+        Physical model: δ-Eddington scaling of the first-scattered source (default True,
+        :class:`~vtkillum.core.convection_diffusion.solver.ConvectionDiffusionSolver`);
+        not a scene field.
     **options
         Ray-casting options of :func:`vtkillum.core.raycast.render_illuminated`
         (``step_size``, ``jitter``, ``seed``, ``early_termination``).
@@ -68,6 +72,7 @@ def render_convection_diffusion(volume, scene, width, height, device=None, progr
     config["convection_scheme"] = options.pop("convection_scheme", "characteristics")
     config["flux_limiter"] = options.pop("flux_limiter", "levermore-pomraning")
     config["first_moment"] = options.pop("first_moment", True)
+    config["delta_scaling"] = options.pop("delta_scaling", True)
     # One solver per volume and device, kept with the volume: a new camera (an interactive
     # window re-rendering) recomputes nothing, an edit (of the scene or of these options)
     # only what Algorithm 1 says.

@@ -12,7 +12,9 @@ Pipeline
    (:mod:`~vtkillum.core.convection_diffusion.convection`).
 3. **Composition** (eq. 22) — the direct fluence ``phi_d = sum_l T_l E_l``; for the
    physical model also the first-scattered source ``Q = sigma_s <T_l> E_l``
-   (:mod:`~vtkillum.core.convection_diffusion.composition`).
+   (:mod:`~vtkillum.core.convection_diffusion.composition`), δ-Eddington scaled for
+   forward scattering (``delta_scaling``: ``Q = (1 - g²) sigma_s <T*_l> E_l`` with the
+   beam's extinction ``sigma_t - g² sigma_s``, one more sweep per light).
 4. **Diffusion**, by ``diffusion_model``:
 
    ``"physical"`` (default)
@@ -44,8 +46,10 @@ colour transfer fn. (physical)    scattering colour, composition, diffusion
 one light moved / turned          that light, composition, diffusion
 a light's colour or intensity     composition, diffusion (no convection)
 albedo (physical)                 composition, diffusion
-``g`` (physical), ``scattering``  diffusion only
-(paper), solver, model
+``g`` (physical)                  composition (source dipole, δ-Eddington beams),
+                                  diffusion
+``scattering`` (paper), solver,   diffusion only
+model
 nothing (budget left over)        more diffusion iterations (progressive refinement)
 ================================  ==================================================
 
@@ -196,6 +200,14 @@ class ConvectionDiffusionSolver:
         ``"physical"`` only: one of
         :data:`~vtkillum.core.convection_diffusion.radiative.LIMITERS` (default
         ``"levermore-pomraning"``).
+    delta_scaling : bool
+        ``"physical"`` only: δ-Eddington scaling of the first-scattered source (default on,
+        see :func:`delta_fraction`): the fraction ``f = g²`` of each scattering event that
+        a Henyey–Greenstein phase sends into its forward peak stays in the light's beam,
+        which then has the extinction ``sigma_t - f sigma_s`` and seeds the diffusion with
+        ``(1 - f) sigma_s`` and anisotropy ``g / (1 + g)`` (the transport coefficient is
+        unchanged). The directly lit single scattering is still rendered with the exact
+        transmittance and the full phase function.
     device : str, optional
         Warp device.
     """
@@ -206,7 +218,7 @@ class ConvectionDiffusionSolver:
                  source_radius: float = 0.0, warm_start: bool = True,
                  convection_scheme: str = "characteristics",
                  flux_limiter: str = "levermore-pomraning", first_moment: bool = True,
-                 device: str | None = None):
+                 delta_scaling: bool = True, device: str | None = None):
         self.light_volume_scale = light_volume_scale
         self.light_volume_shape = light_volume_shape
         self.diffusion_model = diffusion_model
@@ -219,6 +231,7 @@ class ConvectionDiffusionSolver:
         self.convection_scheme = convection_scheme
         self.flux_limiter = flux_limiter
         self.first_moment = first_moment
+        self.delta_scaling = delta_scaling
         self.device = resolve_device(device)
         self.reset()
 
@@ -255,6 +268,8 @@ class ConvectionDiffusionSolver:
         self._source_radius = 0.0
         self._model = None
         self._graphs = LaunchGraphs(self.device)  # captured convection sweeps
+        self._sigma_star = None  # δ-Eddington extinction of the beams (physical)
+        self._beams = {}  # geometry key -> transmittance through _sigma_star
         self.shape = None
         self.spacing = None
 
@@ -358,9 +373,10 @@ class ConvectionDiffusionSolver:
         # 3. composition
         physical = self.diffusion_model == "physical"
         light_key = tuple((g, tuple(rgbs[i].tolist())) for i, g in enumerate(geometry))
+        f = delta_fraction(opts["anisotropy"]) if physical and self.delta_scaling else 0.0
         compose_key = (self._opacity_version, light_key, self.diffusion_model) + (
-            (self._color_version, opts["albedo"], bool(self.first_moment),
-             opts["anisotropy"] if self.first_moment else None) if physical else ())
+            (self._color_version, opts["albedo"], bool(self.first_moment), f,
+             opts["anisotropy"] if self.first_moment or f > 0 else None) if physical else ())
         if compose_key != self._compose_key:
             t = time.perf_counter()
             # Light is linear in the lights' RGB (the flux limiter is scale-invariant too):
@@ -387,10 +403,13 @@ class ConvectionDiffusionSolver:
                 if self.first_moment and self._moment is None:
                     self._moment = tuple(wp.zeros(shape, dtype=wp.vec3, device=self.device)
                                          for _ in range(3))
-                first_scattered_source(Ts, kinds, directions, rgbs, spacing, r_s, self._sigma,
-                                       self._color_sigma, opts["albedo"], self._q,
-                                       self._moment if self.first_moment else None,
-                                       opts["anisotropy"])
+                sources, sigma, albedo, g = Ts, self._sigma, opts["albedo"], opts["anisotropy"]
+                if f > 0:  # δ-Eddington: the forward peak stays in the beam
+                    sigma, sources = self._delta_beams(f, albedo, geometry, vecs, spacing, r_s)
+                    albedo, g = albedo * (1.0 - f), g / (1.0 + g)
+                first_scattered_source(sources, kinds, directions, rgbs, spacing, r_s, sigma,
+                                       self._color_sigma, albedo, self._q,
+                                       self._moment if self.first_moment else None, g)
             self._compose_key = compose_key
             self._compose_version += 1
             stats.composed = True
@@ -512,6 +531,24 @@ class ConvectionDiffusionSolver:
         return np.maximum(self._rendered[1].numpy(), 0.0) * np.float32(self._light_scale)
 
     # --- internals -------------------------------------------------------------------------
+    def _delta_beams(self, f: float, albedo: float, geometry, vecs, spacing, r_s):
+        """δ-Eddington beams: ``sigma_t* = sigma_t - f albedo <color sigma_t>`` (grey: the
+        channels' mean) and each light's transmittance through it."""
+        if self._sigma_star is None or tuple(self._sigma_star.shape) != tuple(self.shape):
+            self._sigma_star = wp.empty(self.shape, dtype=wp.float32, device=self.device)
+            self._beams = {}
+        wp.launch(delta_sigma_kernel, dim=self.shape, device=self.device,
+                  inputs=[self._sigma, self._color_sigma, float(f * albedo), self._sigma_star])
+        beams = []
+        for i, key in enumerate(geometry):
+            out = self._beams.get(key)
+            if out is None:
+                out = self._beams[key] = wp.empty(self.shape, dtype=wp.float32,
+                                                  device=self.device)
+            beams.append(convect_light(self._sigma_star, spacing, key[0], vecs[i], r_s, out=out,
+                                       scheme=self.convection_scheme, graphs=self._graphs))
+        return self._sigma_star, beams
+
     def _check_updated(self) -> None:
         if self._x is None:
             raise RuntimeError("call update() before reading the light volume")
@@ -667,6 +704,12 @@ class ConvectionDiffusionSolver:
         stats.ms["diffusion"] = _elapsed_ms(t, self.device)
 
 
+def delta_fraction(g: float) -> float:
+    """Forward-peak fraction ``f = g²`` of δ-Eddington scaling (Joseph, Wiscombe &
+    Weinman 1976) for ``g > 0``; 0 for isotropic and backward scattering."""
+    return float(g) ** 2 if g > 0 else 0.0
+
+
 def _elapsed_ms(t0: float, device: str) -> float:
     wp.synchronize_device(device)
     return 1000.0 * (time.perf_counter() - t0)
@@ -686,3 +729,12 @@ def scale_kernel(x: wp.array3d(dtype=wp.vec3), ratio: wp.vec3):
     """``x *= ratio`` per channel at light-grid point ``wp.tid() = (i, j, k)``."""
     i, j, k = wp.tid()
     x[i, j, k] = wp.cw_mul(x[i, j, k], ratio)
+
+
+@wp.kernel
+def delta_sigma_kernel(sigma: wp.array3d(dtype=wp.float32), color_sigma: wp.array3d(dtype=wp.vec3),
+                       f_albedo: float, out: wp.array3d(dtype=wp.float32)):
+    """``out = sigma_t - f albedo <color sigma_t>`` at point ``wp.tid()`` (>= 0)."""
+    i, j, k = wp.tid()
+    cs = color_sigma[i, j, k]
+    out[i, j, k] = wp.max(sigma[i, j, k] - f_albedo * (cs[0] + cs[1] + cs[2]) / 3.0, 0.0)
