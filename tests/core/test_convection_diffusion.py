@@ -407,3 +407,43 @@ def test_scattered_light_of_a_sharp_thick_ball_shows_no_rings(device):
     # The filter moves light along the surface only: the scattered energy stays.
     np.testing.assert_allclose(cd.rendered_scattered_fluence.sum(), cd.scattered_fluence.sum(),
                                rtol=0.03)
+
+
+def test_paired_sweep_equals_two_sweeps(device):
+    """The δ-Eddington beam is convected in the same launches as the light's transmittance."""
+    import warp as wp
+
+    from vtkillum.core.convection_diffusion.convection import convect_light
+    from vtkillum.core.lights import DIRECTIONAL, POINT
+
+    rng = np.random.default_rng(4)
+    shape, h = (14, 11, 9), np.array([0.1, 0.12, 0.15])
+    s1 = wp.array(rng.uniform(0, 8, shape).astype(np.float32), device=device)
+    s2 = wp.array(rng.uniform(0, 3, shape).astype(np.float32), device=device)
+    for kind, vec in ((DIRECTIONAL, (1.0, -0.4, 0.3)), (POINT, (0.6, 0.5, 0.4))):
+        a = convect_light(s1, h, kind, vec, 0.1).numpy()
+        b = convect_light(s2, h, kind, vec, 0.1).numpy()
+        out2 = wp.empty(shape, dtype=wp.float32, device=device)
+        pa = convect_light(s1, h, kind, vec, 0.1, second=(s2, out2)).numpy()
+        np.testing.assert_array_equal(pa, a)
+        np.testing.assert_array_equal(out2.numpy(), b)
+
+
+def test_delta_beams_follow_albedo_and_g_edits(device):
+    """After an albedo or g edit the beams are re-swept alone (no convection of T); the
+    light volume equals that of a fresh solver with the new parameters."""
+    x = np.linspace(-1, 1, 20)
+    vol = Volume(np.exp(-3 * (x[:, None, None] ** 2 + x[None, :, None] ** 2
+                              + x[None, None, :] ** 2)).astype(np.float32))
+    tf = TransferFunction([0.0, 1.0], [0.0, 0.6], [[1, 1, 1], [1, 0.8, 0.6]])
+    lights = [DirectionalLight((1, -0.5, -0.2), (2, 2, 2)), PointLight((0.5, 1.6, 0.3), (5, 5, 5))]
+    cd = ConvectionDiffusionSolver(device=device, tolerance=1e-6)
+    cd.update(vol, tf, 0.1, lights, albedo=0.9, anisotropy=0.6)
+    for albedo, g in ((0.95, 0.6), (0.95, 0.3)):
+        stats = cd.update(vol, tf, 0.1, lights, albedo=albedo, anisotropy=g)
+        assert stats.convected == [] and stats.composed
+        fresh = ConvectionDiffusionSolver(device=device, tolerance=1e-6)
+        fresh.update(vol, tf, 0.1, lights, albedo=albedo, anisotropy=g)
+        np.testing.assert_allclose(cd.source, fresh.source, rtol=1e-5, atol=1e-6)
+        np.testing.assert_allclose(cd.scattered_fluence, fresh.scattered_fluence, rtol=2e-3,
+                                   atol=2e-4 * fresh.scattered_fluence.max())

@@ -187,7 +187,7 @@ def sweep_plan(kind: int, vec, shape, spacing) -> SweepPlan:
 
 def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: float = 0.0,
                   out: wp.array3d | None = None, scheme: str = "characteristics",
-                  graphs=None) -> wp.array3d:
+                  graphs=None, second=None) -> wp.array3d:
     """Steady-state upwind transmittance of one light, exactly, in one ordered sweep.
 
     Parameters
@@ -210,6 +210,10 @@ def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: flo
     graphs : vtkillum.core.graphs.LaunchGraphs, optional
         Replay the sweep (one launch per wavefront) from a captured graph, recorded once
         per light, grid and arrays.
+    second : (warp.array3d, warp.array3d), optional
+        ``(sigma2, out2)``: convect the same light through a second extinction field in
+        the same launches (the δ-Eddington beams of the physical model): the sweep is
+        bound by its wavefronts' latency, so the second field costs almost nothing.
 
     Returns
     -------
@@ -234,12 +238,16 @@ def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: flo
     vec32 = vec.astype(np.float32)
     spacing32 = spacing.astype(np.float32)
 
+    sigma2, out2 = second if second is not None else (sigma, out)
+    if tuple(sigma2.shape) != shape or tuple(out2.shape) != shape:
+        raise ValueError("the second field of a paired sweep must have the grid's shape")
+
     def sweep():
         cmd = wp.launch(
             upwind_sweep_kernel, dim=dim, device=device, record_cmd=True,
             inputs=[sigma, out, 0, plan.primary, wp.vec3i(*plan.lo), wp.vec3i(*plan.hi),
                     wp.vec3i(*plan.inflow), int(kind), wp.vec3(*vec32), wp.vec3(*spacing32),
-                    float(source_radius), scheme_id],
+                    float(source_radius), scheme_id, int(second is not None), sigma2, out2],
         )
         for m in range(plan.wavefronts):
             cmd.set_param_at_index(2, m)
@@ -249,7 +257,8 @@ def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: flo
         sweep()
     else:
         graphs.run(("convect", int(kind), tuple(vec32.tolist()), tuple(spacing32.tolist()),
-                    float(source_radius), scheme_id) + array_key(sigma, out), sweep)
+                    float(source_radius), scheme_id, second is not None)
+                   + array_key(sigma, out, sigma2, out2), sweep)
     return out
 
 
@@ -494,8 +503,11 @@ def upwind_point(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.flo
 @wp.kernel
 def upwind_sweep_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.float32),
                         m: int, primary: int, lo: wp.vec3i, hi: wp.vec3i, inflow: wp.vec3i,
-                        kind: int, vec: wp.vec3, h: wp.vec3, source_radius: float, scheme: int):
-    """Update every point of wavefront ``m`` (see the module docstring).
+                        kind: int, vec: wp.vec3, h: wp.vec3, source_radius: float, scheme: int,
+                        paired: int, sigma2: wp.array3d(dtype=wp.float32),
+                        T2: wp.array3d(dtype=wp.float32)):
+    """Update every point of wavefront ``m`` (see the module docstring); with ``paired``
+    also those of ``T2`` through ``sigma2``.
 
     ``wp.tid() = (a, b)`` indexes the two non-primary axes in increasing axis order;
     the thread updates the (at most two, or the ``[lo, hi]`` range when ``m`` is reached
@@ -516,16 +528,23 @@ def upwind_sweep_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype
     hp = hi[primary]
     if rp == 0:
         for p in range(lp, hp + 1):
-            upwind_point(sigma, T, grid_index(primary, p, a, b), lo, hi, inflow, kind, vec, h,
-                         source_radius, scheme)
+            idx = grid_index(primary, p, a, b)
+            upwind_point(sigma, T, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
+            if paired != 0:
+                upwind_point(sigma2, T2, idx, lo, hi, inflow, kind, vec, h, source_radius,
+                             scheme)
         return
     n_p = T.shape[primary]
     if hp + rp < n_p:
-        upwind_point(sigma, T, grid_index(primary, hp + rp, a, b), lo, hi, inflow, kind, vec, h,
-                     source_radius, scheme)
+        idx = grid_index(primary, hp + rp, a, b)
+        upwind_point(sigma, T, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
+        if paired != 0:
+            upwind_point(sigma2, T2, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
     if lp - rp >= 0:
-        upwind_point(sigma, T, grid_index(primary, lp - rp, a, b), lo, hi, inflow, kind, vec, h,
-                     source_radius, scheme)
+        idx = grid_index(primary, lp - rp, a, b)
+        upwind_point(sigma, T, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
+        if paired != 0:
+            upwind_point(sigma2, T2, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
 
 
 @wp.kernel

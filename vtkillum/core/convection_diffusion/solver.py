@@ -269,7 +269,8 @@ class ConvectionDiffusionSolver:
         self._model = None
         self._graphs = LaunchGraphs(self.device)  # captured convection sweeps
         self._sigma_star = None  # δ-Eddington extinction of the beams (physical)
-        self._beams = {}  # geometry key -> transmittance through _sigma_star
+        self._sigma_star_key = None
+        self._beams = {}  # geometry key -> (sigma_star key, transmittance through it)
         self.shape = None
         self.spacing = None
 
@@ -346,7 +347,11 @@ class ConvectionDiffusionSolver:
             stats.ms["opacity"] = _elapsed_ms(t, self.device)
         report(0.05)
 
-        # 2. convection, per light geometry
+        # 2. convection, per light geometry (with the δ-Eddington beam in the same sweep)
+        physical = self.diffusion_model == "physical"
+        f = delta_fraction(opts["anisotropy"]) if physical and self.delta_scaling else 0.0
+        if f > 0:
+            self._update_sigma_star(f, opts["albedo"])
         kinds, vecs, rgbs = pack_lights(lights, volume.direction, volume.origin)
         geometry = [(int(kinds[i]), tuple(vecs[i].tolist()), r_s, self.convection_scheme)
                     for i in range(len(lights))]
@@ -361,19 +366,23 @@ class ConvectionDiffusionSolver:
                 out = cached[1] if cached is not None else None
                 if out is None:  # allocated outside the captured sweep
                     out = wp.empty(shape, dtype=wp.float32, device=self.device)
+                second = None
+                if f > 0:
+                    second = (self._sigma_star, self._beam_array(key))
+                    self._beams[key] = (self._sigma_star_key, second[1])
                 T = convect_light(self._sigma, spacing, key[0], vecs[i], r_s, out=out,
-                                  scheme=self.convection_scheme, graphs=self._graphs)
+                                  scheme=self.convection_scheme, graphs=self._graphs,
+                                  second=second)
                 fresh[key] = (self._opacity_version, T)
                 stats.convected.append(i)
                 stats.ms["convection"].append(_elapsed_ms(t, self.device))
             report(0.05 + 0.3 * (i + 1) / len(geometry))
         self._transmittance = fresh
         self._geometry = geometry
+        self._beams = {k: v for k, v in self._beams.items() if k in fresh}  # lights gone
 
         # 3. composition
-        physical = self.diffusion_model == "physical"
         light_key = tuple((g, tuple(rgbs[i].tolist())) for i, g in enumerate(geometry))
-        f = delta_fraction(opts["anisotropy"]) if physical and self.delta_scaling else 0.0
         compose_key = (self._opacity_version, light_key, self.diffusion_model) + (
             (self._color_version, opts["albedo"], bool(self.first_moment), f,
              opts["anisotropy"] if self.first_moment or f > 0 else None) if physical else ())
@@ -405,7 +414,7 @@ class ConvectionDiffusionSolver:
                                          for _ in range(3))
                 sources, sigma, albedo, g = Ts, self._sigma, opts["albedo"], opts["anisotropy"]
                 if f > 0:  # δ-Eddington: the forward peak stays in the beam
-                    sigma, sources = self._delta_beams(f, albedo, geometry, vecs, spacing, r_s)
+                    sigma, sources = self._delta_beams(geometry, vecs, spacing, r_s)
                     albedo, g = albedo * (1.0 - f), g / (1.0 + g)
                 first_scattered_source(sources, kinds, directions, rgbs, spacing, r_s, sigma,
                                        self._color_sigma, albedo, self._q,
@@ -531,22 +540,38 @@ class ConvectionDiffusionSolver:
         return np.maximum(self._rendered[1].numpy(), 0.0) * np.float32(self._light_scale)
 
     # --- internals -------------------------------------------------------------------------
-    def _delta_beams(self, f: float, albedo: float, geometry, vecs, spacing, r_s):
-        """δ-Eddington beams: ``sigma_t* = sigma_t - f albedo <color sigma_t>`` (grey: the
-        channels' mean) and each light's transmittance through it."""
+    def _update_sigma_star(self, f: float, albedo: float) -> None:
+        """δ-Eddington extinction of the beams, ``sigma_t* = sigma_t - f albedo <color
+        sigma_t>`` (grey: the channels' mean), when the medium, albedo or ``f`` changed."""
+        key = (self._color_version, float(albedo), float(f))
         if self._sigma_star is None or tuple(self._sigma_star.shape) != tuple(self.shape):
             self._sigma_star = wp.empty(self.shape, dtype=wp.float32, device=self.device)
             self._beams = {}
-        wp.launch(delta_sigma_kernel, dim=self.shape, device=self.device,
-                  inputs=[self._sigma, self._color_sigma, float(f * albedo), self._sigma_star])
+            self._sigma_star_key = None
+        if key != self._sigma_star_key:
+            wp.launch(delta_sigma_kernel, dim=self.shape, device=self.device,
+                      inputs=[self._sigma, self._color_sigma, float(f * albedo),
+                              self._sigma_star])
+            self._sigma_star_key = key
+
+    def _beam_array(self, key) -> wp.array3d:
+        cached = self._beams.get(key)
+        if cached is not None:
+            return cached[1]
+        return wp.empty(self.shape, dtype=wp.float32, device=self.device)
+
+    def _delta_beams(self, geometry, vecs, spacing, r_s):
+        """``sigma_t*`` and each light's transmittance through it: from the paired sweep of
+        the convection step, or swept now where only the albedo, colour or ``g`` changed."""
         beams = []
         for i, key in enumerate(geometry):
-            out = self._beams.get(key)
-            if out is None:
-                out = self._beams[key] = wp.empty(self.shape, dtype=wp.float32,
-                                                  device=self.device)
-            beams.append(convect_light(self._sigma_star, spacing, key[0], vecs[i], r_s, out=out,
-                                       scheme=self.convection_scheme, graphs=self._graphs))
+            cached = self._beams.get(key)
+            if cached is None or cached[0] != self._sigma_star_key:
+                out = self._beam_array(key)
+                convect_light(self._sigma_star, spacing, key[0], vecs[i], r_s, out=out,
+                              scheme=self.convection_scheme, graphs=self._graphs)
+                cached = self._beams[key] = (self._sigma_star_key, out)
+            beams.append(cached[1])
         return self._sigma_star, beams
 
     def _check_updated(self) -> None:
