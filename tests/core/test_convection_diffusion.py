@@ -229,7 +229,7 @@ def test_iteration_budget_refines_progressively(device, model):
     assert cd.update(vol, TF, 0.1, LIGHTS).diffusion.iterations > 0
 
 
-def test_progress_is_reported_per_light_and_per_iteration(device):
+def test_progress_is_reported_per_stage_and_per_iteration(device):
     vol = blob()
     for model in ("physical", "paper"):
         calls = []
@@ -237,8 +237,8 @@ def test_progress_is_reported_per_light_and_per_iteration(device):
                                        tolerance=1e-5)
         stats = cd.update(vol, TF, 0.1, LIGHTS, progress=calls.append)
         assert calls[-1] == 1.0 and np.all(np.diff(calls) >= 0) and 0 < calls[0] < 0.1
-        # opacity, two lights, composition, every diffusion iteration, the end
-        assert len(calls) >= 4 + stats.diffusion.iterations + 1, (model, calls)
+        # opacity, the lights (one batch), composition, every diffusion iteration, the end
+        assert len(calls) >= 3 + stats.diffusion.iterations + 1, (model, calls)
         assert stats.diffusion.iterations >= 2
 
 
@@ -447,3 +447,34 @@ def test_delta_beams_follow_albedo_and_g_edits(device):
         np.testing.assert_allclose(cd.source, fresh.source, rtol=1e-5, atol=1e-6)
         np.testing.assert_allclose(cd.scattered_fluence, fresh.scattered_fluence, rtol=2e-3,
                                    atol=2e-4 * fresh.scattered_fluence.max())
+
+
+def test_batched_sweep_equals_one_sweep_per_light(device):
+    """All lights that changed are convected in the same launches, each into its slot."""
+    import warp as wp
+
+    from vtkillum.core.convection_diffusion.convection import convect_light, convect_lights
+    from vtkillum.core.graphs import LaunchGraphs
+    from vtkillum.core.lights import DIRECTIONAL, POINT
+
+    rng = np.random.default_rng(5)
+    shape, h = (13, 10, 8), np.array([0.1, 0.12, 0.15])
+    s1 = wp.array(rng.uniform(0, 8, shape).astype(np.float32), device=device)
+    s2 = wp.array(rng.uniform(0, 3, shape).astype(np.float32), device=device)
+    lights = [(DIRECTIONAL, (1.0, -0.4, 0.3)), (POINT, (0.6, 0.5, 0.4)),
+              (DIRECTIONAL, (0.0, 0.2, -1.0)), (POINT, (-0.5, 2.0, 0.3))]
+    slots = [3, 0, 4, 1]
+    graphs = LaunchGraphs(device, enabled=True)
+    out = wp.zeros((5,) + shape, dtype=wp.float32, device=device)
+    out2 = wp.zeros((5,) + shape, dtype=wp.float32, device=device)
+    for _ in range(2):  # recorded, then replayed
+        out.zero_()
+        out2.zero_()
+        convect_lights(s1, h, lights, out, slots, 0.1, graphs=graphs, second=(s2, out2))
+        for (kind, vec), slot in zip(lights, slots):
+            np.testing.assert_array_equal(out.numpy()[slot], convect_light(s1, h, kind, vec, 0.1).numpy())
+            np.testing.assert_array_equal(out2.numpy()[slot], convect_light(s2, h, kind, vec, 0.1).numpy())
+        assert not out.numpy()[2].any()  # an unused slot is left alone
+    assert graphs.captures == 1 and graphs.replays == 2
+    with pytest.raises(ValueError, match="distinct"):
+        convect_lights(s1, h, lights[:2], out, [0, 0])

@@ -63,12 +63,21 @@ class LaunchGraphs:
         self.replays = 0
         self.captures = 0
 
-    def run(self, key, record) -> None:
-        """Run ``record()``, from its captured graph when ``key`` was recorded before."""
+    def recorded(self, key) -> bool:
+        """Whether :meth:`run` would replay ``key`` (its ``record`` is then not called)."""
+        return self.enabled and key in self._graphs
+
+    def run(self, key, record, keep=None) -> None:
+        """Run ``record()``, from its captured graph when ``key`` was recorded before.
+
+        ``keep``: objects the recording reads that nothing else keeps alive (e.g. small
+        parameter arrays made for it); held as long as the graph.
+        """
         if not self.enabled:
             record()
             return
-        graph = self._graphs.get(key)
+        entry = self._graphs.get(key)
+        graph = entry[0] if entry is not None else None
         if graph is None:
             try:
                 with wp.ScopedCapture(device=self.device) as capture:
@@ -84,7 +93,7 @@ class LaunchGraphs:
             graph = capture.graph
             if len(self._graphs) >= MAX_GRAPHS:
                 self._graphs.pop(next(iter(self._graphs)))
-            self._graphs[key] = graph
+            self._graphs[key] = (graph, keep)
             self.captures += 1
         wp.capture_launch(graph)
         self.replays += 1

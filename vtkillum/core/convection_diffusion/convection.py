@@ -262,6 +262,83 @@ def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: flo
     return out
 
 
+def convect_lights(sigma: wp.array3d, spacing, lights, out: wp.array4d, slots,
+                   source_radius: float = 0.0, scheme: str = "characteristics", graphs=None,
+                   second=None) -> None:
+    """:func:`convect_light` for several lights in the same launches.
+
+    Wavefront ``m`` of every light is one launch, so ``n`` lights cost about as much as
+    the one with most wavefronts (the sweep is bound by the wavefronts' latency).
+
+    Parameters
+    ----------
+    sigma, spacing, source_radius, scheme, graphs
+        As :func:`convect_light`.
+    lights : sequence of (kind, vec)
+        ``kind`` ``DIRECTIONAL`` or ``POINT``, ``vec`` as for :func:`convect_light`.
+    out : warp.array4d of float32
+        ``(slots, nx, ny, nz)``: light ``n`` writes ``out[slots[n]]``.
+    slots : sequence of int
+        Distinct slots of ``out``, one per light.
+    second : (warp.array3d, warp.array4d), optional
+        ``(sigma2, out2)``: each light also through ``sigma2`` into ``out2[slot]``.
+    """
+    shape = tuple(sigma.shape)
+    device = sigma.device
+    scheme_id = _scheme_id(scheme)
+    spacing = np.asarray(spacing, dtype=np.float64)
+    if tuple(out.shape[1:]) != shape or len(set(slots)) != len(slots):
+        raise ValueError("convect_lights: out must be (slots, *grid) and the slots distinct")
+    plans, vecs = [], []
+    for kind, vec in lights:
+        vec = np.asarray(vec, dtype=np.float64)
+        if kind == DIRECTIONAL:
+            norm = np.linalg.norm(vec)
+            if norm == 0:
+                raise ValueError("a directional light needs a non-zero direction")
+            vec = vec / norm
+        plans.append(sweep_plan(kind, vec, shape, spacing))
+        vecs.append(vec.astype(np.float32))
+    if not plans:
+        return
+    dims = [[shape[a] for a in range(3) if a != p.primary] for p in plans]
+    dim = (len(plans), max(d[0] for d in dims), max(d[1] for d in dims))
+    wavefronts = max(p.wavefronts for p in plans)
+    sigma2, out2 = second if second is not None else (sigma, out)
+    if tuple(sigma2.shape) != shape or tuple(out2.shape) != tuple(out.shape):
+        raise ValueError("the second field of a paired sweep must have the grid's shape")
+
+    key = ("convect-batch", tuple((int(k), tuple(v.tolist())) for (k, _), v in zip(lights, vecs)),
+           tuple(int(i) for i in slots), tuple(spacing.astype(np.float32).tolist()),
+           float(source_radius), scheme_id, second is not None) + array_key(sigma, out, sigma2,
+                                                                           out2)
+    if graphs is not None and graphs.recorded(key):
+        graphs.run(key, None)  # the tables below live in the recording
+        return
+
+    def table(values, dtype):
+        return wp.array(np.asarray(values), dtype=dtype, device=device)
+
+    params = [table(list(slots), int), table([p.primary for p in plans], int),
+              table([p.lo for p in plans], wp.vec3i), table([p.hi for p in plans], wp.vec3i),
+              table([p.inflow for p in plans], wp.vec3i),
+              table([int(k) for k, _ in lights], int), table(vecs, wp.vec3)]
+    h32 = spacing.astype(np.float32)
+
+    def sweep():
+        cmd = wp.launch(batched_sweep_kernel, dim=dim, device=device, record_cmd=True,
+                        inputs=[sigma, out, 0, *params, wp.vec3(*h32), float(source_radius),
+                                scheme_id, int(second is not None), sigma2, out2])
+        for m in range(wavefronts):
+            cmd.set_param_at_index(2, m)
+            cmd.launch()
+
+    if graphs is None:
+        sweep()
+    else:  # the recording reads the tables: the key holds their content, the graph them
+        graphs.run(key, sweep, keep=params)
+
+
 def convect_light_iterated(sigma: wp.array3d, spacing, kind: int, vec, source_radius: float = 0.0,
                            max_iterations: int = 100000, tolerance: float = 1e-7,
                            initial: wp.array3d | None = None, check_every: int = 16,
@@ -500,23 +577,15 @@ def upwind_point(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.flo
 
 
 # --- kernels -------------------------------------------------------------------------------------
-@wp.kernel
-def upwind_sweep_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.float32),
-                        m: int, primary: int, lo: wp.vec3i, hi: wp.vec3i, inflow: wp.vec3i,
-                        kind: int, vec: wp.vec3, h: wp.vec3, source_radius: float, scheme: int,
-                        paired: int, sigma2: wp.array3d(dtype=wp.float32),
-                        T2: wp.array3d(dtype=wp.float32)):
-    """Update every point of wavefront ``m`` (see the module docstring); with ``paired``
-    also those of ``T2`` through ``sigma2``.
-
-    ``wp.tid() = (a, b)`` indexes the two non-primary axes in increasing axis order;
-    the thread updates the (at most two, or the ``[lo, hi]`` range when ``m`` is reached
-    there) points of its line along the primary axis whose wavefront index is ``m``.
-    ``h`` is the grid spacing (world units), ``vec`` the light's travel direction or
-    position in the local frame, ``sigma`` in 1/world units, ``scheme`` 0 upwind or
-    1 exponential.
-    """
-    a, b = wp.tid()
+@wp.func
+def sweep_line(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.float32), m: int,
+               primary: int, lo: wp.vec3i, hi: wp.vec3i, inflow: wp.vec3i, kind: int,
+               vec: wp.vec3, h: wp.vec3, source_radius: float, scheme: int, paired: int,
+               sigma2: wp.array3d(dtype=wp.float32), T2: wp.array3d(dtype=wp.float32), a: int,
+               b: int):
+    """The points of line ``(a, b)`` (the non-primary axes in increasing order) whose
+    wavefront index is ``m``: at most two, or the ``[lo, hi]`` range when ``m`` is reached
+    there; with ``paired`` also those of ``T2`` through ``sigma2``."""
     base = grid_index(primary, 0, a, b)
     r_other = (wavefront_distance(base[0], lo[0], hi[0]) + wavefront_distance(base[1], lo[1], hi[1])
                + wavefront_distance(base[2], lo[2], hi[2]) - wavefront_distance(0, lo[primary],
@@ -545,6 +614,50 @@ def upwind_sweep_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype
         upwind_point(sigma, T, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
         if paired != 0:
             upwind_point(sigma2, T2, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
+
+
+@wp.kernel
+def upwind_sweep_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.float32),
+                        m: int, primary: int, lo: wp.vec3i, hi: wp.vec3i, inflow: wp.vec3i,
+                        kind: int, vec: wp.vec3, h: wp.vec3, source_radius: float, scheme: int,
+                        paired: int, sigma2: wp.array3d(dtype=wp.float32),
+                        T2: wp.array3d(dtype=wp.float32)):
+    """Update every point of wavefront ``m`` (see the module docstring) of one light.
+
+    ``wp.tid() = (a, b)`` indexes the two non-primary axes in increasing axis order
+    (:func:`sweep_line`). ``h`` is the grid spacing (world units), ``vec`` the light's
+    travel direction or position in the local frame, ``sigma`` in 1/world units,
+    ``scheme`` 0 upwind or 1 exponential.
+    """
+    a, b = wp.tid()
+    sweep_line(sigma, T, m, primary, lo, hi, inflow, kind, vec, h, source_radius, scheme, paired,
+               sigma2, T2, a, b)
+
+
+@wp.kernel
+def batched_sweep_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array4d(dtype=wp.float32),
+                         m: int, slots: wp.array(dtype=int), primaries: wp.array(dtype=int),
+                         los: wp.array(dtype=wp.vec3i), his: wp.array(dtype=wp.vec3i),
+                         inflows: wp.array(dtype=wp.vec3i), kinds: wp.array(dtype=int),
+                         vecs: wp.array(dtype=wp.vec3), h: wp.vec3, source_radius: float,
+                         scheme: int, paired: int, sigma2: wp.array3d(dtype=wp.float32),
+                         T2: wp.array4d(dtype=wp.float32)):
+    """Wavefront ``m`` of several lights at once: ``wp.tid() = (job, a, b)``, light ``job``
+    writes ``T[slots[job]]`` (lines beyond its own grid face are skipped, and so are the
+    wavefronts past its last)."""
+    job, a, b = wp.tid()
+    primary = primaries[job]
+    first = 0
+    if primary == 0:
+        first = 1
+    second = 2
+    if primary == 2:
+        second = 1
+    if a >= sigma.shape[first] or b >= sigma.shape[second]:
+        return
+    slot = slots[job]
+    sweep_line(sigma, T[slot], m, primary, los[job], his[job], inflows[job], kinds[job],
+               vecs[job], h, source_radius, scheme, paired, sigma2, T2[slot], a, b)
 
 
 @wp.kernel

@@ -72,7 +72,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.convection_diffusion.composition import compose_direct, first_scattered_source
-from vtkillum.core.convection_diffusion.convection import SCHEMES, convect_light
+from vtkillum.core.convection_diffusion.convection import SCHEMES, convect_lights
 from vtkillum.core.convection_diffusion.diffusion import SOLVERS, DiffusionReport, DiffusionSolver
 from vtkillum.core.convection_diffusion.opacity import (
     light_grid_optics,
@@ -270,7 +270,10 @@ class ConvectionDiffusionSolver:
         self._graphs = LaunchGraphs(self.device)  # captured convection sweeps
         self._sigma_star = None  # δ-Eddington extinction of the beams (physical)
         self._sigma_star_key = None
-        self._beams = {}  # geometry key -> (sigma_star key, transmittance through it)
+        self._T_stack = None  # (slots, *grid): light i's transmittance in slot i
+        self._beam_stack = None  # the same through _sigma_star (δ-Eddington beams)
+        self._slot_keys = []  # slot -> (geometry key, opacity version) it holds
+        self._beam_keys = []  # slot -> (geometry key, sigma_star key) it holds
         self.shape = None
         self.spacing = None
 
@@ -296,8 +299,9 @@ class ConvectionDiffusionSolver:
             Single-scattering albedo ``Λ`` and Henyey–Greenstein ``g`` of the scene (the
             physical model's ``sigma_s``, ``sigma_a`` and ``D``).
         progress : callable, optional
-            ``progress(fraction)``: after the opacity volume, after each convected light,
-            after the composition and after every diffusion iteration.
+            ``progress(fraction)``: after the opacity volume, after the convection (all
+            lights in one batch), after the composition and after every diffusion
+            iteration.
 
         Returns
         -------
@@ -355,31 +359,29 @@ class ConvectionDiffusionSolver:
         kinds, vecs, rgbs = pack_lights(lights, volume.direction, volume.origin)
         geometry = [(int(kinds[i]), tuple(vecs[i].tolist()), r_s, self.convection_scheme)
                     for i in range(len(lights))]
-        fresh = {}
         stats.ms["convection"] = []
-        for i, key in enumerate(geometry):
-            cached = fresh.get(key) or self._transmittance.get(key)
-            if cached is not None and cached[0] == self._opacity_version:
-                fresh[key] = cached
-            else:
-                t = time.perf_counter()
-                out = cached[1] if cached is not None else None
-                if out is None:  # allocated outside the captured sweep
-                    out = wp.empty(shape, dtype=wp.float32, device=self.device)
-                second = None
+        self._ensure_slots(len(geometry))
+        jobs = [i for i, key in enumerate(geometry)
+                if self._slot_keys[i] != (key, self._opacity_version)]
+        if jobs:  # all lights that changed in the same launches (one per wavefront)
+            t = time.perf_counter()
+            second = None
+            if f > 0:
+                second = (self._sigma_star, self._beam_stack)
+            convect_lights(self._sigma, spacing, [(geometry[i][0], vecs[i]) for i in jobs],
+                           self._T_stack, jobs, r_s, self.convection_scheme, self._graphs,
+                           second)
+            for i in jobs:
+                self._slot_keys[i] = (geometry[i], self._opacity_version)
                 if f > 0:
-                    second = (self._sigma_star, self._beam_array(key))
-                    self._beams[key] = (self._sigma_star_key, second[1])
-                T = convect_light(self._sigma, spacing, key[0], vecs[i], r_s, out=out,
-                                  scheme=self.convection_scheme, graphs=self._graphs,
-                                  second=second)
-                fresh[key] = (self._opacity_version, T)
-                stats.convected.append(i)
-                stats.ms["convection"].append(_elapsed_ms(t, self.device))
-            report(0.05 + 0.3 * (i + 1) / len(geometry))
-        self._transmittance = fresh
+                    self._beam_keys[i] = (geometry[i], self._sigma_star_key)
+            stats.convected.extend(jobs)
+            share = _elapsed_ms(t, self.device) / len(jobs)
+            stats.ms["convection"].extend([share] * len(jobs))
+        report(0.35)
+        self._transmittance = {key: (self._opacity_version, self._T_stack[i])
+                               for i, key in enumerate(geometry)}
         self._geometry = geometry
-        self._beams = {k: v for k, v in self._beams.items() if k in fresh}  # lights gone
 
         # 3. composition
         light_key = tuple((g, tuple(rgbs[i].tolist())) for i, g in enumerate(geometry))
@@ -402,7 +404,7 @@ class ConvectionDiffusionSolver:
                     self._q_norm_prev = self._q_norm_prev * ratio
                 self._light_scale = scale
             rgbs = (rgbs / scale).astype(np.float32)
-            Ts = [fresh[key][1] for key in geometry]
+            Ts = [self._T_stack[i] for i in range(len(geometry))]
             directions = [v / max(float(np.linalg.norm(v)), 1e-30) if k == DIRECTIONAL else v
                           for k, v in zip(kinds, vecs.astype(np.float64))]
             compose_direct(Ts, kinds, directions, rgbs, spacing, r_s, self._b)
@@ -546,7 +548,6 @@ class ConvectionDiffusionSolver:
         key = (self._color_version, float(albedo), float(f))
         if self._sigma_star is None or tuple(self._sigma_star.shape) != tuple(self.shape):
             self._sigma_star = wp.empty(self.shape, dtype=wp.float32, device=self.device)
-            self._beams = {}
             self._sigma_star_key = None
         if key != self._sigma_star_key:
             wp.launch(delta_sigma_kernel, dim=self.shape, device=self.device,
@@ -554,25 +555,31 @@ class ConvectionDiffusionSolver:
                               self._sigma_star])
             self._sigma_star_key = key
 
-    def _beam_array(self, key) -> wp.array3d:
-        cached = self._beams.get(key)
-        if cached is not None:
-            return cached[1]
-        return wp.empty(self.shape, dtype=wp.float32, device=self.device)
+    def _ensure_slots(self, count: int) -> None:
+        """Stacks of per-light transmittance (and δ-Eddington beams) for ``count`` lights;
+        light ``i`` lives in slot ``i``. Growing them invalidates every slot."""
+        capacity = 0 if self._T_stack is None else self._T_stack.shape[0]
+        if count <= capacity and tuple(self._T_stack.shape[1:]) == tuple(self.shape):
+            return
+        capacity = max(count, 2 * capacity, 1)
+        size = (capacity,) + tuple(self.shape)
+        self._T_stack = wp.empty(size, dtype=wp.float32, device=self.device)
+        self._beam_stack = wp.empty(size, dtype=wp.float32, device=self.device)
+        self._slot_keys = [None] * capacity
+        self._beam_keys = [None] * capacity
 
     def _delta_beams(self, geometry, vecs, spacing, r_s):
         """``sigma_t*`` and each light's transmittance through it: from the paired sweep of
-        the convection step, or swept now where only the albedo, colour or ``g`` changed."""
-        beams = []
-        for i, key in enumerate(geometry):
-            cached = self._beams.get(key)
-            if cached is None or cached[0] != self._sigma_star_key:
-                out = self._beam_array(key)
-                convect_light(self._sigma_star, spacing, key[0], vecs[i], r_s, out=out,
-                              scheme=self.convection_scheme, graphs=self._graphs)
-                cached = self._beams[key] = (self._sigma_star_key, out)
-            beams.append(cached[1])
-        return self._sigma_star, beams
+        the convection step, or swept now (all stale lights in the same launches) where
+        only the albedo, colour or ``g`` changed."""
+        stale = [i for i, key in enumerate(geometry)
+                 if self._beam_keys[i] != (key, self._sigma_star_key)]
+        if stale:
+            convect_lights(self._sigma_star, spacing, [(geometry[i][0], vecs[i]) for i in stale],
+                           self._beam_stack, stale, r_s, self.convection_scheme, self._graphs)
+            for i in stale:
+                self._beam_keys[i] = (geometry[i], self._sigma_star_key)
+        return self._sigma_star, [self._beam_stack[i] for i in range(len(geometry))]
 
     def _check_updated(self) -> None:
         if self._x is None:
