@@ -3,7 +3,7 @@
     python examples/readme_pictures.py [--out docs/images]
 
 Runs, in a temporary directory and without a display, the README's
-``vtkillum export builtin:ct -o head.vti`` command and its two Python blocks that
+``vtkillum export ... -o head.vti`` command and its two Python blocks that
 write ``vtk.png`` (the VTK section: a smoke plume lit by a
 ``ConvectionDiffusionLightFilter`` through :class:`vtkillum.mappers.IlluminatedVolume`)
 and ``pyvista.png`` (the pyvista section: the CT head phantom lit by
@@ -46,9 +46,16 @@ def main(argv=None) -> int:
                PYVISTA_OFF_SCREEN="true",
                PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     env.pop("DISPLAY", None)
-    export = [sys.executable, "-m", "vtkillum.cli", "export", "builtin:ct", "-o", "head.vti"]
     with tempfile.TemporaryDirectory() as tmp:
-        subprocess.run(export, cwd=tmp, env=env, check=True)
+        bin_dir = Path(tmp) / "bin"  # `vtkillum` is this checkout's command line
+        bin_dir.mkdir()
+        (bin_dir / "vtkillum").write_text(f'#!/bin/sh\nexec "{sys.executable}" -m vtkillum.cli "$@"\n')
+        (bin_dir / "vtkillum").chmod(0o755)
+        env["PATH"] = f"{bin_dir}{os.pathsep}{env.get('PATH', '')}"
+        for language, code in readme_blocks():
+            if language == "bash" and "vtkillum export" in code and "head.vti" in code:
+                subprocess.run(["bash", "-euo", "pipefail", "-c", code], cwd=tmp, env=env,
+                               check=True)
         for language, code in readme_blocks():
             if language != "python" or not any(f'"{name}"' in code for name in PICTURES):
                 continue
