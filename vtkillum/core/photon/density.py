@@ -87,7 +87,7 @@ def mean_extinction(medium: Medium, volume, radius: float, device: str,
     device : str
     mask : wp.array3d(uint64), optional
         A mask computed before for the same volume and radius (it does not depend on
-        the transfer function); computed when omitted.
+        the transfer function); when omitted, :func:`kernel_mask` (kept with the volume).
     bins : (lo, scale)
         Data binning of the Historygrams (:func:`~vtkillum.core.photon.historygram.bin_scale`).
 
@@ -110,6 +110,19 @@ def mean_extinction(medium: Medium, volume, radius: float, device: str,
     me.sigma = a
     me.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
     if mask is None:
+        mask = kernel_mask(medium, volume, radius, device, bins)
+    me.mask = mask
+    return me
+
+
+def kernel_mask(medium: Medium, volume, radius: float, device: str, bins) -> wp.array:
+    """The bins mask of :func:`mean_extinction`, kept with the volume (it depends on the
+    data, the radius and the binning only, not on the transfer function or the lights)."""
+    half = 0.5 * CUBE_SIDE * float(radius) / np.asarray(volume.spacing, np.float64)
+    key = (float(radius), float(bins[0]), float(bins[1]))
+
+    def make():
+        dims = tuple(volume.dims)
         m0 = wp.empty(dims, dtype=wp.uint64, device=device)
         m1 = wp.empty(dims, dtype=wp.uint64, device=device)
         wp.launch(bins_points_kernel, dim=dims,
@@ -118,9 +131,9 @@ def mean_extinction(medium: Medium, volume, radius: float, device: str,
             wp.launch(box_or_kernel, dim=dims, inputs=[m0, axis, box_reach(half[axis]), m1],
                       device=device)
             m0, m1 = m1, m0
-        mask = m0
-    me.mask = mask
-    return me
+        return m0
+
+    return volume.derived(f"photon_kernel_mask@{device}", key, make)
 
 
 @wp.func
@@ -161,7 +174,8 @@ def photon_fluence(grid: PhotonGrid, me: MeanExtinction, x: wp.vec3):
     return gather_flux(grid, x) / sbar
 
 
-def fluence_grid(grid: PhotonGrid, me: MeanExtinction, shape, extent, device: str) -> np.ndarray:
+def fluence_grid(grid: PhotonGrid, me: MeanExtinction, shape, extent, device: str,
+                 to_numpy: bool = True):
     """Photon fluence ``φ`` at the points of a grid covering ``[0, extent]``.
 
     Parameters
@@ -176,26 +190,62 @@ def fluence_grid(grid: PhotonGrid, me: MeanExtinction, shape, extent, device: st
     extent : (3,) float
         The volume's box in the local frame.
     device : str
+    to_numpy : bool
+        Return a numpy array (default) or the device array (``wp.array3d(vec3)``).
 
     Returns
     -------
     ndarray (nx, ny, nz, 3) float32
         RGB fluence in the lights' irradiance units.
+
+    Notes
+    -----
+    The points are gathered in bricks of 8×4×1 (x, y, z), one warp a brick: the warp's
+    spheres overlap, so its lanes read the same cell rows and photons, and bricks in
+    empty space (``σ̄t = 0``) leave at once.
     """
     shape = tuple(int(n) for n in shape)
     spacing = np.asarray(extent, np.float64) / (np.asarray(shape) - 1)
-    out = wp.zeros(shape, dtype=wp.vec3, device=device)
-    wp.launch(fluence_grid_kernel, dim=shape,
-              inputs=[grid, me, wp.vec3(*spacing.astype(np.float32)), out], device=device)
+    out = wp.empty(shape, dtype=wp.vec3, device=device)
+    bx, by = (shape[0] + 7) // 8, (shape[1] + 3) // 4
+    wp.launch(fluence_grid_kernel, dim=bx * by * shape[2] * 32,
+              inputs=[grid, me, wp.vec3(*spacing.astype(np.float32)), bx, by, out],
+              device=device)
+    if not to_numpy:
+        return out
     return out.numpy().reshape(*shape, 3)
 
 
+def accumulate_fluence(total: wp.array, fluence: wp.array, device: str) -> None:
+    """``total += fluence`` (float64 sum of float32 grids, on the device)."""
+    wp.launch(accumulate_kernel, dim=total.shape, inputs=[total, fluence], device=device)
+
+
 @wp.kernel
-def fluence_grid_kernel(grid: PhotonGrid, me: MeanExtinction, spacing: wp.vec3,
-                        out: wp.array3d(dtype=wp.vec3)):
-    """``wp.tid()`` = ``(i, j, k)``, a point of the output grid at ``(i, j, k) * spacing``
-    (local frame, world units); writes the photon fluence there (RGB)."""
+def accumulate_kernel(total: wp.array3d(dtype=wp.vec3d), add: wp.array3d(dtype=wp.vec3)):
+    """``wp.tid()`` = ``(i, j, k)``: ``total += add`` in float64."""
     i, j, k = wp.tid()
+    a = add[i, j, k]
+    total[i, j, k] = total[i, j, k] + wp.vec3d(wp.float64(a[0]), wp.float64(a[1]),
+                                               wp.float64(a[2]))
+
+
+@wp.kernel
+def fluence_grid_kernel(grid: PhotonGrid, me: MeanExtinction, spacing: wp.vec3, bx: int,
+                        by: int, out: wp.array3d(dtype=wp.vec3)):
+    """``wp.tid()`` = 32 threads per brick of 8×4×1 points ``(i, j, k)`` of the output grid
+    (``bx`` × ``by`` bricks per z slice), a point at ``(i, j, k) * spacing`` (local frame,
+    world units); writes the photon fluence there (RGB)."""
+    t = wp.tid()
+    lane = t % 32
+    brick = t // 32
+    k = brick // (bx * by)
+    brick = brick - k * (bx * by)
+    bj = brick // bx
+    i = (brick - bj * bx) * 8 + lane % 8
+    j = bj * 4 + lane // 8
+    if i >= out.shape[0] or j >= out.shape[1]:
+        return
     out[i, j, k] = photon_fluence(grid, me, grid_point(i, j, k, spacing))
 
 

@@ -6,22 +6,35 @@ on the GPU, based on bin index using radix sort. The start and end of each bin a
 then found [...]. Since the photon radius is used for the bin width, all photons
 within the given radius can be found by querying the 27 surrounding bins."
 
-:func:`build_photon_grid` does exactly that on the device:
+:func:`build_photon_grid` does this on the device, with bins of **half** the radius:
 
 1. one key per stored interaction that the density estimate uses (scattering order
-   ``>= min_order``): the linear index of its cell ``floor(x / cell)`` on a dense grid
-   of cells covering the volume's box (a perfect hash; interactions that do not take
-   part get the key ``2**31 - 1`` and sort to the end);
+   ``>= min_order``): the linear index ``i + nx (j + ny k)`` of its cell
+   ``floor(x / cell)`` on a dense grid of cells covering the volume's box (a perfect
+   hash; interactions that do not take part get the key ``2**31 - 1`` and sort to the
+   end), and a histogram of the keys;
 2. ``warp.utils.radix_sort_pairs`` of (key, interaction index) — stable, so photons in a
    cell stay in buffer order and the sums below are reproducible;
 3. the gathered photons in sorted order (position, incoming direction, flux), for
    coherent reads during the gather;
-4. cell start/end tables from the sorted keys.
+4. the table ``cell_start`` (``n_cells + 1`` entries): the exclusive prefix sum of the
+   histogram, so cell ``c`` holds photons ``[cell_start[c], cell_start[c + 1])`` and a
+   run of cells along x (one row) is one contiguous range.
 
-The cell size is the photon radius, enlarged only where the dense table would exceed
-:data:`MAX_CELLS` cells (a larger cell still holds every photon within the radius in
-the 27 cells around a query). The table is rebuilt after every photon update (the
-paper re-sorts too, moving invalid photons to their new bins).
+A query (:func:`gather_phase_flux`, :func:`gather_flux`) walks the rows of cells that
+meet the sphere: for each slab ``k`` and row ``j`` within reach it clips the row to the
+chord of the sphere at the row's nearest point and reads that one range. With cells of
+half the radius the photons read are about 2.5 times those within the radius (27 times
+the sphere's volume over 4.19 with the paper's 27 bins of the radius): in the dense
+layers where photons pile up (a wall next to a point light holds thousands per bin)
+the gather reads a third of what 27 bins would, and in sparse media about 20 ranges
+replace 27 bins. The photons summed, and the test ``|x_p - x| <= r``, are the paper's;
+only the order of the sum differs.
+
+The cell size is half the radius, enlarged only where the dense table would exceed
+:data:`MAX_CELLS` cells (the rows clip to the sphere whatever the cell size). The table
+is rebuilt after every photon update (the paper re-sorts too, moving invalid photons to
+their new bins).
 """
 
 from __future__ import annotations
@@ -35,30 +48,34 @@ from vtkillum.core.photon.material import SurfaceParams, scattering
 
 init_warp()
 
-#: Largest number of cells of the dense bin table (8 bytes each).
-MAX_CELLS = 1 << 24
+#: Largest number of cells of the dense bin table (4 bytes each).
+MAX_CELLS = 1 << 25
+#: Cells per photon radius along each axis (the paper's bins: 1).
+CELLS_PER_RADIUS = 2
 #: Key of interactions left out of the estimate (sorts last).
 UNUSED_KEY = wp.constant(2**31 - 1)
 
 
 @wp.struct
 class PhotonGrid:
-    """Photons sorted by cell, with the cell tables: what the density estimate reads.
+    """Photons sorted by cell, with the cell table: what the density estimate reads.
 
     ``pos``, ``dir``, ``power``: position (local frame), incoming travel direction and
-    flux ``Φ`` (RGB) of the ``count`` photons, sorted by cell; ``cell_start[c]``, ``cell_end[c]``: the range of cell ``c``
-    (``c = i + dims.x (j + dims.y k)``); ``cell``: cell size; ``radius`` and
-    ``inv_volume = 1 / (4/3 π radius³)``: the kernel of eq. (8).
+    flux ``Φ`` (RGB) of the ``count`` photons, sorted by cell; cell ``c = i + dims.x (j +
+    dims.y k)`` holds ``[cell_start[c], cell_start[c + 1])``; ``cell``: cell size;
+    ``radius`` and ``inv_volume = 1 / (4/3 π radius³)``: the kernel of eq. (8); ``reach``:
+    the radius plus a rounding margin, for choosing the cells (the photons summed are
+    those within ``radius``).
     """
 
     pos: wp.array(dtype=wp.vec3)
     dir: wp.array(dtype=wp.vec3)
     power: wp.array(dtype=wp.vec3)
     cell_start: wp.array(dtype=wp.int32)
-    cell_end: wp.array(dtype=wp.int32)
     dims: wp.vec3i
     cell: float
     radius: float
+    reach: float
     inv_volume: float
     count: int
 
@@ -66,7 +83,7 @@ class PhotonGrid:
 def grid_dims(extent, radius: float) -> tuple[float, tuple[int, int, int]]:
     """Cell size and cells per axis for a box ``extent`` and photon ``radius``."""
     extent = np.asarray(extent, np.float64)
-    cell = float(radius)
+    cell = float(radius) / CELLS_PER_RADIUS
     while True:
         dims = tuple(int(np.floor(e / cell)) + 1 for e in extent)
         if int(np.prod(dims, dtype=np.int64)) <= MAX_CELLS:
@@ -100,36 +117,42 @@ def build_photon_grid(interactions: Interactions, total: int, extent, radius: fl
     grid.dims = wp.vec3i(*dims)
     grid.cell = float(cell)
     grid.radius = float(radius)
+    # Cells are chosen for a sphere a little larger than the radius, so that rounding in
+    # floor(x / cell) never drops a photon within it (a few ulp of the box's coordinates).
+    grid.reach = float(radius * (1.0 + 1e-4) + 1e-6 * float(np.max(extent)))
     grid.inv_volume = float(1.0 / (4.0 / 3.0 * np.pi * radius ** 3))
-    grid.cell_start = wp.zeros(n_cells, dtype=wp.int32, device=device)
-    grid.cell_end = wp.zeros(n_cells, dtype=wp.int32, device=device)
     n = int(total)
-    used = wp.zeros(1, dtype=wp.int32, device=device)
+    counts = wp.zeros(n_cells + 1, dtype=wp.int32, device=device)
+    grid.cell_start = wp.empty(n_cells + 1, dtype=wp.int32, device=device)
     keys = wp.empty(max(2 * n, 2), dtype=wp.int32, device=device)
     values = wp.empty(max(2 * n, 2), dtype=wp.int32, device=device)
     if n > 0:
         wp.launch(cell_keys_kernel, dim=n,
                   inputs=[interactions, grid.dims, float(cell), int(min_order), keys, values,
-                          used], device=device)
+                          counts], device=device)
         wp.utils.radix_sort_pairs(keys, values, n)
-    count = int(used.numpy()[0])
+    wp.utils.array_scan(counts, grid.cell_start, inclusive=False)
+    count = int(grid.cell_start[n_cells:n_cells + 1].numpy()[0])
     grid.count = count
     grid.pos = wp.empty(max(count, 1), dtype=wp.vec3, device=device)
     grid.dir = wp.empty(max(count, 1), dtype=wp.vec3, device=device)
     grid.power = wp.zeros(max(count, 1), dtype=wp.vec3, device=device)
     if count > 0:
         wp.launch(sorted_photons_kernel, dim=count,
-                  inputs=[interactions, keys, values, count, grid.pos, grid.dir,
-                          grid.power, grid.cell_start, grid.cell_end], device=device)
+                  inputs=[interactions, values, grid.pos, grid.dir, grid.power], device=device)
     return grid
 
 
 @wp.func
-def cell_coord(grid: PhotonGrid, p: wp.vec3):
-    """Cell of local position ``p`` (clamped to the table)."""
-    return wp.vec3i(wp.clamp(int(wp.floor(p[0] / grid.cell)), 0, grid.dims[0] - 1),
-                    wp.clamp(int(wp.floor(p[1] / grid.cell)), 0, grid.dims[1] - 1),
-                    wp.clamp(int(wp.floor(p[2] / grid.cell)), 0, grid.dims[2] - 1))
+def cell_index(x: float, cell: float, n: int):
+    """Cell of coordinate ``x`` along an axis of ``n`` cells (clamped to the table)."""
+    return wp.clamp(int(wp.floor(x / cell)), 0, n - 1)
+
+
+@wp.func
+def slab_gap(x: float, c: int, cell: float):
+    """Distance from ``x`` to the slab ``[c cell, (c + 1) cell]`` (0 inside)."""
+    return wp.max(wp.max(float(c) * cell - x, x - float(c + 1) * cell), 0.0)
 
 
 @wp.func
@@ -142,25 +165,32 @@ def gather_phase_flux(grid: PhotonGrid, x: wp.vec3, wo: wp.vec3, g: float, surfa
     acc = wp.vec3(0.0)
     if grid.count == 0:
         return acc
-    c = cell_coord(grid, x)
     r2 = grid.radius * grid.radius
-    for dz in range(-1, 2):
-        k = c[2] + dz
-        if k < 0 or k >= grid.dims[2]:
+    reach2 = grid.reach * grid.reach
+    cell = grid.cell
+    k0 = cell_index(x[2] - grid.reach, cell, grid.dims[2])
+    k1 = cell_index(x[2] + grid.reach, cell, grid.dims[2])
+    for k in range(k0, k1 + 1):
+        gz = slab_gap(x[2], k, cell)
+        rz2 = reach2 - gz * gz
+        if rz2 < 0.0:
             continue
-        for dy in range(-1, 2):
-            j = c[1] + dy
-            if j < 0 or j >= grid.dims[1]:
+        ry = wp.sqrt(rz2)
+        j0 = cell_index(x[1] - ry, cell, grid.dims[1])
+        j1 = cell_index(x[1] + ry, cell, grid.dims[1])
+        for j in range(j0, j1 + 1):
+            gy = slab_gap(x[1], j, cell)
+            ry2 = rz2 - gy * gy
+            if ry2 < 0.0:
                 continue
-            for dx in range(-1, 2):
-                i = c[0] + dx
-                if i < 0 or i >= grid.dims[0]:
-                    continue
-                key = i + grid.dims[0] * (j + grid.dims[1] * k)
-                for r in range(grid.cell_start[key], grid.cell_end[key]):
-                    v = grid.pos[r] - x
-                    if wp.dot(v, v) <= r2:
-                        acc += scattering(grid.dir[r], wo, g, surface, n, sp) * grid.power[r]
+            rx = wp.sqrt(ry2)
+            base = grid.dims[0] * (j + grid.dims[1] * k)
+            a = grid.cell_start[base + cell_index(x[0] - rx, cell, grid.dims[0])]
+            b = grid.cell_start[base + cell_index(x[0] + rx, cell, grid.dims[0]) + 1]
+            for r in range(a, b):
+                v = grid.pos[r] - x
+                if wp.dot(v, v) <= r2:
+                    acc += scattering(grid.dir[r], wo, g, surface, n, sp) * grid.power[r]
     return acc * grid.inv_volume
 
 
@@ -171,62 +201,62 @@ def gather_flux(grid: PhotonGrid, x: wp.vec3):
     acc = wp.vec3(0.0)
     if grid.count == 0:
         return acc
-    c = cell_coord(grid, x)
     r2 = grid.radius * grid.radius
-    for dz in range(-1, 2):
-        k = c[2] + dz
-        if k < 0 or k >= grid.dims[2]:
+    reach2 = grid.reach * grid.reach
+    cell = grid.cell
+    k0 = cell_index(x[2] - grid.reach, cell, grid.dims[2])
+    k1 = cell_index(x[2] + grid.reach, cell, grid.dims[2])
+    for k in range(k0, k1 + 1):
+        gz = slab_gap(x[2], k, cell)
+        rz2 = reach2 - gz * gz
+        if rz2 < 0.0:
             continue
-        for dy in range(-1, 2):
-            j = c[1] + dy
-            if j < 0 or j >= grid.dims[1]:
+        ry = wp.sqrt(rz2)
+        j0 = cell_index(x[1] - ry, cell, grid.dims[1])
+        j1 = cell_index(x[1] + ry, cell, grid.dims[1])
+        for j in range(j0, j1 + 1):
+            gy = slab_gap(x[1], j, cell)
+            ry2 = rz2 - gy * gy
+            if ry2 < 0.0:
                 continue
-            for dx in range(-1, 2):
-                i = c[0] + dx
-                if i < 0 or i >= grid.dims[0]:
-                    continue
-                key = i + grid.dims[0] * (j + grid.dims[1] * k)
-                for r in range(grid.cell_start[key], grid.cell_end[key]):
-                    v = grid.pos[r] - x
-                    if wp.dot(v, v) <= r2:
-                        acc += grid.power[r]
+            rx = wp.sqrt(ry2)
+            base = grid.dims[0] * (j + grid.dims[1] * k)
+            a = grid.cell_start[base + cell_index(x[0] - rx, cell, grid.dims[0])]
+            b = grid.cell_start[base + cell_index(x[0] + rx, cell, grid.dims[0]) + 1]
+            for r in range(a, b):
+                v = grid.pos[r] - x
+                if wp.dot(v, v) <= r2:
+                    acc += grid.power[r]
     return acc * grid.inv_volume
 
 
 @wp.kernel
 def cell_keys_kernel(it: Interactions, dims: wp.vec3i, cell: float, min_order: int,
                      keys: wp.array(dtype=wp.int32), values: wp.array(dtype=wp.int32),
-                     used: wp.array(dtype=wp.int32)):
+                     counts: wp.array(dtype=wp.int32)):
     """``wp.tid()`` indexes interactions: key = linear cell index (``UNUSED_KEY`` for orders
-    below ``min_order``), value = the interaction's index; counts the used ones."""
+    below ``min_order``), value = the interaction's index; counts the photons per cell."""
     i = wp.tid()
     values[i] = i
     if it.order[i] < min_order:
         keys[i] = UNUSED_KEY
         return
     p = it.pos[i]
-    ci = wp.clamp(int(wp.floor(p[0] / cell)), 0, dims[0] - 1)
-    cj = wp.clamp(int(wp.floor(p[1] / cell)), 0, dims[1] - 1)
-    ck = wp.clamp(int(wp.floor(p[2] / cell)), 0, dims[2] - 1)
-    keys[i] = ci + dims[0] * (cj + dims[1] * ck)
-    wp.atomic_add(used, 0, 1)
+    ci = cell_index(p[0], cell, dims[0])
+    cj = cell_index(p[1], cell, dims[1])
+    ck = cell_index(p[2], cell, dims[2])
+    key = ci + dims[0] * (cj + dims[1] * ck)
+    keys[i] = key
+    wp.atomic_add(counts, key, 1)
 
 
 @wp.kernel
-def sorted_photons_kernel(it: Interactions, keys: wp.array(dtype=wp.int32),
-                          values: wp.array(dtype=wp.int32), count: int,
+def sorted_photons_kernel(it: Interactions, values: wp.array(dtype=wp.int32),
                           pos: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3),
-                          power: wp.array(dtype=wp.vec3), cell_start: wp.array(dtype=wp.int32),
-                          cell_end: wp.array(dtype=wp.int32)):
-    """``wp.tid()`` indexes the sorted used photons: copy them in cell order and mark where
-    each cell's run starts and ends."""
+                          power: wp.array(dtype=wp.vec3)):
+    """``wp.tid()`` indexes the sorted used photons: copy them in cell order."""
     r = wp.tid()
     i = values[r]
     pos[r] = it.pos[i]
     dirs[r] = it.dir[i]
     power[r] = it.flux[i]
-    key = keys[r]
-    if r == 0 or keys[r - 1] != key:
-        cell_start[key] = r
-    if r == count - 1 or keys[r + 1] != key:
-        cell_end[key] = r + 1

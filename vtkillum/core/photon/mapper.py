@@ -53,7 +53,7 @@ from vtkillum.core.photon.historygram import (
 )
 from vtkillum.core.photon.segments import (
     ViewParams,
-    composite_kernel,
+    composite_segments,
     recompute_kernel,
     segment_query_kernel,
 )
@@ -312,15 +312,9 @@ class PhotonMapper:
             _, vp, cam, _, _ = self._view
             mode = "unchanged"
         t_seg = time.perf_counter()
-        radiance = wp.zeros((int(height), int(width)), dtype=wp.vec3, device=device)
-        alpha = wp.zeros((int(height), int(width)), dtype=wp.float32, device=device)
-        computed = wp.zeros(1, dtype=wp.int32, device=device)
-        wp.launch(composite_kernel, dim=(int(height), int(width)),
-                  inputs=[self.medium, cam, self.lights, self.grid, self.extinction,
-                          self.surface, vp,
-                          self._seg["rad"], self._seg["t"], self._seg["hist"],
-                          self._seg["chist"], self._seg["state"], radiance,
-                          alpha, computed], device=device)
+        radiance, alpha, computed = composite_segments(
+            self.medium, cam, self.lights, self.grid, self.extinction, self.surface, vp,
+            self._seg, int(width), int(height), device)
         wp.synchronize_device(device)
         t_end = time.perf_counter()
         self._pending_query = (0, 0)
@@ -377,18 +371,13 @@ class PhotonMapper:
             vp.segments = 1
             cam = self._view[2]
             h, w = int(height), int(width)
-            seg = [wp.zeros(h * w, dtype=wp.vec3, device=self.device),
-                   wp.ones(h * w, dtype=wp.float32, device=self.device),
-                   wp.zeros(h * w, dtype=wp.uint64, device=self.device),
-                   wp.zeros(h * w, dtype=wp.uint64, device=self.device),
-                   wp.zeros(h * w, dtype=wp.int32, device=self.device)]
-            radiance = wp.zeros((h, w), dtype=wp.vec3, device=self.device)
-            alpha = wp.zeros((h, w), dtype=wp.float32, device=self.device)
-            wp.launch(composite_kernel, dim=(h, w),
-                      inputs=[self.medium, cam, self.lights, grid, me, self.surface, vp, *seg,
-                              radiance, alpha,
-                              wp.zeros(1, dtype=wp.int32, device=self.device)],
-                      device=self.device)
+            seg = {"rad": wp.zeros(h * w, dtype=wp.vec3, device=self.device),
+                   "t": wp.ones(h * w, dtype=wp.float32, device=self.device),
+                   "hist": wp.zeros(h * w, dtype=wp.uint64, device=self.device),
+                   "chist": wp.zeros(h * w, dtype=wp.uint64, device=self.device),
+                   "state": wp.zeros(h * w, dtype=wp.int32, device=self.device)}
+            radiance, alpha, _ = composite_segments(self.medium, cam, self.lights, grid, me,
+                                                    self.surface, vp, seg, w, h, self.device)
             rad_sum = rad_sum + radiance.numpy()
             alpha_sum = alpha_sum + alpha.numpy()
             done += 1
@@ -406,13 +395,19 @@ class PhotonMapper:
         with the shrinking radii of :func:`radius_schedule` and are averaged in.
         Returns (nx, ny, nz, 3) float32, the lights' irradiance units.
         """
-        from vtkillum.core.photon.density import fluence_grid
+        from vtkillum.core.photon.density import accumulate_fluence, fluence_grid
 
         if self.map is None:
             raise ValueError("call update(volume, transfer_function, ...) before fluence()")
+        shape = tuple(int(n) for n in shape)
+        first = fluence_grid(self.grid, self.extinction, shape, volume.extent, self.device,
+                             to_numpy=False)
+        if int(passes) <= 1:
+            return first.numpy().reshape(*shape, 3)
         radii = radius_schedule(self.radius, int(passes), self.alpha)
-        total = fluence_grid(self.grid, self.extinction, shape, volume.extent,
-                             self.device).astype(np.float64)
+        # The passes are summed in float64 on the device: one copy to the host at the end.
+        total = wp.zeros(shape, dtype=wp.vec3d, device=self.device)
+        accumulate_fluence(total, first, self.device)
         for k in range(1, int(passes)):
             if progress is not None:
                 progress(k / passes)
@@ -424,8 +419,9 @@ class PhotonMapper:
             del pm
             me = mean_extinction(self.medium, volume, radii[k], self.device,
                                  bins=bin_scale(volume.value_range))
-            total += fluence_grid(grid, me, shape, volume.extent, self.device)
-        return (total / int(passes)).astype(np.float32)
+            accumulate_fluence(total, fluence_grid(grid, me, shape, volume.extent, self.device,
+                                                   to_numpy=False), self.device)
+        return (total.numpy().reshape(*shape, 3) / int(passes)).astype(np.float32)
 
     def segments_numpy(self) -> dict:
         """The stored segments as numpy arrays (``rad``, ``t``, ``hist``, ``state``), each

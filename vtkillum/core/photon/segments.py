@@ -32,6 +32,7 @@ that threshold.
 
 from __future__ import annotations
 
+import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp
@@ -39,6 +40,7 @@ from vtkillum.core.photon.density import MeanExtinction, kernel_bins, photon_rad
 from vtkillum.core.photon.hashgrid import PhotonGrid
 from vtkillum.core.photon.historygram import axis_bits, data_bin
 from vtkillum.core.photon.material import SurfaceParams, scattering, surface_normal
+from vtkillum.core.photon.storage import exclusive_scan, select
 from vtkillum.core.raymarch import pixel_ray, sample_count
 from vtkillum.core.warp_common import (
     CameraParams,
@@ -52,6 +54,12 @@ from vtkillum.core.warp_common import (
 )
 
 init_warp()
+
+#: Devices (name prefixes) on which photon-only segments are gathered one thread per
+#: sample (:func:`composite_segments`).
+SAMPLE_PARALLEL_DEVICES = ("cuda",)
+#: Samples whose light is held at once by the per-sample gather (12 bytes each).
+SAMPLES_PER_BATCH = 1 << 27
 
 #: Segment states.
 NOT_COMPUTED = wp.constant(0)
@@ -163,6 +171,302 @@ def compute_segment(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGr
             if trans < vp.stop_t:
                 break
     return rad, trans, hist, chist
+
+
+@wp.func
+def segment_transmittance(m: Medium, cam: CameraParams, vp: ViewParams, row: int, col: int,
+                          i: int):
+    """Transmittance of segment ``i`` of pixel ``(row, col)``: what :func:`compute_segment`
+    returns as ``T`` (the same samples and products, the same early stop), without the light;
+    and the number of samples :func:`compute_segment` marches."""
+    o, d, t0, xi, n = ray_setup(m, cam, vp, row, col)
+    k0, k1 = segment_samples(n, vp.segments, i)
+    trans = float(1.0)
+    k_end = k1
+    for k in range(k0, k1):
+        p = o + (t0 + (float(k) + xi) * vp.step) * d
+        s = sample_scalar(m.scalars, m.inv_spacing, p)
+        sig = lookup_sigma_t(m, s)
+        if sig > 0.0:
+            a = 1.0 - wp.exp(-sig * vp.step)
+            trans *= 1.0 - a
+            if trans < vp.stop_t:
+                k_end = k + 1
+                break
+    return trans, k_end - k0
+
+
+@wp.kernel
+def visible_segments_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
+                            seg_t: wp.array(dtype=wp.float32),
+                            seg_state: wp.array(dtype=wp.int32), flags: wp.array(dtype=wp.int32),
+                            seg_len: wp.array(dtype=wp.int32)):
+    """Flag the segments that :func:`composite_kernel` would compute: not stored yet and not
+    occluded (prefix transmittance ``>= stop_t``), the prefix taking the stored ``T`` of
+    computed segments and :func:`segment_transmittance` of the others; ``seg_len``: the
+    samples each flagged segment marches.
+
+    ``wp.tid()`` = ``(row, col)``; ``flags``, ``seg_len`` (zeroed) indexed ``pixel * V_n + i``.
+    """
+    row, col = wp.tid()
+    base = (row * cam.width + col) * vp.segments
+    prefix = float(1.0)
+    for i in range(vp.segments):
+        if prefix < vp.stop_t:
+            break
+        idx = base + i
+        if seg_state[idx] == NOT_COMPUTED:
+            flags[idx] = 1
+            t, n = segment_transmittance(m, cam, vp, row, col, i)
+            seg_len[idx] = n
+            prefix *= t
+        else:
+            prefix *= seg_t[idx]
+
+
+@wp.kernel
+def compute_flagged_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
+                           me: MeanExtinction, sp: SurfaceParams, vp: ViewParams,
+                           tiles_x: int, tiles: int, flags: wp.array(dtype=wp.int32),
+                           seg_rad: wp.array(dtype=wp.vec3), seg_t: wp.array(dtype=wp.float32),
+                           seg_hist: wp.array(dtype=wp.uint64),
+                           seg_chist: wp.array(dtype=wp.uint64),
+                           seg_state: wp.array(dtype=wp.int32),
+                           computed: wp.array(dtype=wp.int32)):
+    """Compute every flagged segment, each on its own thread (stored as computed; counted).
+
+    ``wp.tid()`` runs over ``V_n`` images of ``tiles`` tiles of 8×4 pixels (``tiles_x`` per
+    row of tiles), 32 threads a tile: a warp marches one segment of 32 neighbouring pixels,
+    whose rays and photon queries are alike.
+    """
+    t = wp.tid()
+    lane = t % 32
+    tile = t // 32
+    i = tile // tiles
+    tile = tile - i * tiles
+    ty = tile // tiles_x
+    row = ty * 4 + lane // 8
+    col = (tile - ty * tiles_x) * 8 + lane % 8
+    if row >= cam.height or col >= cam.width:
+        return
+    idx = (row * cam.width + col) * vp.segments + i
+    if flags[idx] == 0:
+        return
+    r, tr, h, c = compute_segment(m, cam, lights, grid, me, sp, vp, row, col, i)
+    seg_rad[idx] = r
+    seg_t[idx] = tr
+    seg_hist[idx] = h
+    seg_chist[idx] = c
+    seg_state[idx] = COMPUTED
+    wp.atomic_add(computed, 0, 1)
+
+
+def composite_segments(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
+                       me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, seg: dict,
+                       width: int, height: int, device: str):
+    """Compute the visible segments not stored yet, then composite every pixel (eq. 4).
+
+    The result is :func:`composite_kernel`'s, which computes them in turn per pixel; here
+    :func:`visible_segments_kernel` finds them first (the transmittance alone is cheap), so
+    that the work spreads over many threads:
+
+    * photons only (``vp.direct == 0``, the paper's setting), on devices in
+      :data:`SAMPLE_PARALLEL_DEVICES`: one thread per **sample** gathers its photon
+      radiance (:func:`sample_light_kernel`; a warp takes 32 neighbouring samples of one
+      ray, whose spheres overlap), then one thread per segment composes them in order
+      (:func:`shade_segment_kernel`, the same arithmetic as :func:`compute_segment`, so
+      the segments are the same bits). A sample in a dense photon layer (thousands of
+      photons in reach next to a point light) no longer holds up the hundreds of samples
+      its segment has after it;
+    * otherwise one thread per segment (:func:`compute_flagged_kernel`), tiles of 8×4
+      pixels per warp.
+
+    ``seg``: the segment arrays (``rad``, ``t``, ``hist``, ``chist``, ``state``). Returns
+    ``(radiance (height, width) vec3, alpha (height, width) float32, computed (1,) int32)``
+    on the device.
+    """
+    h, w = int(height), int(width)
+    n_seg = h * w * vp.segments
+    flags = wp.zeros(n_seg, dtype=wp.int32, device=device)
+    seg_len = wp.zeros(n_seg, dtype=wp.int32, device=device)
+    computed = wp.zeros(1, dtype=wp.int32, device=device)
+    wp.launch(visible_segments_kernel, dim=(h, w),
+              inputs=[m, cam, vp, seg["t"], seg["state"], flags, seg_len], device=device)
+    tiles_x = (w + 7) // 8
+    tiles = tiles_x * ((h + 3) // 4)
+    if vp.direct == 0 and str(device).startswith(tuple(SAMPLE_PARALLEL_DEVICES)):
+        _sample_parallel(m, cam, lights, grid, me, sp, vp, seg, flags, seg_len, tiles_x, tiles,
+                         computed, device)
+    else:
+        wp.launch(compute_flagged_kernel, dim=vp.segments * tiles * 32,
+                  inputs=[m, cam, lights, grid, me, sp, vp, tiles_x, tiles, flags, seg["rad"],
+                          seg["t"], seg["hist"], seg["chist"], seg["state"], computed],
+                  device=device)
+    radiance = wp.zeros((h, w), dtype=wp.vec3, device=device)
+    alpha = wp.zeros((h, w), dtype=wp.float32, device=device)
+    wp.launch(composite_kernel, dim=(h, w),
+              inputs=[m, cam, lights, grid, me, sp, vp, seg["rad"], seg["t"], seg["hist"],
+                      seg["chist"], seg["state"], radiance, alpha, computed], device=device)
+    return radiance, alpha, computed
+
+
+def _sample_parallel(m, cam, lights, grid, me, sp, vp, seg, flags, seg_len, tiles_x, tiles,
+                     computed, device) -> None:
+    """The flagged segments by :func:`sample_light_kernel` and :func:`shade_segment_kernel`
+    (see :func:`composite_segments`), in batches of at most :data:`SAMPLES_PER_BATCH`
+    samples."""
+    n_tiled = vp.segments * tiles * 32
+    tflag = wp.empty(n_tiled, dtype=wp.int32, device=device)
+    tidx = wp.empty(n_tiled, dtype=wp.int32, device=device)
+    wp.launch(tiled_flags_kernel, dim=n_tiled,
+              inputs=[cam, vp, tiles_x, tiles, flags, tflag, tidx], device=device)
+    _, work = select(tflag, tidx, device)  # flagged segments, tile by tile
+    n_work = int(work.shape[0])
+    if n_work == 0:
+        return
+    lengths = wp.empty(n_work, dtype=wp.int32, device=device)
+    wp.launch(gather_lengths_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
+    offsets = wp.empty(n_work, dtype=wp.int32, device=device)
+    total = exclusive_scan(lengths, offsets)
+    # Samples per segment at most: the longest ray through the box, split V_n ways.
+    diagonal = float(np.linalg.norm([m.extent[0], m.extent[1], m.extent[2]]))
+    max_len = (int(np.ceil(diagonal / vp.step)) + 2) // vp.segments + 2
+    if total <= SAMPLES_PER_BATCH:
+        batches = [(0, n_work, 0)]
+    else:  # split the work list where the sample count crosses the budget
+        off = offsets.numpy()
+        batches, w0 = [], 0
+        while w0 < n_work:
+            w1 = int(np.searchsorted(off, off[w0] + SAMPLES_PER_BATCH, side="left"))
+            w1 = min(max(w1, w0 + 1), n_work)
+            batches.append((w0, w1, int(off[w0])))
+            w0 = w1
+    size = total if len(batches) == 1 else SAMPLES_PER_BATCH + max_len
+    light = wp.empty(max(size, 1), dtype=wp.vec3, device=device)
+    for w0, w1, base in batches:
+        wp.launch(sample_light_kernel, dim=(w1 - w0, max_len),
+                  inputs=[m, cam, grid, me, sp, vp, work, offsets, lengths, w0, base, light],
+                  device=device)
+        wp.launch(shade_segment_kernel, dim=w1 - w0,
+                  inputs=[m, cam, me, grid, vp, work, offsets, lengths, w0, base, light,
+                          seg["rad"],
+                          seg["t"], seg["hist"], seg["chist"], seg["state"]], device=device)
+    wp.launch(add_count_kernel, dim=1, inputs=[computed, n_work], device=device)
+
+
+@wp.func
+def segment_of(cam: CameraParams, vp: ViewParams, idx: int):
+    """``(row, col, i)`` of segment entry ``idx = (row * width + col) * V_n + i``."""
+    pix = idx // vp.segments
+    i = idx - pix * vp.segments
+    row = pix // cam.width
+    return row, pix - row * cam.width, i
+
+
+@wp.kernel
+def tiled_flags_kernel(cam: CameraParams, vp: ViewParams, tiles_x: int, tiles: int,
+                       flags: wp.array(dtype=wp.int32), tflag: wp.array(dtype=wp.int32),
+                       tidx: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` runs over segments in the tile order of :func:`compute_flagged_kernel`:
+    the flag and the entry of each."""
+    t = wp.tid()
+    lane = t % 32
+    tile = t // 32
+    i = tile // tiles
+    tile = tile - i * tiles
+    ty = tile // tiles_x
+    row = ty * 4 + lane // 8
+    col = (tile - ty * tiles_x) * 8 + lane % 8
+    tflag[t] = 0
+    tidx[t] = 0
+    if row >= cam.height or col >= cam.width:
+        return
+    idx = (row * cam.width + col) * vp.segments + i
+    tflag[t] = flags[idx]
+    tidx[t] = idx
+
+
+@wp.kernel
+def gather_lengths_kernel(work: wp.array(dtype=wp.int32), seg_len: wp.array(dtype=wp.int32),
+                          lengths: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` indexes the work list: the samples of its segment."""
+    w = wp.tid()
+    lengths[w] = seg_len[work[w]]
+
+
+@wp.kernel
+def add_count_kernel(counter: wp.array(dtype=wp.int32), n: int):
+    """``counter[0] += n``."""
+    counter[0] = counter[0] + n
+
+
+@wp.kernel
+def sample_light_kernel(m: Medium, cam: CameraParams, grid: PhotonGrid, me: MeanExtinction,
+                        sp: SurfaceParams, vp: ViewParams, work: wp.array(dtype=wp.int32),
+                        offsets: wp.array(dtype=wp.int32), lengths: wp.array(dtype=wp.int32),
+                        w0: int, base: int, light: wp.array(dtype=wp.vec3)):
+    """``wp.tid()`` = ``(w - w0, kl)``: sample ``kl`` of work item ``w``'s segment: its photon
+    radiance (as :func:`compute_segment` computes it; samples with σt = 0 are not read)
+    into ``light[offsets[w] - base + kl]``."""
+    wl, kl = wp.tid()
+    w = w0 + wl
+    if kl >= lengths[w]:
+        return
+    row, col, i = segment_of(cam, vp, work[w])
+    o, d, t0, xi, n = ray_setup(m, cam, vp, row, col)
+    k0, _k1 = segment_samples(n, vp.segments, i)
+    k = k0 + kl
+    p = o + (t0 + (float(k) + xi) * vp.step) * d
+    s = sample_scalar(m.scalars, m.inv_spacing, p)
+    sig = lookup_sigma_t(m, s)
+    if sig > 0.0:
+        surf, normal = surface_normal(m, sp, p, s)
+        light[offsets[w] - base + kl] = photon_radiance(grid, me, p, -d, m.g, surf, normal, sp)
+
+
+@wp.kernel
+def shade_segment_kernel(m: Medium, cam: CameraParams, me: MeanExtinction, grid: PhotonGrid,
+                         vp: ViewParams, work: wp.array(dtype=wp.int32),
+                         offsets: wp.array(dtype=wp.int32), lengths: wp.array(dtype=wp.int32),
+                         w0: int, base: int, light: wp.array(dtype=wp.vec3), seg_rad: wp.array(dtype=wp.vec3),
+                         seg_t: wp.array(dtype=wp.float32), seg_hist: wp.array(dtype=wp.uint64),
+                         seg_chist: wp.array(dtype=wp.uint64),
+                         seg_state: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` = ``w - w0``: :func:`compute_segment` of work item ``w`` (photons only)
+    with the light of each sample read from ``light`` (:func:`sample_light_kernel`)."""
+    w = w0 + wp.tid()
+    idx = work[w]
+    row, col, i = segment_of(cam, vp, idx)
+    o, d, t0, xi, n = ray_setup(m, cam, vp, row, col)
+    k0, k1 = segment_samples(n, vp.segments, i)
+    at = offsets[w] - base - k0
+    k_end = k0 + lengths[w]  # where the same products stop (a guard: never reached before)
+    rad = wp.vec3(0.0)
+    trans = float(1.0)
+    hist = wp.uint64(0)
+    chist = wp.uint64(0)
+    for k in range(k0, k1):
+        if k >= k_end:
+            break
+        p = o + (t0 + (float(k) + xi) * vp.step) * d
+        s = sample_scalar(m.scalars, m.inv_spacing, p)
+        hist = hist | data_bin(s, vp.bin_lo, vp.bin_scale)
+        sig = lookup_sigma_t(m, s)
+        if sig > 0.0:
+            chist = chist | data_bin(s, vp.bin_lo, vp.bin_scale)
+            a = 1.0 - wp.exp(-sig * vp.step)
+            lt = light[at + k]
+            if grid.count > 0:
+                hist = hist | kernel_bins(me, p)
+            rad += (trans * a * m.albedo) * wp.cw_mul(lookup_color(m, s), lt)
+            trans *= 1.0 - a
+            if trans < vp.stop_t:
+                break
+    seg_rad[idx] = rad
+    seg_t[idx] = trans
+    seg_hist[idx] = hist
+    seg_chist[idx] = chist
+    seg_state[idx] = COMPUTED
 
 
 @wp.kernel

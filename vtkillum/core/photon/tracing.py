@@ -91,6 +91,9 @@ MAX_ROUND_SLOTS = 4096
 #: step`` samples per photon): CPU launches stay well under a second, so Ctrl-C is seen.
 TRACE_CHUNK_SAMPLES = {"cpu": 1 << 23, "cuda": 1 << 62}
 FLIGHTS_PER_PHOTON = 4
+#: Devices (name prefixes) on which photons are traced in the order of where they leave
+#: the lights (:func:`emission_order`; the CPU has no warps to keep together).
+COHERENT_DEVICES = ("cuda",)
 
 
 @wp.struct
@@ -216,8 +219,7 @@ class PhotonMap:
         self.count.zero_()
         self.start.zero_()
         self.total = 0
-        photons = wp.empty(self.n_photons, dtype=wp.int32, device=self.device)
-        wp.launch(iota_kernel, dim=self.n_photons, inputs=[photons], device=self.device)
+        photons = emission_order(emitters, self.seed, self.n_photons, self.device)
         restart = wp.full(self.n_photons, -1, dtype=wp.int32, device=self.device)
         return self.retrace(medium, emitters, value_range, photons, restart)
 
@@ -227,7 +229,8 @@ class PhotonMap:
 
         Each listed photon keeps its interactions up to and including ``restart`` and gets
         a new tail traced from there with the stored random state; all other photons keep
-        theirs. ``photons`` must be increasing and unique.
+        theirs. ``photons`` must be unique; their order is the order of the work items
+        (the stored layout does not depend on it).
         """
         t0 = time.perf_counter()
         device = self.device
@@ -313,6 +316,31 @@ class PhotonMap:
                    path_hist=self.path_hist.numpy().copy(),
                    path_chist=self.path_chist.numpy().copy(), end=self.end.numpy().copy())
         return out
+
+
+def emission_order(emitters: Emitters, seed: int, n_photons: int, device: str) -> wp.array:
+    """All photons, ordered so that neighbouring work items leave the lights alike.
+
+    A work item traces photon ``order[w]``. Photon ``p``'s start is drawn from its own
+    stream, so neighbouring indices leave in unrelated directions and a warp's flights
+    diverge (trip counts) and read the volume all over. Sorting the photons by their
+    light and a Morton code of the two numbers that place them on it (direction on a
+    point light's cone, start point on a directional light's rectangle) lets a warp march
+    side by side. On devices not in :data:`COHERENT_DEVICES` (the CPU: no warps) photons
+    stay in index order. The photon map does not depend on the order (its layout follows
+    the photon index).
+    """
+    photons = wp.empty(n_photons, dtype=wp.int32, device=device)
+    if not str(device).startswith(tuple(COHERENT_DEVICES)) or n_photons < 2:
+        wp.launch(iota_kernel, dim=n_photons, inputs=[photons], device=device)
+        return photons
+    keys = wp.empty(2 * n_photons, dtype=wp.int32, device=device)
+    values = wp.empty(2 * n_photons, dtype=wp.int32, device=device)
+    wp.launch(emission_key_kernel, dim=n_photons, inputs=[emitters, int(seed), keys, values],
+              device=device)
+    wp.utils.radix_sort_pairs(keys, values, n_photons)
+    wp.copy(photons, values, count=n_photons)
+    return photons
 
 
 def _allocate_checked(n: int, device: str, limit_mb, n_photons: int) -> Interactions:
@@ -441,6 +469,11 @@ def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, sp: SurfaceParams,
         scratch.order[k] = order
         scratch.owner[k] = p
         n += 1
+        if tp.max_order > 0 and order >= tp.max_order:
+            # What the next round would find on restarting here (before any random number
+            # or bin is used): decided now, so paths of S_n interactions need no next round.
+            end = ORDER_LIMIT
+            break
         if n >= tp.capacity:
             end = OVERFLOW
             break
@@ -488,6 +521,36 @@ def finish_paths_kernel(work_photon: wp.array(dtype=wp.int32), work_hist: wp.arr
     if work_end[w] == OVERFLOW:
         next_flag[w] = 1
         next_restart[w] = new_start[p] + new_count[p] - 1
+
+
+@wp.func
+def spread_bits(v: int):
+    """The low 10 bits of ``v`` spread to every second bit (a Morton code's half)."""
+    x = v & 0x3FF
+    x = (x | (x << 8)) & 0x00FF00FF
+    x = (x | (x << 4)) & 0x0F0F0F0F
+    x = (x | (x << 2)) & 0x33333333
+    x = (x | (x << 1)) & 0x55555555
+    return x
+
+
+@wp.kernel
+def emission_key_kernel(em: Emitters, seed: int, keys: wp.array(dtype=wp.int32),
+                        values: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` = photon ``p``: key = its light and the Morton code of the two uniform
+    numbers that place it there (the draws of :func:`emit_photon`), value = ``p``."""
+    p = wp.tid()
+    state = wp.rand_init(seed, p)
+    u, state = uniform(state)
+    li = int(0)
+    while li < em.count - 1 and u >= em.cdf[li]:
+        li += 1
+    u1, state = uniform(state)
+    u2, state = uniform(state)
+    a = wp.clamp(int(u1 * 1024.0), 0, 1023)
+    b = wp.clamp(int(u2 * 1024.0), 0, 1023)
+    keys[p] = (wp.min(li, 1023) << 20) | (spread_bits(a) << 1) | spread_bits(b)
+    values[p] = p
 
 
 @wp.kernel

@@ -1,0 +1,120 @@
+"""The photon hash and the work orders of the GPU paths: the gather sums exactly the photons
+within the radius (against brute force, for several cell sizes), and the orders chosen for
+speed on the GPU (photons sorted by where they leave the lights, segments gathered one
+thread per sample) give the same bits as the plain ones (forced on the CPU here)."""
+
+import numpy as np
+import pytest
+import warp as wp
+
+import vtkillum.core.photon.hashgrid as hashgrid
+import vtkillum.core.photon.segments as segments
+import vtkillum.core.photon.tracing as tracing
+from vtkillum.core.lights import DirectionalLight, PointLight
+from vtkillum.core.photon.emission import make_emitters
+from vtkillum.core.photon.hashgrid import PhotonGrid, build_photon_grid, gather_flux
+from vtkillum.core.photon.storage import allocate
+from vtkillum.core.photon.tracing import PhotonMap, photon_medium
+
+from test_photon_historygram import EDITS, assert_same_map, mapper, run, tf
+
+
+@wp.kernel
+def flux_kernel(grid: PhotonGrid, x: wp.array(dtype=wp.vec3), out: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    out[i] = gather_flux(grid, x[i])
+
+
+def random_photons(n, extent, rng):
+    """Photons in ``[0, extent]`` with clusters (a dense layer and a dense blob), random
+    flux and orders 1-2; one photon exactly on a cell corner."""
+    pos = rng.uniform(0.0, 1.0, (n, 3)) * extent
+    pos[: n // 4, 1] = extent[1] * (0.9 + 0.01 * rng.uniform(size=n // 4))  # a layer
+    pos[n // 4: n // 2] = extent * 0.3 + 0.02 * rng.normal(size=(n // 2 - n // 4, 3))
+    pos = np.clip(pos, 0.0, extent)
+    pos[-1] = extent * 0.5
+    it = allocate(n, "cpu")
+    it.pos = wp.array(pos.astype(np.float32), dtype=wp.vec3, device="cpu")
+    it.dir = wp.array(rng.normal(size=(n, 3)).astype(np.float32), dtype=wp.vec3, device="cpu")
+    it.flux = wp.array(rng.uniform(0.5, 1.0, (n, 3)).astype(np.float32), dtype=wp.vec3,
+                       device="cpu")
+    it.order = wp.array(rng.integers(1, 3, n).astype(np.int32), dtype=wp.int32, device="cpu")
+    return it, pos.astype(np.float32)
+
+
+@pytest.mark.parametrize("per_radius, max_cells", [(1, 1 << 25), (2, 1 << 25), (3, 1 << 25),
+                                                   (2, 500)])
+def test_gather_sums_exactly_the_photons_within_the_radius(monkeypatch, per_radius, max_cells):
+    monkeypatch.setattr(hashgrid, "CELLS_PER_RADIUS", per_radius)
+    monkeypatch.setattr(hashgrid, "MAX_CELLS", max_cells)
+    rng = np.random.default_rng(1)
+    extent = np.array([1.0, 0.7, 0.5])
+    radius = 0.06
+    it, pos = random_photons(4000, extent, rng)
+    flux = it.flux.numpy()
+    order = it.order.numpy()
+    grid = build_photon_grid(it, 4000, extent, radius, 2, "cpu")
+    assert grid.count == int(np.count_nonzero(order >= 2))
+    assert int(np.prod(tuple(grid.dims))) <= max_cells
+    queries = np.vstack([rng.uniform(-0.05, 1.05, (300, 3)) * extent, pos[:50],
+                         pos[:50] + [radius, 0.0, 0.0], extent * 0.5 + [0.0, radius, 0.0]])
+    queries = queries.astype(np.float32)
+    out = wp.zeros(len(queries), dtype=wp.vec3, device="cpu")
+    wp.launch(flux_kernel, dim=len(queries),
+              inputs=[grid, wp.array(queries, dtype=wp.vec3, device="cpu"), out], device="cpu")
+    # Brute force with the kernel's own test (float32 |x_p - x|^2 <= r^2).
+    v = pos[None, :, :] - queries[:, None, :]
+    d2 = (v * v).sum(-1, dtype=np.float32)
+    inside = (d2 <= np.float32(radius) * np.float32(radius)) & (order >= 2)[None, :]
+    expected = (inside[:, :, None] * flux[None]).sum(1) / (4.0 / 3.0 * np.pi * radius ** 3)
+    assert inside.sum() > 1000
+    np.testing.assert_allclose(out.numpy(), expected, rtol=1e-5, atol=1e-3)
+
+
+@pytest.mark.parametrize("lights", [[PointLight((0.3, 0.4, 0.2), (2.0, 2.0, 2.0))],
+                                    [DirectionalLight((0.2, -1.0, 0.3), (1.0, 1.0, 1.0)),
+                                     PointLight((0.3, 0.9, 0.2), (2.0, 2.0, 2.0))]])
+def test_emission_order_gives_the_same_photon_map(monkeypatch, lights):
+    """Photons traced in the order of where they leave the lights (the GPU's order) are
+    stored exactly as in index order."""
+    volume, m = mapper()
+    medium, _ = photon_medium(volume, tf(), volume.mean_spacing(), 0.9, 0.2, "cpu")
+    emitters, _ = make_emitters(lights, volume, 3000, "cpu")
+    maps = []
+    for devices in ((), ("cpu",)):
+        monkeypatch.setattr(tracing, "COHERENT_DEVICES", devices)
+        order = tracing.emission_order(emitters, 11, 3000, "cpu").numpy()
+        assert sorted(order) == list(range(3000))
+        assert (devices == ()) == bool(np.all(order == np.arange(3000)))
+        pm = PhotonMap(3000, "cpu", seed=11, max_order=0, step=0.5 * volume.spacing.min())
+        pm.trace(medium, emitters, volume.value_range)
+        maps.append(pm.numpy())
+    for key in maps[0]:
+        np.testing.assert_array_equal(maps[0][key], maps[1][key], err_msg=key)
+
+
+@pytest.mark.parametrize("batch", [1 << 27, 700])
+def test_per_sample_gather_gives_the_same_segments(monkeypatch, batch):
+    """Photon-only segments gathered one thread per sample (the GPU's path, in batches)
+    equal the per-segment computation bit for bit, and an incremental update through it
+    still equals a full recompute."""
+    images = []
+    for devices in ((), ("cpu",)):
+        monkeypatch.setattr(segments, "SAMPLE_PARALLEL_DEVICES", devices)
+        monkeypatch.setattr(segments, "SAMPLES_PER_BATCH", batch)
+        volume, m = mapper("photons")
+        run(m, volume, tf())
+        first = m.segments_numpy()
+        stats, image = run(m, volume, EDITS["shadow"])
+        assert stats["mode"] == "incremental"
+        images.append((first, image, m))
+    (seg_a, img_a, m_a), (seg_b, img_b, m_b) = images
+    for key in seg_a:
+        np.testing.assert_array_equal(seg_a[key], seg_b[key], err_msg=key)
+    np.testing.assert_array_equal(img_a.radiance, img_b.radiance)
+    np.testing.assert_array_equal(img_a.alpha, img_b.alpha)
+    assert_same_map(m_a, m_b)
+    # Incremental (per-sample path) == full recompute (per-sample path).
+    volume, ref = mapper("photons")
+    full_image = run(ref, volume, EDITS["shadow"])[1]
+    np.testing.assert_array_equal(img_b.radiance, full_image.radiance)
