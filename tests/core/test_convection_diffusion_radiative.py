@@ -244,3 +244,29 @@ def test_stall_detection(residuals, expected):
     from vtkillum.core.convection_diffusion.radiative import stalled
 
     assert stalled(residuals) is expected
+
+
+def test_coarse_relax_with_a_lane_per_cell_equals_the_general_loop(device):
+    """The coarsest grid's one-block relaxation: the register path (a lane per cell, CUDA)
+    and the strided loop give the same sweeps. On the CPU a block has one lane, so both
+    launches below take the loop (and must agree trivially)."""
+    from vtkillum.core.convection_diffusion.radiative import coarse_relax_kernel
+
+    rng = np.random.default_rng(8)
+    shape = (4, 4, 3)
+
+    def field(s, lo=0.0, hi=1.0):
+        return wp.array(rng.uniform(lo, hi, s + (3,)).astype(np.float32), dtype=wp.vec3,
+                        device=device)
+
+    kx, ky, kz = field((3, 4, 3)), field((4, 3, 3)), field((4, 4, 2))
+    sigma_a, leak, b = field(shape, 0.1, 0.5), field(shape, 0.0, 0.2), field(shape)
+    results = []
+    for block in (64, 32):  # 48 cells: a lane each, then the strided loop
+        x = wp.zeros(shape, dtype=wp.vec3, device=device)
+        lanes = block if wp.get_device(device).is_cuda else 1
+        wp.launch_tiled(coarse_relax_kernel, dim=[1], block_dim=lanes, device=device,
+                        inputs=[x, b, kx, ky, kz, sigma_a, leak, 7, lanes])
+        results.append(x.numpy())
+    np.testing.assert_allclose(results[0], results[1], rtol=1e-5, atol=1e-6)
+    assert np.abs(results[0]).max() > 0.1

@@ -869,11 +869,73 @@ def coarse_relax_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec
                         kz: wp.array3d(dtype=wp.vec3), sigma_a: wp.array3d(dtype=wp.vec3),
                         leak: wp.array3d(dtype=wp.vec3), sweeps: int, block: int):
     """``sweeps`` red–black Gauss–Seidel sweeps in one thread block (tiled launch of
-    one block of ``block`` lanes; lane ``l`` updates cells ``l, l + block, ...``)."""
+    one block of ``block`` lanes; lane ``l`` updates cells ``l, l + block, ...``).
+
+    When every cell has its own lane (the coarsest grid on CUDA), each lane keeps its
+    cell's coefficients and right-hand side in registers and reads only the neighbours'
+    ``x`` per sweep (the same update as the general loop, summed in another order).
+    """
     _blk, lane = wp.tid()
+    nx = x.shape[0]
     ny = x.shape[1]
     nz = x.shape[2]
-    cells = x.shape[0] * ny * nz
+    cells = nx * ny * nz
+    if cells <= block:  # uniform over the block: the barriers below are reached by all
+        owned = lane < cells
+        i = int(0)
+        j = int(0)
+        k = int(0)
+        cxm = wp.vec3(0.0)
+        cxp = wp.vec3(0.0)
+        cym = wp.vec3(0.0)
+        cyp = wp.vec3(0.0)
+        czm = wp.vec3(0.0)
+        czp = wp.vec3(0.0)
+        diag = wp.vec3(0.0)
+        rhs = wp.vec3(0.0)
+        color = int(-1)
+        if owned:
+            i = lane // (ny * nz)
+            j = (lane // nz) % ny
+            k = lane % nz
+            if i > 0:
+                cxm = kx[i - 1, j, k]
+            if i < nx - 1:
+                cxp = kx[i, j, k]
+            if j > 0:
+                cym = ky[i, j - 1, k]
+            if j < ny - 1:
+                cyp = ky[i, j, k]
+            if k > 0:
+                czm = kz[i, j, k - 1]
+            if k < nz - 1:
+                czp = kz[i, j, k]
+            diag = cxm + cxp + cym + cyp + czm + czp + sigma_a[i, j, k] + leak[i, j, k]
+            rhs = b[i, j, k]
+            color = (i + j + k) % 2
+        for _sweep in range(sweeps):
+            for c2 in range(2):
+                if color == c2:
+                    off = wp.vec3(0.0)
+                    if i > 0:
+                        off += wp.cw_mul(cxm, x[i - 1, j, k])
+                    if i < nx - 1:
+                        off += wp.cw_mul(cxp, x[i + 1, j, k])
+                    if j > 0:
+                        off += wp.cw_mul(cym, x[i, j - 1, k])
+                    if j < ny - 1:
+                        off += wp.cw_mul(cyp, x[i, j + 1, k])
+                    if k > 0:
+                        off += wp.cw_mul(czm, x[i, j, k - 1])
+                    if k < nz - 1:
+                        off += wp.cw_mul(czp, x[i, j, k + 1])
+                    v = wp.vec3(0.0)
+                    for c in range(3):
+                        if diag[c] > 0.0:
+                            v[c] = (rhs[c] + off[c]) / diag[c]
+                    x[i, j, k] = v
+                wp.tile_sum(wp.tile(1.0))  # block barrier
+        return
     for _sweep in range(sweeps):
         for color in range(2):
             cell = lane
