@@ -270,3 +270,46 @@ def test_coarse_relax_with_a_lane_per_cell_equals_the_general_loop(device):
         results.append(x.numpy())
     np.testing.assert_allclose(results[0], results[1], rtol=1e-5, atol=1e-6)
     assert np.abs(results[0]).max() > 0.1
+
+
+def _cellular(n):
+    """The benchmark's cellular test field (``bench_convection_diffusion.synthetic``)."""
+    from vtkillum.core.volume import Volume
+
+    h = 2.0 / (n - 1)
+    x = np.linspace(0.0, 1.0, n, dtype=np.float32) * (n - 1) * h
+    s = 0.5 + 0.5 * (np.sin(2.6 * np.pi * x)[:, None, None] * np.sin(2.2 * np.pi * x)[None, :, None]
+                     * np.cos(1.8 * np.pi * x)[None, None, :])
+    return Volume(s.astype(np.float32), spacing=(h, h, h))
+
+
+def test_anderson_acceleration_converges_where_the_plain_iteration_stalls():
+    """The benchmark's Foot grid (128^3 data, 64^3 light grid, one light): the lagged
+    limiter's plain iteration settles into a two-cycle at a residual of ~3.8e-4 and stops
+    as stalled, 2 % (RMS) from the solution; with Anderson mixing the same solve reaches
+    the tolerance 1e-4 in fewer iterations, within 0.5 % of a solve to 1e-6."""
+    from vtkillum.core.convection_diffusion.solver import ConvectionDiffusionSolver
+    from vtkillum.core.lights import DirectionalLight
+    from vtkillum.core.transfer_function import TransferFunction
+
+    vol = _cellular(128)
+    tf = TransferFunction([0.0, 0.45, 1.0], [0.0, 0.0, 0.6], [[1, 1, 1], [1, 0.9, 0.7], [1, 1, 1]])
+    light = [DirectionalLight((1.0, -0.7, 0.3), (1.0, 1.0, 0.6))]
+    out = {}
+    for anderson, tol in ((False, 1e-4), (True, 1e-4), (True, 1e-6)):
+        cd = ConvectionDiffusionSolver(light_volume_shape=(64, 64, 64), warm_start=False,
+                                       anderson=anderson, tolerance=tol, device="cpu")
+        stats = cd.update(vol, tf, vol.mean_spacing(), light, albedo=0.9, anisotropy=0.3)
+        out[anderson, tol] = (stats.diffusion, cd.scattered_fluence)
+    (plain, a), (mixed, b) = out[False, 1e-4], out[True, 1e-4]
+    ref = out[True, 1e-6][1]
+
+    def rms(x):
+        return float(np.sqrt(np.mean((x - ref) ** 2) / np.mean(ref ** 2)))
+
+    print(f"plain {plain.iterations} its, {plain.residuals[-1]:.2e}, {rms(a):.4f} from a "
+          f"1e-6 solve; anderson {mixed.iterations} its, {mixed.residuals[-1]:.2e}, {rms(b):.4f}")
+    assert plain.stalled and not plain.converged and plain.residuals[-1] > 3e-4
+    assert mixed.converged and mixed.residuals[-1] <= 1e-4
+    assert mixed.iterations < plain.iterations
+    assert rms(b) <= 0.005 < rms(a)  # the stalled cycle is 2 % off the solution

@@ -208,6 +208,9 @@ class ConvectionDiffusionSolver:
         ``(1 - f) sigma_s`` and anisotropy ``g / (1 + g)`` (the transport coefficient is
         unchanged). The directly lit single scattering is still rendered with the exact
         transmittance and the full phase function.
+    anderson : bool
+        ``"physical"`` only: Anderson acceleration of the outer iteration (default on;
+        :meth:`~vtkillum.core.convection_diffusion.radiative.RadiativeDiffusion._anderson_iteration`).
     device : str, optional
         Warp device.
     """
@@ -218,7 +221,8 @@ class ConvectionDiffusionSolver:
                  source_radius: float = 0.0, warm_start: bool = True,
                  convection_scheme: str = "characteristics",
                  flux_limiter: str = "levermore-pomraning", first_moment: bool = True,
-                 delta_scaling: bool = True, device: str | None = None):
+                 delta_scaling: bool = True, anderson: bool = True,
+                 device: str | None = None):
         self.light_volume_scale = light_volume_scale
         self.light_volume_shape = light_volume_shape
         self.diffusion_model = diffusion_model
@@ -232,6 +236,7 @@ class ConvectionDiffusionSolver:
         self.flux_limiter = flux_limiter
         self.first_moment = first_moment
         self.delta_scaling = delta_scaling
+        self.anderson = anderson
         self.device = resolve_device(device)
         self.reset()
 
@@ -693,7 +698,8 @@ class ConvectionDiffusionSolver:
 
     def _diffuse_physical(self, opts: dict, stats: UpdateStats, report) -> None:
         key = ("physical", self._compose_version, self._color_version, opts["albedo"],
-               opts["anisotropy"], self.flux_limiter, self.solver, bool(self.first_moment))
+               opts["anisotropy"], self.flux_limiter, self.solver, bool(self.first_moment),
+               bool(self.anderson))
         new_problem = key != self._diffusion_key
         if not new_problem and self._converged and opts["tolerance"] >= self._tolerance_reached:
             return
@@ -703,6 +709,7 @@ class ConvectionDiffusionSolver:
                 self.shape, self.spacing, self.flux_limiter, self.device))
             self._medium_key = None
         rd = self._radiative[1]
+        rd.anderson = bool(self.anderson)
         medium_key = (self._opacity_version, self._color_version, opts["albedo"],
                       opts["anisotropy"])
         if medium_key != self._medium_key:
