@@ -1,8 +1,8 @@
 """Fixed launch sequences replayed as captured graphs (CUDA graphs on GPUs).
 
-An interactive update (a multigrid V-cycle, the wavefront sweeps of one light, a radiance
-cache refresh) is hundreds of small kernel launches whose arguments do not change from
-one update to the next. Launched one by one from Python, each costs several microseconds
+An interactive update (the outer iterations of a multigrid solve, the wavefront sweeps of
+the lights) is hundreds of small kernel launches whose arguments do not change from one
+update to the next. Launched one by one from Python, each costs several microseconds
 of host time, more than the kernel itself on small grids. :class:`LaunchGraphs` records
 such a sequence once per key with :class:`warp.ScopedCapture` and replays it with
 :func:`warp.capture_launch`: one call for the whole sequence.
