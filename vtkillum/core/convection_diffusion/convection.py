@@ -223,12 +223,7 @@ def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: flo
     shape = tuple(sigma.shape)
     device = sigma.device
     scheme_id = _scheme_id(scheme)
-    vec = np.asarray(vec, dtype=np.float64)
-    if kind == DIRECTIONAL:
-        norm = np.linalg.norm(vec)
-        if norm == 0:
-            raise ValueError("a directional light needs a non-zero direction")
-        vec = vec / norm
+    vec = _light_vector(kind, vec)
     spacing = np.asarray(spacing, dtype=np.float64)
     plan = sweep_plan(kind, vec, shape, spacing)
     if out is None:
@@ -291,12 +286,7 @@ def convect_lights(sigma: wp.array3d, spacing, lights, out: wp.array4d, slots,
         raise ValueError("convect_lights: out must be (slots, *grid) and the slots distinct")
     plans, vecs = [], []
     for kind, vec in lights:
-        vec = np.asarray(vec, dtype=np.float64)
-        if kind == DIRECTIONAL:
-            norm = np.linalg.norm(vec)
-            if norm == 0:
-                raise ValueError("a directional light needs a non-zero direction")
-            vec = vec / norm
+        vec = _light_vector(kind, vec)
         plans.append(sweep_plan(kind, vec, shape, spacing))
         vecs.append(vec.astype(np.float32))
     if not plans:
@@ -400,6 +390,17 @@ def convect_light_iterated(sigma: wp.array3d, spacing, kind: int, vec, source_ra
             if float(change.numpy()[0]) < tolerance:
                 break
     return cur, it
+
+
+def _light_vector(kind: int, vec) -> np.ndarray:
+    """A directional light's unit travel direction, or a point light's position."""
+    vec = np.asarray(vec, dtype=np.float64)
+    if kind == DIRECTIONAL:
+        norm = np.linalg.norm(vec)
+        if norm == 0:
+            raise ValueError("a directional light needs a non-zero direction")
+        vec = vec / norm
+    return vec
 
 
 def _scheme_id(scheme: str) -> int:

@@ -754,6 +754,22 @@ def near_medium(sigma_tr: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int, min
 
 
 @wp.func
+def gauss_seidel_point(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
+                       kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
+                       kz: wp.array3d(dtype=wp.vec3), sigma_a: wp.array3d(dtype=wp.vec3),
+                       leak: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int):
+    """Solve cell ``(i, j, k)``'s equation for its ``x`` from its neighbours' (per channel;
+    a cell without coupling or absorption keeps 0)."""
+    off, diag = neighbours(x, i, j, k, kx, ky, kz)
+    diag += sigma_a[i, j, k] + leak[i, j, k]
+    v = wp.vec3(0.0)
+    for c in range(3):
+        if diag[c] > 0.0:
+            v[c] = (b[i, j, k][c] + off[c]) / diag[c]
+    x[i, j, k] = v
+
+
+@wp.func
 def neighbours(x: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int,
                kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
                kz: wp.array3d(dtype=wp.vec3)):
@@ -888,13 +904,7 @@ def red_black_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
     k = 2 * kk + (i + j + color) % 2
     if k >= x.shape[2]:
         return
-    off, diag = neighbours(x, i, j, k, kx, ky, kz)
-    diag += sigma_a[i, j, k] + leak[i, j, k]
-    v = wp.vec3(0.0)
-    for c in range(3):
-        if diag[c] > 0.0:
-            v[c] = (b[i, j, k][c] + off[c]) / diag[c]
-    x[i, j, k] = v
+    gauss_seidel_point(x, b, kx, ky, kz, sigma_a, leak, i, j, k)
 
 
 @wp.kernel
@@ -1094,13 +1104,7 @@ def coarse_relax_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec
                 j = (cell // nz) % ny
                 k = cell % nz
                 if (i + j + k) % 2 == color:
-                    off, diag = neighbours(x, i, j, k, kx, ky, kz)
-                    diag += sigma_a[i, j, k] + leak[i, j, k]
-                    v = wp.vec3(0.0)
-                    for c in range(3):
-                        if diag[c] > 0.0:
-                            v[c] = (b[i, j, k][c] + off[c]) / diag[c]
-                    x[i, j, k] = v
+                    gauss_seidel_point(x, b, kx, ky, kz, sigma_a, leak, i, j, k)
                 cell += block
             # Block barrier (a block-wide reduction synchronises): the next colour reads
             # what this one wrote.
