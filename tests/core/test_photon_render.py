@@ -145,3 +145,25 @@ def test_progressive_passes_shrink_the_radius_and_average():
     np.testing.assert_array_equal(again.radiance, refined.radiance)
     m.refine(volume, camera, 16, 16, step, passes=10, budget_s=0.0)
     assert m.passes == 5
+
+
+def test_gather_reports_progress_on_the_cpu():
+    """A long CPU gather says how far it is (the per-segment launch runs in parts), and
+    the parts give the image of one launch."""
+    from vtkillum.core.photon import segments
+
+    volume, scene = ball(8.0)
+    seen = []
+    image = render(volume, scene, "photon", SIZE, SIZE, "cpu", photons=4000, jitter=False,
+                   progress=seen.append).radiance
+    inner = [f for f in seen if 0.3 < f < 1.0]
+    assert len(inner) >= segments.CPU_PROGRESS_STEPS // 2 and np.all(np.diff(seen) >= 0)
+    volume2, scene2 = ball(8.0)
+    old = segments.CPU_PROGRESS_STEPS
+    try:
+        segments.CPU_PROGRESS_STEPS = 1
+        whole = render(volume2, scene2, "photon", SIZE, SIZE, "cpu", photons=4000,
+                       jitter=False).radiance
+    finally:
+        segments.CPU_PROGRESS_STEPS = old
+    np.testing.assert_array_equal(image, whole)

@@ -314,7 +314,8 @@ class PhotonMapper:
         t_seg = time.perf_counter()
         radiance, alpha, computed = composite_segments(
             self.medium, cam, self.lights, self.grid, self.extinction, self.surface, vp,
-            self._seg, int(width), int(height), device)
+            self._seg, int(width), int(height), device,
+            None if progress is None else (lambda f: progress(0.95 * f)))
         wp.synchronize_device(device)
         t_end = time.perf_counter()
         self._pending_query = (0, 0)

@@ -87,7 +87,8 @@ def render_photon(volume, scene, width: int, height: int, device: str | None = N
     camera = scene.resolved_camera(volume)
     t_render = time.perf_counter()
     result = mapper.render(volume, camera, width, height, opts["step_size"], opts["jitter"],
-                           opts["seed"], opts["early_termination"])
+                           opts["seed"], opts["early_termination"],
+                           None if progress is None else (lambda f: progress(0.3 + 0.7 * f)))
     more = int(opts["passes"]) - mapper.passes
     if more > 0:
         result = mapper.refine(volume, camera, width, height, opts["step_size"], more,

@@ -55,6 +55,8 @@ from vtkillum.core.warp_common import (
 
 init_warp()
 
+#: Parts of the per-segment launch on the CPU (progress reports in between).
+CPU_PROGRESS_STEPS = 20
 #: Devices (name prefixes) on which photon-only segments are gathered one thread per
 #: sample (:func:`composite_segments`).
 SAMPLE_PARALLEL_DEVICES = ("cuda",)
@@ -232,14 +234,14 @@ def compute_flagged_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: P
                            seg_hist: wp.array(dtype=wp.uint64),
                            seg_chist: wp.array(dtype=wp.uint64),
                            seg_state: wp.array(dtype=wp.int32),
-                           computed: wp.array(dtype=wp.int32)):
+                           computed: wp.array(dtype=wp.int32), first: int):
     """Compute every flagged segment, each on its own thread (stored as computed; counted).
 
-    ``wp.tid()`` runs over ``V_n`` images of ``tiles`` tiles of 8×4 pixels (``tiles_x`` per
-    row of tiles), 32 threads a tile: a warp marches one segment of 32 neighbouring pixels,
-    whose rays and photon queries are alike.
+    ``first + wp.tid()`` runs over ``V_n`` images of ``tiles`` tiles of 8×4 pixels
+    (``tiles_x`` per row of tiles), 32 threads a tile: a warp marches one segment of 32
+    neighbouring pixels, whose rays and photon queries are alike.
     """
-    t = wp.tid()
+    t = wp.tid() + first
     lane = t % 32
     tile = t // 32
     i = tile // tiles
@@ -263,7 +265,7 @@ def compute_flagged_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: P
 
 def composite_segments(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
                        me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, seg: dict,
-                       width: int, height: int, device: str):
+                       width: int, height: int, device: str, progress=None):
     """Compute the visible segments not stored yet, then composite every pixel (eq. 4).
 
     The result is :func:`composite_kernel`'s, which computes them in turn per pixel; here
@@ -281,7 +283,9 @@ def composite_segments(m: Medium, cam: CameraParams, lights: Lights, grid: Photo
     * otherwise one thread per segment (:func:`compute_flagged_kernel`), tiles of 8×4
       pixels per warp.
 
-    ``seg``: the segment arrays (``rad``, ``t``, ``hist``, ``chist``, ``state``). Returns
+    On the CPU the per-segment launch runs in :data:`CPU_PROGRESS_STEPS` parts, with
+    ``progress(fraction)`` after each (a long gather reports, and Ctrl-C stops it between
+    parts). ``seg``: the segment arrays (``rad``, ``t``, ``hist``, ``chist``, ``state``). Returns
     ``(radiance (height, width) vec3, alpha (height, width) float32, computed (1,) int32)``
     on the device.
     """
@@ -298,10 +302,17 @@ def composite_segments(m: Medium, cam: CameraParams, lights: Lights, grid: Photo
         _sample_parallel(m, cam, lights, grid, me, sp, vp, seg, flags, seg_len, tiles_x, tiles,
                          computed, device)
     else:
-        wp.launch(compute_flagged_kernel, dim=vp.segments * tiles * 32,
-                  inputs=[m, cam, lights, grid, me, sp, vp, tiles_x, tiles, flags, seg["rad"],
-                          seg["t"], seg["hist"], seg["chist"], seg["state"], computed],
-                  device=device)
+        total = vp.segments * tiles * 32
+        parts = 1 if wp.get_device(device).is_cuda else CPU_PROGRESS_STEPS
+        step = max(32, -(-total // parts // 32) * 32)  # whole warps
+        for first in range(0, total, step):
+            wp.launch(compute_flagged_kernel, dim=min(step, total - first),
+                      inputs=[m, cam, lights, grid, me, sp, vp, tiles_x, tiles, flags,
+                              seg["rad"], seg["t"], seg["hist"], seg["chist"], seg["state"],
+                              computed, first],
+                      device=device)
+            if progress is not None:
+                progress(min(first + step, total) / total)
     radiance = wp.zeros((h, w), dtype=wp.vec3, device=device)
     alpha = wp.zeros((h, w), dtype=wp.float32, device=device)
     wp.launch(composite_kernel, dim=(h, w),
