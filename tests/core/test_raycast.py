@@ -363,8 +363,32 @@ def test_progress_and_info(device, monkeypatch):
     calls = []
     tiled = render_emission(vol, scene, 16, 16, device, progress=calls.append, jitter=False)
     whole = render_emission(vol, scene, 16, 16, device, jitter=False)
-    assert calls == [0.25, 0.5, 0.75, 1.0]
+    # Reports weighted by each band's ray length inside the box (plus a small floor per
+    # pixel): the time-left estimate follows the work, not the rows.
+    from vtkillum.core.raymarch import pixel_work
+    from vtkillum.core.warp_common import make_camera
+
+    work = pixel_work(make_camera(scene.camera, vol, 16, 16), vol.extent, 16, 16, device)
+    band = work.reshape(4, 64).sum(1) + 0.02 * work.mean() * 64
+    np.testing.assert_allclose(calls, list(np.cumsum(band)[:3] / band.sum()) + [1.0], rtol=1e-5)
     assert tiled.info["tiles"] == 4
     np.testing.assert_array_equal(tiled.radiance, whole.radiance)
     for key in ("setup_s", "render_s", "download_s", "total_s", "mean_samples_per_pixel"):
         assert key in tiled.info
+
+
+def test_pixel_work_is_the_ray_length_inside_the_box(device):
+    """Parallel camera along -z over a 2 x 1 x 3 box: pixels over the box see 3 world
+    units of it, the others none."""
+    from vtkillum.core.raymarch import pixel_work
+    from vtkillum.core.warp_common import make_camera
+
+    vol = Volume(np.ones((3, 2, 4)), spacing=(1.0, 1.0, 1.0))  # extent 2 x 1 x 3
+    cam = Camera(position=(1.0, 0.5, 10.0), focal_point=(1.0, 0.5, 0.0),
+                 parallel_projection=True, parallel_scale=2.0)
+    work = pixel_work(make_camera(cam, vol, 16, 16), vol.extent, 16, 16, device)
+    # 16 px over 4 world units: the box spans columns 4..11 (2 units) and rows 6..9 (1 unit)
+    inside = np.zeros((16, 16), bool)
+    inside[6:10, 4:12] = True
+    np.testing.assert_allclose(work[inside], 3.0, rtol=1e-5)
+    assert np.all(work[~inside] == 0.0)

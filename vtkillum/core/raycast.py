@@ -50,6 +50,7 @@ from vtkillum.core.raymarch import (
     RAY_OPTIONS,
     launch_tiles,
     pixel_ray,
+    pixel_work,
     ray_options,
     sample_count,
 )
@@ -273,7 +274,8 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
         raycast_kernel,
         [medium, cam, lights, illum, direct, mode, opts["step_size"], int(opts["jitter"]), opts["seed"],
          opts["early_termination"], wp.vec4(ka, kd, ks, shininess), float(grad_eps)],
-        width, height, band_pixels(device, work), device, progress)
+        width, height, band_pixels(device, work), device, progress,
+        None if progress is None else pixel_work(cam, volume.extent, width, height, device))
     t_render = time.perf_counter()
 
     rad = radiance.numpy().astype(np.float32).reshape(height, width, 3)

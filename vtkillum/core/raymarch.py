@@ -72,13 +72,15 @@ def launch_row_bands(kernel, inputs: list, width: int, height: int, band_pixels:
 
 
 def launch_tiles(kernel, inputs: list, width: int, height: int, band_pixels: int, device: str,
-                 progress=None):
+                 progress=None, work=None):
     """Like :func:`launch_row_bands`, but a band may also be a part of one row.
 
     For kernels whose work per pixel can be large: bands of whole rows while a row holds
     at most ``band_pixels`` pixels, else runs of ``band_pixels`` (at least 1) pixels of
     one row. The kernel's last five parameters must be ``row0, col0, radiance, alpha,
-    samples`` (``wp.tid()`` = ``(row - row0, col - col0)``).
+    samples`` (``wp.tid()`` = ``(row - row0, col - col0)``). ``work`` (optional, ``(H, W)``,
+    e.g. :func:`pixel_work`) weighs the progress reports: a band of empty rows then counts
+    for little, so that the time-left estimate does not run ahead.
     """
     band_pixels = max(1, int(band_pixels))
     if band_pixels >= width:
@@ -87,20 +89,36 @@ def launch_tiles(kernel, inputs: list, width: int, height: int, band_pixels: int
     else:
         tiles = [(row, col0, 1, min(band_pixels, width - col0)) for row in range(height)
                  for col0 in range(0, width, band_pixels)]
-    return _launch(kernel, inputs, width, height, tiles, device, progress, True)
+    return _launch(kernel, inputs, width, height, tiles, device, progress, True, work)
 
 
-def _launch(kernel, inputs, width, height, tiles, device, progress, with_col0):
+def pixel_work(cam: CameraParams, extent, width: int, height: int, device: str) -> np.ndarray:
+    """``(H, W)`` length of each pixel's ray inside the box (world units): the part of a
+    pixel's cost that grows with its samples (0 where the ray misses)."""
+    out = wp.zeros((int(height), int(width)), dtype=wp.float32, device=device)
+    wp.launch(chord_kernel, dim=(int(height), int(width)),
+              inputs=[cam, wp.vec3(*np.asarray(extent, np.float32)), out], device=device)
+    return out.numpy()
+
+
+def _launch(kernel, inputs, width, height, tiles, device, progress, with_col0, work=None):
     radiance = wp.zeros((height, width), dtype=wp.vec3, device=device)
     alpha = wp.zeros((height, width), dtype=wp.float32, device=device)
     samples = wp.zeros((height, width), dtype=wp.int32, device=device)
+    weights = np.ones(len(tiles))
+    if work is not None and progress is not None:
+        # Every pixel costs a little (its ray set-up), and more with its chord's length.
+        floor = 0.02 * max(float(np.mean(work)), 1e-30)
+        weights = np.array([float(np.sum(work[r0:r0 + rows, c0:c0 + cols])) + floor * rows * cols
+                            for r0, c0, rows, cols in tiles])
+    done = np.cumsum(weights) / max(float(np.sum(weights)), 1e-300)
     for n, (row0, col0, rows, cols) in enumerate(tiles):
         offsets = [row0, col0] if with_col0 else [row0]
         wp.launch(kernel, dim=(rows, cols), inputs=[*inputs, *offsets, radiance, alpha, samples],
                   device=device)
         if progress is not None and n + 1 < len(tiles):
             wp.synchronize_device(device)
-            progress((n + 1) / len(tiles))
+            progress(float(done[n]))
     wp.synchronize_device(device)
     return radiance, alpha, samples, len(tiles)
 
@@ -115,6 +133,14 @@ def pixel_ray(cam: CameraParams, extent: wp.vec3, row: int, col: int):
     o, d = camera_ray(cam, float(col) + 0.5, float(row) + 0.5)
     tt = ray_box(o, d, extent)
     return o, d, wp.max(tt[0], 0.0), tt[1]
+
+
+@wp.kernel
+def chord_kernel(cam: CameraParams, extent: wp.vec3, out: wp.array2d(dtype=wp.float32)):
+    """Ray length inside the box of pixel ``wp.tid() = (row, col)`` (:func:`pixel_work`)."""
+    row, col = wp.tid()
+    _o, _d, t0, t1 = pixel_ray(cam, extent, row, col)
+    out[row, col] = wp.max(t1 - t0, 0.0)
 
 
 @wp.func
