@@ -19,12 +19,6 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "paraview_plugin"))
 import pvbatch_env
 
-pytestmark = [
-    pytest.mark.plugin,
-    pytest.mark.skipif(bool(pvbatch_env.missing_tools()),
-                       reason=f"{', '.join(pvbatch_env.missing_tools())} not found: the plugin "
-                              "tests need Debian's ParaView (pvbatch) and xvfb-run"),
-]
 
 SCRIPT = Path(__file__).with_name("pvbatch_filters.py")
 ILLUMINATION = ("vtkIllum Light Transmittance", "vtkIllum Convection-Diffusion Light",

@@ -5,25 +5,18 @@ link to ``paraview_plugin``), with the ``head.vti`` of the README's ``vtkillum e
 command. The block ends in ``SaveScreenshot("paraview.png")``: a lit volume, not blank.
 """
 
+import os
 import subprocess
 import sys
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "paraview_plugin"))
 sys.path.insert(0, str(ROOT / "tests"))
-import pvbatch_env  # noqa: E402
-from test_readme import blocks  # noqa: E402
-
-pytestmark = [
-    pytest.mark.plugin,
-    pytest.mark.skipif(bool(pvbatch_env.missing_tools()),
-                       reason=f"{', '.join(pvbatch_env.missing_tools())} not found: the plugin "
-                              "tests need Debian's ParaView (pvbatch) and xvfb-run"),
-]
+import pvbatch_env
+from test_readme import blocks
 
 
 def test_readme_pvpython_block_runs_as_written(tmp_path):
@@ -35,7 +28,7 @@ def test_readme_pvpython_block_runs_as_written(tmp_path):
     (tmp_path / "paraview_plugin").symlink_to(ROOT / "paraview_plugin")
     command = export[0].strip().replace("vtkillum ", f"{sys.executable} -m vtkillum.cli ", 1)
     subprocess.run(command, shell=True, cwd=tmp_path, check=True, capture_output=True,
-                   env={**__import__("os").environ, "PYTHONPATH": str(ROOT)})
+                   env={**os.environ, "PYTHONPATH": str(ROOT)})
     script = tmp_path / "readme_block.py"
     script.write_text(code[0])
     proc = pvbatch_env.run_pvbatch(script, shim_dir=tmp_path / "shim", timeout=300,

@@ -20,12 +20,6 @@ sys.path.insert(0, str(ROOT / "paraview_plugin"))
 sys.path.insert(0, str(ROOT / "tests"))
 import pvbatch_env
 
-pytestmark = [
-    pytest.mark.plugin,
-    pytest.mark.skipif(bool(pvbatch_env.missing_tools()),
-                       reason=f"{', '.join(pvbatch_env.missing_tools())} not found: the plugin "
-                              "tests need Debian's ParaView (pvbatch) and xvfb-run"),
-]
 
 SCRIPT = Path(__file__).with_name("pvbatch_render.py")
 

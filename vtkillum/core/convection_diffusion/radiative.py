@@ -754,6 +754,12 @@ def near_medium(sigma_tr: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int, min
 
 
 @wp.func
+def grid_cell(cell: int, ny: int, nz: int):
+    """Indices ``(i, j, k)`` of the row-major linear index ``cell`` of an ``(nx, ny, nz)`` grid."""
+    return cell // (ny * nz), (cell // nz) % ny, cell % nz
+
+
+@wp.func
 def gauss_seidel_point(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
                        kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
                        kz: wp.array3d(dtype=wp.vec3), sigma_a: wp.array3d(dtype=wp.vec3),
@@ -941,9 +947,7 @@ def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.ve
     for run in range(NORM_CHUNK):
         cell = (blk * NORM_CHUNK + run) * block + lane
         if cell < cells:
-            i = cell // (ny * nz)
-            j = (cell // nz) % ny
-            k = cell % nz
+            i, j, k = grid_cell(cell, ny, nz)
             if near_medium(sigma_tr, i, j, k, min_sigma):
                 off, diag = neighbours(x, i, j, k, kx, ky, kz)
                 diag += sigma_a[i, j, k] + leak[i, j, k]
@@ -988,9 +992,7 @@ def anderson_dots_kernel(f: wp.array3d(dtype=wp.vec3), f0: wp.array3d(dtype=wp.v
     for run in range(NORM_CHUNK):
         cell = (blk * NORM_CHUNK + run) * block + lane
         if cell < cells:
-            i = cell // (ny * nz)
-            j = (cell // nz) % ny
-            k = cell % nz
+            i, j, k = grid_cell(cell, ny, nz)
             v = f[i, j, k]
             d = d + wp.vec4(wp.dot(v, f0[i, j, k]), wp.dot(v, f1[i, j, k]),
                             wp.dot(v, f2[i, j, k]), wp.dot(v, f3[i, j, k]))
@@ -1055,9 +1057,7 @@ def coarse_relax_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec
         rhs = wp.vec3(0.0)
         color = int(-1)
         if owned:
-            i = lane // (ny * nz)
-            j = (lane // nz) % ny
-            k = lane % nz
+            i, j, k = grid_cell(lane, ny, nz)
             if i > 0:
                 cxm = kx[i - 1, j, k]
             if i < nx - 1:
@@ -1100,9 +1100,7 @@ def coarse_relax_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec
         for color in range(2):
             cell = lane
             while cell < cells:
-                i = cell // (ny * nz)
-                j = (cell // nz) % ny
-                k = cell % nz
+                i, j, k = grid_cell(cell, ny, nz)
                 if (i + j + k) % 2 == color:
                     gauss_seidel_point(x, b, kx, ky, kz, sigma_a, leak, i, j, k)
                 cell += block

@@ -156,6 +156,40 @@ def slab_gap(x: float, c: int, cell: float):
 
 
 @wp.func
+def slab_range(grid: PhotonGrid, x: wp.vec3):
+    """The z slabs of cells within the reach of ``x``."""
+    return (cell_index(x[2] - grid.reach, grid.cell, grid.dims[2]),
+            cell_index(x[2] + grid.reach, grid.cell, grid.dims[2]))
+
+
+@wp.func
+def row_range(grid: PhotonGrid, x: wp.vec3, k: int):
+    """The rows ``j0 .. j1`` of slab ``k`` within the reach of ``x`` (none: ``j1 < j0``) and
+    the squared reach left in that slab."""
+    gz = slab_gap(x[2], k, grid.cell)
+    rz2 = grid.reach * grid.reach - gz * gz
+    if rz2 < 0.0:
+        return 0, -1, rz2
+    ry = wp.sqrt(rz2)
+    return (cell_index(x[1] - ry, grid.cell, grid.dims[1]),
+            cell_index(x[1] + ry, grid.cell, grid.dims[1]), rz2)
+
+
+@wp.func
+def row_photons(grid: PhotonGrid, x: wp.vec3, j: int, k: int, rz2: float):
+    """The photon range ``[a, b)`` of row ``(j, k)`` clipped to the chord of the reach
+    (``cell_start`` is a prefix sum: a row's clipped cells are one range)."""
+    gy = slab_gap(x[1], j, grid.cell)
+    ry2 = rz2 - gy * gy
+    if ry2 < 0.0:
+        return 0, 0
+    rx = wp.sqrt(ry2)
+    base = grid.dims[0] * (j + grid.dims[1] * k)
+    return (grid.cell_start[base + cell_index(x[0] - rx, grid.cell, grid.dims[0])],
+            grid.cell_start[base + cell_index(x[0] + rx, grid.cell, grid.dims[0]) + 1])
+
+
+@wp.func
 def gather_phase_flux(grid: PhotonGrid, x: wp.vec3, wo: wp.vec3, g: float, surface: int,
                       n: wp.vec3, sp: SurfaceParams):
     """``Σ s(ω_p → wo) Φ_p`` over photons within the radius of ``x``, divided by the kernel
@@ -166,27 +200,11 @@ def gather_phase_flux(grid: PhotonGrid, x: wp.vec3, wo: wp.vec3, g: float, surfa
     if grid.count == 0:
         return acc
     r2 = grid.radius * grid.radius
-    reach2 = grid.reach * grid.reach
-    cell = grid.cell
-    k0 = cell_index(x[2] - grid.reach, cell, grid.dims[2])
-    k1 = cell_index(x[2] + grid.reach, cell, grid.dims[2])
+    k0, k1 = slab_range(grid, x)
     for k in range(k0, k1 + 1):
-        gz = slab_gap(x[2], k, cell)
-        rz2 = reach2 - gz * gz
-        if rz2 < 0.0:
-            continue
-        ry = wp.sqrt(rz2)
-        j0 = cell_index(x[1] - ry, cell, grid.dims[1])
-        j1 = cell_index(x[1] + ry, cell, grid.dims[1])
+        j0, j1, rz2 = row_range(grid, x, k)
         for j in range(j0, j1 + 1):
-            gy = slab_gap(x[1], j, cell)
-            ry2 = rz2 - gy * gy
-            if ry2 < 0.0:
-                continue
-            rx = wp.sqrt(ry2)
-            base = grid.dims[0] * (j + grid.dims[1] * k)
-            a = grid.cell_start[base + cell_index(x[0] - rx, cell, grid.dims[0])]
-            b = grid.cell_start[base + cell_index(x[0] + rx, cell, grid.dims[0]) + 1]
+            a, b = row_photons(grid, x, j, k, rz2)
             for r in range(a, b):
                 v = grid.pos[r] - x
                 if wp.dot(v, v) <= r2:
@@ -202,27 +220,11 @@ def gather_flux(grid: PhotonGrid, x: wp.vec3):
     if grid.count == 0:
         return acc
     r2 = grid.radius * grid.radius
-    reach2 = grid.reach * grid.reach
-    cell = grid.cell
-    k0 = cell_index(x[2] - grid.reach, cell, grid.dims[2])
-    k1 = cell_index(x[2] + grid.reach, cell, grid.dims[2])
+    k0, k1 = slab_range(grid, x)
     for k in range(k0, k1 + 1):
-        gz = slab_gap(x[2], k, cell)
-        rz2 = reach2 - gz * gz
-        if rz2 < 0.0:
-            continue
-        ry = wp.sqrt(rz2)
-        j0 = cell_index(x[1] - ry, cell, grid.dims[1])
-        j1 = cell_index(x[1] + ry, cell, grid.dims[1])
+        j0, j1, rz2 = row_range(grid, x, k)
         for j in range(j0, j1 + 1):
-            gy = slab_gap(x[1], j, cell)
-            ry2 = rz2 - gy * gy
-            if ry2 < 0.0:
-                continue
-            rx = wp.sqrt(ry2)
-            base = grid.dims[0] * (j + grid.dims[1] * k)
-            a = grid.cell_start[base + cell_index(x[0] - rx, cell, grid.dims[0])]
-            b = grid.cell_start[base + cell_index(x[0] + rx, cell, grid.dims[0]) + 1]
+            a, b = row_photons(grid, x, j, k, rz2)
             for r in range(a, b):
                 v = grid.pos[r] - x
                 if wp.dot(v, v) <= r2:

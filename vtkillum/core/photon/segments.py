@@ -226,6 +226,19 @@ def visible_segments_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
             prefix *= seg_t[idx]
 
 
+@wp.func
+def tiled_segment(t: int, tiles_x: int, tiles: int):
+    """Segment ``i`` and pixel ``(row, col)`` of thread ``t`` in the tile order: ``V_n``
+    images of ``tiles`` tiles of 8×4 pixels (``tiles_x`` per row of tiles), 32 threads a
+    tile."""
+    lane = t % 32
+    tile = t // 32
+    i = tile // tiles
+    tile = tile - i * tiles
+    ty = tile // tiles_x
+    return i, ty * 4 + lane // 8, (tile - ty * tiles_x) * 8 + lane % 8
+
+
 @wp.kernel
 def compute_flagged_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
                            me: MeanExtinction, sp: SurfaceParams, vp: ViewParams,
@@ -242,13 +255,7 @@ def compute_flagged_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: P
     neighbouring pixels, whose rays and photon queries are alike.
     """
     t = wp.tid() + first
-    lane = t % 32
-    tile = t // 32
-    i = tile // tiles
-    tile = tile - i * tiles
-    ty = tile // tiles_x
-    row = ty * 4 + lane // 8
-    col = (tile - ty * tiles_x) * 8 + lane % 8
+    i, row, col = tiled_segment(t, tiles_x, tiles)
     if row >= cam.height or col >= cam.width:
         return
     idx = (row * cam.width + col) * vp.segments + i
@@ -381,13 +388,7 @@ def tiled_flags_kernel(cam: CameraParams, vp: ViewParams, tiles_x: int, tiles: i
     """``wp.tid()`` runs over segments in the tile order of :func:`compute_flagged_kernel`:
     the flag and the entry of each."""
     t = wp.tid()
-    lane = t % 32
-    tile = t // 32
-    i = tile // tiles
-    tile = tile - i * tiles
-    ty = tile // tiles_x
-    row = ty * 4 + lane // 8
-    col = (tile - ty * tiles_x) * 8 + lane % 8
+    i, row, col = tiled_segment(t, tiles_x, tiles)
     tflag[t] = 0
     tidx[t] = 0
     if row >= cam.height or col >= cam.width:
