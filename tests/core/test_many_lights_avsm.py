@@ -205,3 +205,41 @@ def test_pool_grows_without_losing_maps_and_reuses_slots():
     pool.release(first[:2])
     again = pool.allocate(2)
     assert sorted(again) == sorted(first[:2])
+
+
+def test_empty_bricks_are_exactly_transparent_and_skipping_them_changes_no_node(device):
+    """On the CT phantom most bricks are air: they are classified empty, a brick whose
+    points straddle the TF's only visible band is not (a trilinear sample between its
+    values lands in the band), and maps built with skipping equal maps built without, bit
+    for bit, for VLs inside the body and in the air around it."""
+    from vtkillum.core.many_lights.empty_space import empty_bricks
+    from vtkillum.data.procedural import ct_phantom, default_scene
+
+    volume = ct_phantom(48)
+    scene = default_scene("ct", volume)
+    medium = make_medium(volume, scene.transfer_function, volume.mean_spacing(),
+                         device=device)
+    empty = empty_bricks(medium, volume.spacing, device).empty.numpy()
+    assert empty.shape == (6, 6, 6) and 0.2 < empty.mean() < 0.9, empty.mean()
+
+    values = np.zeros((33, 33, 33))
+    values[12, 12, 12] = 1.0  # values 0 and 1 only: the visible band [0.45, 0.55] between
+    band = unit_volume(values)
+    tf = TransferFunction([0.0, 0.45, 0.5, 0.55, 1.0], [0.0, 0.0, 0.5, 0.0, 0.0])
+    flags = empty_bricks(make_medium(band, tf, 0.1, device=device), band.spacing,
+                         device).empty.numpy()
+    assert flags.shape == (4, 4, 4) and flags[1, 1, 1] == 0 and flags.sum() == 63
+
+    extent = np.asarray(volume.extent, np.float32)
+    origins = np.array([[0.5, 0.5, 0.5], [0.3, 0.45, 0.6], [0.05, 0.05, 0.05]], np.float32)
+    origins *= extent
+    positions = wp.array(origins, dtype=wp.vec3, device=device)
+    maps = []
+    for skip in (True, False):
+        pool = ShadowMapPool(8, 8, device)
+        slots = pool.allocate(3)
+        pool.build(medium, positions, [0, 1, 2], slots, float(min(volume.spacing)), 0,
+                   skip_empty=skip)
+        maps.append(pool.nodes.numpy())
+    np.testing.assert_array_equal(maps[0], maps[1])
+    assert np.ptp(maps[0][..., 1]) > 0.5  # the maps do see the body

@@ -26,8 +26,13 @@ bilinearly (*trilinear*: bilinear on the face, linear in depth), or the nearest 
 used (*point*). Because the map is built for the unscaled medium, a global density
 scale ``S`` is applied at lookup as ``T^S`` (eq. 7, exact for a cached curve).
 
-Layout: ``nodes[((slot * 6 + face) * R + row) * R + col, i]`` (``vec2(depth, T)``) with
-``R`` the resolution per face; a slot per VL, handed out by :class:`ShadowMapPool`.
+Layout: node ``i`` of texel ``(row, col)`` of cube ``face`` of the map in ``slot`` is
+``nodes[((slot * 6 + face) * m + i) * R * R + row * R + col]`` (``vec2(depth, T)``), with
+``R`` the resolution per face: node-major, so that the threads of a warp, which look up
+neighbouring texels of one VL's map at the same time, read neighbouring addresses at
+every step of their scan (a texel-major layout put each texel's nodes in a block of its
+own and made every thread's load a separate memory transaction). A slot per VL, handed
+out by :class:`ShadowMapPool`.
 Faces: ``+x, -x, +y, -y, +z, -z``; on the face of major axis ``a`` the texel
 coordinates follow axes ``(a + 1) % 3`` (columns) and ``(a + 2) % 3`` (rows).
 
@@ -43,6 +48,12 @@ import math
 import numpy as np
 import warp as wp
 
+from vtkillum.core.many_lights.empty_space import (
+    EmptyBricks,
+    brick_run,
+    empty_bricks,
+    no_bricks,
+)
 from vtkillum.core.warp_common import Medium, lookup_sigma_t, ray_box, sample_scalar
 
 #: Largest number of nodes per texel (``m``); the paper uses 8–12.
@@ -61,7 +72,7 @@ class ShadowMaps:
     """All AVSMs on the device: ``nodes`` (see the module docstring), ``resolution`` per
     face, ``node_count`` (m), ``filter`` (0 point, 1 trilinear)."""
 
-    nodes: wp.array2d(dtype=wp.vec2)
+    nodes: wp.array(dtype=wp.vec2)
     resolution: int
     node_count: int
     filter: int
@@ -90,18 +101,24 @@ class ShadowMapPool:
                              f"got {node_count}")
         self.device = device
         self.capacity = 0
-        self.nodes = wp.zeros((0, self.node_count), dtype=wp.vec2, device=device)
+        self.nodes = wp.zeros(0, dtype=wp.vec2, device=device)
         self.epoch = np.zeros(0, np.int64)  # medium version each slot was built for
         self._free: list[int] = []
         self.builds = 0  # AVSMs built so far (statistics)
+        self._brick_key = None
+        self._brick_cache = None
 
     @property
     def texels_per_map(self) -> int:
         return 6 * self.resolution * self.resolution
 
     @property
+    def nodes_per_map(self) -> int:
+        return self.texels_per_map * self.node_count
+
+    @property
     def nbytes(self) -> int:
-        return int(self.capacity * self.texels_per_map * self.node_count * 8)
+        return int(self.capacity * self.nodes_per_map * 8)
 
     def allocate(self, n: int) -> np.ndarray:
         """``n`` free slots (the pool grows when needed)."""
@@ -119,13 +136,13 @@ class ShadowMapPool:
 
     def _grow(self, capacity: int) -> None:
         capacity = max(int(capacity), int(math.ceil(self.capacity * 1.5)), 16)
-        rows = capacity * self.texels_per_map
+        size = capacity * self.nodes_per_map
         try:
-            nodes = wp.zeros((rows, self.node_count), dtype=wp.vec2, device=self.device)
+            nodes = wp.zeros(size, dtype=wp.vec2, device=self.device)
         except Exception as err:
             raise MemoryError(
                 f"could not allocate AVSMs for {capacity} virtual lights "
-                f"({rows * self.node_count * 8 / 2**20:.0f} MiB on {self.device}): {err}; lower "
+                f"({size * 8 / 2**20:.0f} MiB on {self.device}): {err}; lower "
                 "the VL count, avsm_resolution or avsm_nodes") from err
         if self.capacity > 0:
             wp.copy(nodes, self.nodes, count=self.nodes.size)
@@ -135,7 +152,7 @@ class ShadowMapPool:
         self.capacity = capacity
 
     def build(self, medium: Medium, positions, vl_indices, slots, step: float, epoch: int,
-              stop_t: float = STOP_TRANSMITTANCE) -> None:
+              stop_t: float = STOP_TRANSMITTANCE, skip_empty: bool = True) -> None:
         """Build the AVSMs of VLs ``vl_indices`` (positions on the device) into ``slots``.
 
         Parameters
@@ -152,6 +169,9 @@ class ShadowMapPool:
             Version of the medium, remembered per slot (:attr:`epoch`).
         stop_t : float
             Transmittance at which a texel's march stops.
+        skip_empty : bool
+            Skip the samples in exactly transparent bricks of the volume
+            (:mod:`~vtkillum.core.many_lights.empty_space`; the same maps, faster).
         """
         vl_indices = np.asarray(vl_indices, np.int32).reshape(-1)
         slots = np.asarray(slots, np.int32).reshape(-1)
@@ -160,7 +180,7 @@ class ShadowMapPool:
             return
         R = self.resolution
         wp.launch(build_kernel, dim=(n, 6, R, R),
-                  inputs=[medium, positions,
+                  inputs=[medium, self._bricks(medium, epoch, skip_empty), positions,
                           wp.array(vl_indices, dtype=wp.int32, device=self.device),
                           wp.array(slots, dtype=wp.int32, device=self.device), R,
                           self.node_count, float(step), float(stop_t), self.nodes],
@@ -168,12 +188,23 @@ class ShadowMapPool:
         self.epoch[slots] = int(epoch)
         self.builds += n
 
+    def _bricks(self, medium: Medium, epoch: int, skip_empty: bool) -> EmptyBricks:
+        """The empty bricks of ``medium``, classified once per medium version."""
+        if not skip_empty:
+            return no_bricks(self.device)
+        key = (int(epoch), medium.scalars.ptr, medium.sigma_table.ptr)
+        if self._brick_key != key:
+            spacing = [1.0 / float(x) for x in medium.inv_spacing]
+            self._brick_cache = empty_bricks(medium, spacing, self.device)
+            self._brick_key = key
+        return self._brick_cache
+
     def maps(self, lookup: str = "trilinear") -> ShadowMaps:
         """The pool as a :class:`ShadowMaps` struct for kernels."""
         if lookup not in FILTERS:
             raise ValueError(f"avsm_lookup must be one of {sorted(FILTERS)}, got {lookup!r}")
         s = ShadowMaps()
-        s.nodes = self.nodes if self.capacity > 0 else wp.zeros((1, self.node_count),
+        s.nodes = self.nodes if self.capacity > 0 else wp.zeros(self.node_count,
                                                                  dtype=wp.vec2, device=self.device)
         s.resolution = self.resolution
         s.node_count = self.node_count
@@ -183,14 +214,14 @@ class ShadowMapPool:
     def curve(self, slot: int, face: int, row: int, col: int) -> np.ndarray:
         """The nodes ``(m, 2)`` of one texel (host copy, for tests and pictures)."""
         R = self.resolution
-        index = ((int(slot) * 6 + int(face)) * R + int(row)) * R + int(col)
-        return self.nodes.numpy()[index]
+        first = (int(slot) * 6 + int(face)) * self.node_count * R * R + int(row) * R + int(col)
+        return self.nodes.numpy()[first:first + self.node_count * R * R:R * R]
 
 
 def empty_maps(device: str, node_count: int = 2) -> ShadowMaps:
     """A placeholder :class:`ShadowMaps` for kernels that ray-march instead."""
     s = ShadowMaps()
-    s.nodes = wp.zeros((1, node_count), dtype=wp.vec2, device=device)
+    s.nodes = wp.zeros(node_count, dtype=wp.vec2, device=device)
     s.resolution = 2
     s.node_count = node_count
     s.filter = 0
@@ -225,29 +256,33 @@ def texel_direction(face: int, s: float, t: float):
 
 @wp.func
 def cube_coords(v: wp.vec3):
-    """Face and coordinates ``(s, t)`` in ``[-1, 1]`` of direction ``v`` (not necessarily unit)."""
+    """Face and coordinates ``(s, t)`` in ``[-1, 1]`` of direction ``v`` (not necessarily unit).
+
+    Written with selects rather than ``v[a]`` for a computed axis ``a``: a vector indexed
+    by a run-time value leaves registers for local memory on the GPU.
+    """
     ax = wp.abs(v[0])
     ay = wp.abs(v[1])
     az = wp.abs(v[2])
-    a = int(2)
-    if ax >= ay and ax >= az:
-        a = 0
-    elif ay >= az:
-        a = 1
-    major = wp.abs(v[a])
-    face = 2 * a
-    if v[a] < 0.0:
-        face += 1
-    return face, v[(a + 1) % 3] / major, v[(a + 2) % 3] / major
+    on_x = ax >= ay and ax >= az
+    on_y = (not on_x) and ay >= az
+    major = wp.where(on_x, v[0], wp.where(on_y, v[1], v[2]))
+    inv = 1.0 / wp.abs(major)
+    face = wp.where(on_x, 0, wp.where(on_y, 2, 4)) + wp.where(major < 0.0, 1, 0)
+    s = wp.where(on_x, v[1], wp.where(on_y, v[2], v[0])) * inv
+    t = wp.where(on_x, v[2], wp.where(on_y, v[0], v[1])) * inv
+    return face, s, t
 
 
 @wp.func
-def texel_transmittance(nodes: wp.array2d(dtype=wp.vec2), texel: int, count: int, depth: float):
-    """The piecewise-linear curve of one texel at ``depth`` (implicit first node (0, 1))."""
+def texel_transmittance(nodes: wp.array(dtype=wp.vec2), first: int, stride: int, count: int,
+                        depth: float):
+    """The piecewise-linear curve of one texel at ``depth`` (implicit first node (0, 1));
+    its nodes are ``nodes[first + i * stride]``."""
     d0 = float(0.0)
     t0 = float(1.0)
     for i in range(count):
-        nd = nodes[texel, i]
+        nd = nodes[first + i * stride]
         if depth <= nd[0]:
             if nd[0] > d0:
                 return t0 + (nd[1] - t0) * (depth - d0) / (nd[0] - d0)
@@ -261,27 +296,34 @@ def texel_transmittance(nodes: wp.array2d(dtype=wp.vec2), texel: int, count: int
 def avsm_transmittance(sm: ShadowMaps, slot: int, origin: wp.vec3, x: wp.vec3):
     """Cached transmittance from the VL at ``origin`` (its map in ``slot``) to ``x``."""
     v = x - origin
-    depth = wp.length(v)
+    return avsm_lookup(sm, slot, v, wp.length(v))
+
+
+@wp.func
+def avsm_lookup(sm: ShadowMaps, slot: int, v: wp.vec3, depth: float):
+    """:func:`avsm_transmittance` for the offset ``v = x - origin`` of length ``depth``."""
     if depth <= 0.0:
         return 1.0
     face, s, t = cube_coords(v)
     R = sm.resolution
-    base = (slot * 6 + face) * R
+    m = sm.node_count
+    plane = R * R
+    base = (slot * 6 + face) * m * plane
     fu = (s + 1.0) * 0.5 * float(R) - 0.5
     fv = (t + 1.0) * 0.5 * float(R) - 0.5
     if sm.filter == 0:
         c = wp.clamp(int(wp.floor(fu + 0.5)), 0, R - 1)
         r = wp.clamp(int(wp.floor(fv + 0.5)), 0, R - 1)
-        return texel_transmittance(sm.nodes, (base + r) * R + c, sm.node_count, depth)
+        return texel_transmittance(sm.nodes, base + r * R + c, plane, m, depth)
     c0 = wp.clamp(int(wp.floor(fu)), 0, R - 2)
     r0 = wp.clamp(int(wp.floor(fv)), 0, R - 2)
     fx = wp.clamp(fu - float(c0), 0.0, 1.0)
     fy = wp.clamp(fv - float(r0), 0.0, 1.0)
-    m = sm.node_count
-    t00 = texel_transmittance(sm.nodes, (base + r0) * R + c0, m, depth)
-    t01 = texel_transmittance(sm.nodes, (base + r0) * R + c0 + 1, m, depth)
-    t10 = texel_transmittance(sm.nodes, (base + r0 + 1) * R + c0, m, depth)
-    t11 = texel_transmittance(sm.nodes, (base + r0 + 1) * R + c0 + 1, m, depth)
+    texel = base + r0 * R + c0
+    t00 = texel_transmittance(sm.nodes, texel, plane, m, depth)
+    t01 = texel_transmittance(sm.nodes, texel + 1, plane, m, depth)
+    t10 = texel_transmittance(sm.nodes, texel + R, plane, m, depth)
+    t11 = texel_transmittance(sm.nodes, texel + R + 1, plane, m, depth)
     return wp.lerp(wp.lerp(t00, t01, fx), wp.lerp(t10, t11, fx), fy)
 
 
@@ -317,14 +359,14 @@ def insert_node(D: _NodeVec, T: _NodeVec, n: int, count: int, depth: float, tran
 
 # --- kernel -------------------------------------------------------------------------------------
 @wp.kernel
-def build_kernel(m: Medium, positions: wp.array(dtype=wp.vec3),
+def build_kernel(m: Medium, bricks: EmptyBricks, positions: wp.array(dtype=wp.vec3),
                  vl_index: wp.array(dtype=wp.int32), slots: wp.array(dtype=wp.int32), R: int,
-                 count: int, step: float, stop_t: float, nodes: wp.array2d(dtype=wp.vec2)):
+                 count: int, step: float, stop_t: float, nodes: wp.array(dtype=wp.vec2)):
     """March one texel ray of one VL's cube map and store its compressed curve.
 
     ``wp.tid()`` is ``(b, face, row, col)``: VL ``vl_index[b]`` (map ``slots[b]``), cube
     face, texel row and column. Depths in world units, transmittance unitless; writes
-    the ``count`` nodes of texel ``((slots[b] * 6 + face) * R + row) * R + col``.
+    the ``count`` nodes of the texel (layout in the module docstring).
     """
     b, face, row, col = wp.tid()
     x0 = positions[vl_index[b]]
@@ -345,9 +387,15 @@ def build_kernel(m: Medium, positions: wp.array(dtype=wp.vec3),
         hi = float(1.0e30)
         prev_d = float(0.0)
         prev_t = float(1.0)
+        # Runs of steps inside one brick: an empty brick's samples add exactly 0.
+        run_empty = int(0)
+        run_last = int(-1)
         for k in range(steps):
-            tau += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing,
-                                                   x0 + ((float(k) + 0.5) * h) * d)) * h
+            if k > run_last:
+                run_empty, run_last = brick_run(bricks, x0, d, h, k)
+            if run_empty == 0:
+                tau += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing,
+                                                       x0 + ((float(k) + 0.5) * h) * d)) * h
             tk = wp.exp(-tau)
             dk = float(k + 1) * h
             span = dk - anchor_d
@@ -369,8 +417,8 @@ def build_kernel(m: Medium, positions: wp.array(dtype=wp.vec3),
             if tk < stop_t:
                 break
         D, T, n = insert_node(D, T, n, count, prev_d, prev_t)
-    slot = slots[b]
-    texel = ((slot * 6 + face) * R + row) * R + col
+    plane = R * R
+    first = (slots[b] * 6 + face) * count * plane + row * R + col
     last_d = float(0.0)
     last_t = float(1.0)
     if n > 0:
@@ -378,6 +426,6 @@ def build_kernel(m: Medium, positions: wp.array(dtype=wp.vec3),
         last_t = T[n - 1]
     for i in range(count):
         if i < n:
-            nodes[texel, i] = wp.vec2(D[i], T[i])
+            nodes[first + i * plane] = wp.vec2(D[i], T[i])
         else:
-            nodes[texel, i] = wp.vec2(last_d, last_t)
+            nodes[first + i * plane] = wp.vec2(last_d, last_t)

@@ -1,6 +1,7 @@
 """Rendering with virtual lights (paper eqs. 4–5) plus exact single scattering.
 
-One thread per pixel marches the view ray twice:
+One thread per pixel marches the view ray twice (:func:`view_kernel`), and one thread
+per multiple-scattering position sums the virtual lights (:func:`vl_kernel`):
 
 1. **Single scattering** from the real lights, exactly as the project's ``single``
    ray caster does it (:func:`vtkillum.core.raycast.single_scatter_light` at every
@@ -45,7 +46,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from vtkillum.core.many_lights.avsm import ShadowMaps, avsm_transmittance
+from vtkillum.core.many_lights.avsm import ShadowMaps, avsm_lookup
 from vtkillum.core.raycast import single_scatter_light
 from vtkillum.core.raymarch import pixel_ray, sample_count
 from vtkillum.core.warp_common import (
@@ -147,15 +148,35 @@ def render_image(medium: Medium, cam: CameraParams, lights: Lights, vls: Virtual
 def gather_device(medium: Medium, cam: CameraParams, lights: Lights, vls: VirtualLights,
                   maps: ShadowMaps, params: GatherParams, single, multiple, alpha, samples,
                   device: str, progress=None) -> None:
-    """:func:`render_image` into device arrays ``(H, W)`` (no download; synchronised)."""
+    """:func:`render_image` into device arrays ``(H, W)`` (no download; synchronised).
+
+    Per band of rows, three launches: :func:`view_kernel` marches each view ray (single
+    scattering, alpha) and places its ``S`` multiple-scattering positions;
+    :func:`vl_kernel` sums the VLs' light at every position on a thread of its own; and
+    :func:`compose_kernel` adds each pixel's ``S`` terms in order. One thread per
+    *position* keeps the 32 threads of a warp on the same VL at the same time (its data
+    and its AVSM texels are read once for all of them); a thread per pixel that called
+    the VL sum inside its march would wait while its neighbours placed their positions
+    at other steps.
+    """
     height, width = single.shape
     band = BAND_PIXELS["cpu" if device == "cpu" else "cuda"]
     rows = max(1, min(height, band // max(width, 1)))
     bands = (height + rows - 1) // rows
+    S = max(1, params.view_samples)
+    position = wp.empty((S, rows, width), dtype=wp.vec3, device=device)
+    weight = wp.empty((S, rows, width), dtype=wp.vec3, device=device)
     for n, row0 in enumerate(range(0, height, rows)):
-        wp.launch(gather_kernel, dim=(min(rows, height - row0), width),
-                  inputs=[medium, cam, lights, vls, maps, params, row0, single, multiple,
-                          alpha, samples], device=device)
+        nrows = min(rows, height - row0)
+        wp.launch(view_kernel, dim=(nrows, width),
+                  inputs=[medium, cam, lights, vls.count, params, row0, single, alpha, samples,
+                          position, weight], device=device)
+        if params.multiple != 0 and vls.count > 0:
+            wp.launch(vl_kernel, dim=(S, nrows, width),
+                      inputs=[medium, cam, vls, maps, params, row0, position, weight],
+                      device=device)
+        wp.launch(compose_kernel, dim=(nrows, width), inputs=[row0, S, weight, multiple],
+                  device=device)
         if progress is not None and n + 1 < bands:
             wp.synchronize_device(device)
             progress((n + 1) / bands)
@@ -183,12 +204,16 @@ def scattered_fluence(medium: Medium, vls: VirtualLights, maps: ShadowMaps, para
 # --- device functions ---------------------------------------------------------------------------
 @wp.func
 def cone_direction(axis: wp.vec3, cos_max: float, u1: float, u2: float):
-    """A unit vector uniform in the cone of half-angle ``acos(cos_max)`` around ``axis``."""
+    """A unit vector uniform in the cone of half-angle ``acos(cos_max)`` around ``axis``.
+
+    ``orthonormal_basis`` completes ``axis`` exactly (up to rounding), so the sum needs
+    no normalisation.
+    """
     c = 1.0 - u1 * (1.0 - cos_max)
     s = wp.sqrt(wp.max(0.0, 1.0 - c * c))
     phi = 2.0 * wp.pi * u2
     t, b = orthonormal_basis(axis)
-    return wp.normalize((s * wp.cos(phi)) * t + (s * wp.sin(phi)) * b + c * axis)
+    return (s * wp.cos(phi)) * t + (s * wp.sin(phi)) * b + c * axis
 
 
 @wp.func
@@ -197,7 +222,7 @@ def vl_transmittance(m: Medium, vls: VirtualLights, sm: ShadowMaps, prm: GatherP
     """``T(x_j, x)``: ray-marched from ``x`` towards VL ``j`` or read from its AVSM."""
     if prm.transmittance == RAY_MARCHED:
         return shadow_transmittance(m, x, toward, dist, prm.vl_step, xi, stop_t)
-    t = avsm_transmittance(sm, vls.slot[j], vls.position[j], x)
+    t = avsm_lookup(sm, vls.slot[j], x - vls.position[j], dist)
     if prm.scale != 1.0:
         t = wp.pow(wp.max(t, 0.0), prm.scale)
     return t
@@ -215,14 +240,16 @@ def vl_light(m: Medium, vls: VirtualLights, sm: ShadowMaps, prm: GatherParams, x
     acc = wp.vec3(0.0)
     for j in range(vls.count):
         pw = vls.power[j]
-        r = vls.radius[j]
         if pw[0] + pw[1] + pw[2] <= 0.0:
             continue
+        r = vls.radius[j]
         v = vls.position[j] - x
         dist = wp.length(v)
+        if dist <= 0.0 and r <= 0.0:
+            continue
         toward = wp.vec3(0.0, 0.0, 1.0)
         if dist > 0.0:
-            toward = v / dist
+            toward = v * (1.0 / dist)
         w = toward
         kernel = float(0.0)
         if r > 0.0:
@@ -233,8 +260,6 @@ def vl_light(m: Medium, vls: VirtualLights, sm: ShadowMaps, prm: GatherParams, x
             w = cone_direction(toward, cos_max, u1, u2)
             kernel = 2.0 * (1.0 - cos_max) / (r * r)
         else:
-            if dist <= 0.0:
-                continue
             kernel = 1.0 / (dist * dist)
         T = vl_transmittance(m, vls, sm, prm, j, x, toward, dist, xi, stop_t)
         phase = hg_phase(wp.dot(vls.direction[j], -w), m.g)
@@ -246,24 +271,27 @@ def vl_light(m: Medium, vls: VirtualLights, sm: ShadowMaps, prm: GatherParams, x
 
 # --- kernels ------------------------------------------------------------------------------------
 @wp.kernel
-def gather_kernel(m: Medium, cam: CameraParams, lights: Lights, vls: VirtualLights,
-                  sm: ShadowMaps, prm: GatherParams, row0: int,
-                  single_out: wp.array2d(dtype=wp.vec3), multiple_out: wp.array2d(dtype=wp.vec3),
-                  alpha: wp.array2d(dtype=wp.float32), samples: wp.array2d(dtype=wp.int32)):
-    """Single scattering and VL multiple scattering along one view ray.
+def view_kernel(m: Medium, cam: CameraParams, lights: Lights, vl_count: int, prm: GatherParams,
+                row0: int, single_out: wp.array2d(dtype=wp.vec3),
+                alpha: wp.array2d(dtype=wp.float32), samples: wp.array2d(dtype=wp.int32),
+                position: wp.array3d(dtype=wp.vec3), weight: wp.array3d(dtype=wp.vec3)):
+    """Single scattering along one view ray and its multiple-scattering positions.
 
     ``wp.tid()`` is ``(row - row0, col)`` of the image (row 0 at the top). Positions in
-    the volume's local frame (world units); writes the single- and multiple-scattering
-    radiance (the lights' units per steradian), alpha and the number of steps at
-    ``[row, col]``. See the module docstring.
+    the volume's local frame (world units); writes the single-scattering radiance (the
+    lights' units per steradian), alpha and the number of steps at ``[row, col]``, and
+    for each level ``l < S`` the position ``x_t`` and its weight
+    ``alpha / S * albedo * colour(x_t)`` at ``[l, row - row0, col]`` (weight 0: no
+    position). See the module docstring.
     """
     r, c = wp.tid()
     row = row0 + r
     o, d, t0, t1 = pixel_ray(cam, m.extent, row, c)
     colour = wp.vec3(0.0)
-    ms = wp.vec3(0.0)
     trans = float(1.0)
     count = int(0)
+    S = position.shape[0]
+    placed = int(0)
     if t0 < t1:
         state = wp.rand_init(prm.seed, row * cam.width + c)
         xi = float(0.5)
@@ -292,32 +320,67 @@ def gather_kernel(m: Medium, cam: CameraParams, lights: Lights, vls: VirtualLigh
                 if 1.0 - trans > prm.stop_alpha:
                     break
         total = 1.0 - trans
-        if prm.multiple != 0 and vls.count > 0 and total > 0.0:
-            S = prm.view_samples
+        if prm.multiple != 0 and vl_count > 0 and total > 0.0:
             u0, state = uniform(state)
-            shadow_xi = float(0.5)
-            if prm.jitter != 0:
-                shadow_xi, state = uniform(state)
-            level = float(0)
             tau = float(0.0)
             target = -wp.log(wp.max(1.0 - total * u0 / float(S), 1.0e-30))
             for k in range(used):
                 p = o + (t0 + (float(k) + xi) * prm.step) * d
                 dt = lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, p)) * prm.step
-                while level < float(S) and dt > 0.0 and tau + dt >= target:
+                while placed < S and dt > 0.0 and tau + dt >= target:
                     f = (target - tau) / dt
                     tx = wp.clamp(t0 + (float(k) + xi - 0.5 + f) * prm.step, t0, t1)
                     x = o + tx * d
                     col = lookup_color(m, sample_scalar(m.scalars, m.inv_spacing, x))
-                    light, state = vl_light(m, vls, sm, prm, x, d, 1, shadow_xi, stop_t, state)
-                    ms += (total / float(S) * m.albedo) * wp.cw_mul(col, light)
-                    level += 1.0
-                    target = -wp.log(wp.max(1.0 - total * (level + u0) / float(S), 1.0e-30))
+                    position[placed, r, c] = x
+                    weight[placed, r, c] = (total / float(S) * m.albedo) * col
+                    placed += 1
+                    target = -wp.log(wp.max(1.0 - total * (float(placed) + u0) / float(S),
+                                            1.0e-30))
                 tau += dt
+    for level in range(placed, S):
+        weight[level, r, c] = wp.vec3(0.0)
     single_out[row, c] = colour
-    multiple_out[row, c] = ms
     alpha[row, c] = 1.0 - trans
     samples[row, c] = count
+
+
+@wp.kernel(module_options={"fast_math": True}, module="unique")
+def vl_kernel(m: Medium, cam: CameraParams, vls: VirtualLights, sm: ShadowMaps,
+              prm: GatherParams, row0: int, position: wp.array3d(dtype=wp.vec3),
+              weight: wp.array3d(dtype=wp.vec3)):
+    """The VLs' light scattered towards the camera at one position of a view ray.
+
+    ``wp.tid()`` is ``(level, row - row0, col)``; replaces the position's weight (see
+    :func:`view_kernel`) by ``weight * sum_j L_j`` (radiance, the lights' units per
+    steradian). Each position draws its VSL cone samples from a stream of its own.
+    Compiled with fast math (approximate division, square root, sine and cosine on the
+    GPU, relative errors ~1e-6): the sum over thousands of VLs is bound by arithmetic.
+    """
+    level, r, c = wp.tid()
+    w = weight[level, r, c]
+    if w[0] + w[1] + w[2] > 0.0:
+        row = row0 + r
+        o, d, t0, t1 = pixel_ray(cam, m.extent, row, c)
+        S = weight.shape[0]
+        state = wp.rand_init(prm.seed ^ 0x5F3759DF, (row * cam.width + c) * S + level)
+        shadow_xi = float(0.5)
+        if prm.jitter != 0:
+            shadow_xi, state = uniform(state)
+        light, state = vl_light(m, vls, sm, prm, position[level, r, c], d, 1, shadow_xi,
+                                1.0 - prm.stop_alpha, state)
+        weight[level, r, c] = wp.cw_mul(w, light)
+
+
+@wp.kernel
+def compose_kernel(row0: int, S: int, terms: wp.array3d(dtype=wp.vec3),
+                   multiple_out: wp.array2d(dtype=wp.vec3)):
+    """Sum a pixel's ``S`` multiple-scattering terms (in level order: reproducible)."""
+    r, c = wp.tid()
+    acc = wp.vec3(0.0)
+    for level in range(S):
+        acc += terms[level, r, c]
+    multiple_out[row0 + r, c] = acc
 
 
 @wp.kernel
