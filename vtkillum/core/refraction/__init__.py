@@ -15,7 +15,8 @@ plane by plane, through planes parallel to the image plane (numpy + warp only):
   integration of the light buffer, the intensity law (caustics), the elliptical blur.
 * :mod:`~vtkillum.core.refraction.view_rays` — section 4.3: forward integration of the
   view rays, diffuse and Cook–Torrance shading, eq. 14's compositing.
-* :mod:`~vtkillum.core.refraction.sweep` — Algorithm 1: buffers and one launch per plane.
+* :mod:`~vtkillum.core.refraction.sweep` — Algorithm 1: buffers, one light launch per
+  plane, the view rays in chunks of planes.
 * :mod:`~vtkillum.core.refraction.environment` — the mip-mapped environment map seen
   along the final ray directions (section 4.4).
 

@@ -61,10 +61,12 @@ from vtkillum.core.refraction.planes import (
     texel_position,
 )
 from vtkillum.core.refraction.preintegration import RefractiveMedium
-from vtkillum.core.refraction.ray_equation import MIN_COS, camera_eta_gradient
+from vtkillum.core.refraction.ray_equation import MIN_COS, camera_sample_and_gradient
 
-#: Light buffers cycle through three layers (see :mod:`~vtkillum.core.refraction.sweep`).
-LAYERS = 3
+#: Layers of the ``g`` and ``p`` light buffers (only the light propagation reads them: the
+#: previous plane's); ``l`` and ``v`` keep a ring of planes for the view rays
+#: (:class:`~vtkillum.core.refraction.sweep.SweepBuffers`).
+GP_LAYERS = wp.constant(2)
 
 #: The Newton step of the backward integration is used where |det(I + J)| exceeds this and
 #: it moves the lookup by at most this ratio times (the first estimate + one texel).
@@ -74,8 +76,10 @@ NEWTON_MAX_RATIO = wp.constant(4.0)
 
 @wp.struct
 class LightBuffers:
-    """The light buffers, ``(LAYERS, capacity)`` each, texel ``b * nx + a`` (camera frame).
+    """The light buffers, texel ``b * nx + a`` (camera frame).
 
+    ``l`` and ``v`` are ``(ring, capacity)``: plane ``j`` in layer ``j % ring``; ``g`` and
+    ``p`` are ``(GP_LAYERS, capacity)``: plane ``j`` in layer ``j % GP_LAYERS``.
     ``l``: light colour, the irradiance perpendicular to the ray (intensity-corrected);
     ``v``: ray direction ``η dx/ds`` (unnormalised); ``g``: ``∇η`` at the texel;
     ``p``: the ray tube's cross-section ``dX/dX0`` (2x2, columns, in-plane): how a texel
@@ -86,6 +90,7 @@ class LightBuffers:
     v: wp.array2d(dtype=wp.vec3)
     g: wp.array2d(dtype=wp.vec3)
     p: wp.array2d(dtype=wp.vec4)
+    ring: int
 
 @wp.func
 def light_fetch(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, a: int, b: int,
@@ -149,29 +154,33 @@ def chord_estimate(v: wp.vec3, g: wp.vec3, dz: float):
     return v + g * (0.5 * dz / wp.max(c[2], MIN_COS))
 
 @wp.func
-def neighbour_offset(lb: LightBuffers, layer: int, p: SweepParams, a: int, b: int, v0: wp.vec3):
-    """In-plane displacement to the next plane of the ray leaving texel ``(a, b)``."""
-    g = light_fetch(lb.g, layer, p, a, b, wp.vec3(0.0))
-    return plane_offset(chord_estimate(light_fetch(lb.v, layer, p, a, b, v0), g, p.dz), p.dz)
+def neighbour_offset(lb: LightBuffers, rv: int, rg: int, p: SweepParams, a: int, b: int,
+                     v0: wp.vec3):
+    """In-plane displacement to the next plane of the ray leaving texel ``(a, b)`` (its
+    direction in layer ``rv`` of ``v``, ``∇η`` in layer ``rg`` of ``g``)."""
+    g = light_fetch(lb.g, rg, p, a, b, wp.vec3(0.0))
+    return plane_offset(chord_estimate(light_fetch(lb.v, rv, p, a, b, v0), g, p.dz), p.dz)
 
 @wp.func
 def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, t: int, lb: LightBuffers):
     """Light texel ``t`` of plane ``j`` (Algorithm 1, lines 7–18)."""
     b = t / p.nx
     a = t - b * p.nx
-    wr = j % 3
+    wr = j % lb.ring
+    wg = j % GP_LAYERS
     x = texel_position(p, float(a), float(b), j)
-    g_x = camera_eta_gradient(m, p.frame, x)
+    s_x, g_x, in_x = camera_sample_and_gradient(m, p.frame, x)
     v0 = p.light_dir * m.eta_outside
     zero = wp.vec3(0.0)
     unit = wp.vec4(1.0, 0.0, 0.0, 1.0)
     if j == 0:
         lb.l[wr, t] = p.light_rgb
         lb.v[wr, t] = v0
-        lb.g[wr, t] = g_x
-        lb.p[wr, t] = unit
+        lb.g[wg, t] = g_x
+        lb.p[wg, t] = unit
         return
-    rd = (j + 2) % 3
+    rd = (j - 1) % lb.ring
+    rg = (j - 1) % GP_LAYERS
     inv_h = 1.0 / p.texel
     # Backward integration: find lp on plane j-1 with lp + off(lp) = x, off(y) the in-plane
     # displacement of the ray leaving y (its chord estimate). In deviations from the straight
@@ -184,11 +193,11 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, t: int, lb: Lig
     da = wp.vec2(0.0)
     db = wp.vec2(0.0)
     if m.eta_varies != 0:
-        oe = neighbour_offset(lb, rd, p, a + 1, b, v0)
-        ow = neighbour_offset(lb, rd, p, a - 1, b, v0)
-        on = neighbour_offset(lb, rd, p, a, b + 1, v0)
-        os = neighbour_offset(lb, rd, p, a, b - 1, v0)
-        delta = plane_offset(chord_estimate(lb.v[rd, t], lb.g[rd, t], p.dz), p.dz) - off0
+        oe = neighbour_offset(lb, rd, rg, p, a + 1, b, v0)
+        ow = neighbour_offset(lb, rd, rg, p, a - 1, b, v0)
+        on = neighbour_offset(lb, rd, rg, p, a, b + 1, v0)
+        os = neighbour_offset(lb, rd, rg, p, a, b - 1, v0)
+        delta = plane_offset(chord_estimate(lb.v[rd, t], lb.g[rg, t], p.dz), p.dz) - off0
         da = (oe - ow) * (0.5 * inv_h)
         db = (on - os) * (0.5 * inv_h)
         det = (1.0 + da[0]) * (1.0 + db[1]) - da[1] * db[0]
@@ -217,7 +226,7 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, t: int, lb: Lig
                           1.0 / cz, phi)
     v_in = light_filtered(lb.v, rd, p, la, lb_, v0, p.direction_blur * ds * inv_h, major,
                           1.0 / cz, phi)
-    g_in = light_bilinear(lb.g, rd, p, la, lb_, zero)
+    g_in = light_bilinear(lb.g, rg, p, la, lb_, zero)
     v_half = v_in + g_in * (0.5 * ds)
     v_new = v_half + g_x * (0.5 * ds)
     # Intensity law (eqs. 11-13): a texel cell of plane j-1 maps onto (I + J) times itself on
@@ -229,7 +238,7 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, t: int, lb: Lig
     gain = float(1.0)
     p_new = unit
     if m.eta_varies != 0:
-        p_in = light_bilinear(lb.p, rd, p, la, lb_, unit)
+        p_in = light_bilinear(lb.p, rg, p, la, lb_, unit)
         p_new = wp.vec4((1.0 + da[0]) * p_in[0] + db[0] * p_in[1],
                         da[1] * p_in[0] + (1.0 + db[1]) * p_in[1],
                         (1.0 + da[0]) * p_in[2] + db[0] * p_in[3],
@@ -251,7 +260,7 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, t: int, lb: Lig
             s_new = wp.max(wp.abs(p_new[0] * p_new[3] - p_new[2] * p_new[1]), floor)
             gain = (s_in * wp.max(wp.normalize(v_in)[2], MIN_COS)) / (
                 s_new * wp.max(wp.normalize(v_new)[2], MIN_COS))
-    ext, inside, _sa, _sb = segment_transmission(m, p.frame, lp, x, ds, 0.0, 0.0, 0, 0)
+    ext, inside, _sa, _sb = segment_transmission(m, p.frame, lp, x, ds, 0.0, s_x, 0, in_x)
     l_out = l_in
     if inside > 0.0:
         l_out = l_in * wp.exp(-ext[0] * inside)
@@ -262,13 +271,13 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, t: int, lb: Lig
     # light and of P at a focus need not stay consistent).
     lb.l[wr, t] = wp.min(l_out * gain, p.light_rgb * p.max_concentration)
     lb.v[wr, t] = v_new
-    lb.g[wr, t] = g_x
-    lb.p[wr, t] = p_new
+    lb.g[wg, t] = g_x
+    lb.p[wg, t] = p_new
 
 @wp.func
 def light_at(m: RefractiveMedium, p: SweepParams, lb: LightBuffers, q: wp.vec3, j: int):
     """Light colour and direction of plane ``j`` at camera-frame point ``q`` (bilinear)."""
     c = texel_coordinates(p, q, j)
-    layer = j % 3
+    layer = j % lb.ring
     return (light_bilinear(lb.l, layer, p, c[0], c[1], p.light_rgb),
             light_bilinear(lb.v, layer, p, c[0], c[1], p.light_dir * m.eta_outside))

@@ -171,25 +171,114 @@ def camera_eta_gradient(m: RefractiveMedium, frame: Frame, p: wp.vec3):
 
 
 @wp.func
+def lerp_cell(c000: float, c100: float, c010: float, c110: float, c001: float, c101: float,
+              c011: float, c111: float, f: wp.vec3):
+    """Trilinear interpolation of one cell's corners (``cXYZ``), in the order of
+    :func:`~vtkillum.core.warp_common.trilinear` (x, then y, then z)."""
+    return wp.lerp(wp.lerp(wp.lerp(c000, c100, f[0]), wp.lerp(c010, c110, f[0]), f[1]),
+                   wp.lerp(wp.lerp(c001, c101, f[0]), wp.lerp(c011, c111, f[0]), f[1]), f[2])
+
+
+@wp.func
+def sample_and_gradient(m: RefractiveMedium, p: wp.vec3):
+    """Data value and ``∇η`` (local frame) at local position ``p``: ``(s, ∇η, inside)``.
+
+    The value of :func:`sample_scalar` and the gradient of :func:`eta_gradient` from
+    one stencil: the seven trilinear samples (``p`` and ``p ± one voxel`` per axis)
+    share their cells, so away from the faces they read 32 distinct voxels instead of
+    56 (the sweep's cost is these loads). Outside the box ``s = 0`` and ``∇η = 0``;
+    within two voxels of a face the samples are taken one by one (clamped cells).
+    """
+    if not inside_box(p, m.extent):
+        return 0.0, wp.vec3(0.0), 0
+    a = m.scalars
+    inv = m.inv_spacing
+    if m.eta_varies == 0:
+        return sample_scalar(a, inv, p), wp.vec3(0.0), 1
+    u = wp.cw_mul(p, inv)
+    i = int(wp.floor(u[0]))
+    j = int(wp.floor(u[1]))
+    k = int(wp.floor(u[2]))
+    if (i < 1 or j < 1 or k < 1 or i > a.shape[0] - 3 or j > a.shape[1] - 3
+            or k > a.shape[2] - 3):
+        return sample_scalar(a, inv, p), eta_gradient(m, p), 1
+    f = wp.vec3(u[0] - float(i), u[1] - float(j), u[2] - float(k))
+    # The cell of p ...
+    c000 = a[i, j, k]
+    c100 = a[i + 1, j, k]
+    c010 = a[i, j + 1, k]
+    c110 = a[i + 1, j + 1, k]
+    c001 = a[i, j, k + 1]
+    c101 = a[i + 1, j, k + 1]
+    c011 = a[i, j + 1, k + 1]
+    c111 = a[i + 1, j + 1, k + 1]
+    # ... and the faces one voxel beyond it on either side of each axis.
+    xm00 = a[i - 1, j, k]
+    xm10 = a[i - 1, j + 1, k]
+    xm01 = a[i - 1, j, k + 1]
+    xm11 = a[i - 1, j + 1, k + 1]
+    xp00 = a[i + 2, j, k]
+    xp10 = a[i + 2, j + 1, k]
+    xp01 = a[i + 2, j, k + 1]
+    xp11 = a[i + 2, j + 1, k + 1]
+    ym00 = a[i, j - 1, k]
+    ym10 = a[i + 1, j - 1, k]
+    ym01 = a[i, j - 1, k + 1]
+    ym11 = a[i + 1, j - 1, k + 1]
+    yp00 = a[i, j + 2, k]
+    yp10 = a[i + 1, j + 2, k]
+    yp01 = a[i, j + 2, k + 1]
+    yp11 = a[i + 1, j + 2, k + 1]
+    zm00 = a[i, j, k - 1]
+    zm10 = a[i + 1, j, k - 1]
+    zm01 = a[i, j + 1, k - 1]
+    zm11 = a[i + 1, j + 1, k - 1]
+    zp00 = a[i, j, k + 2]
+    zp10 = a[i + 1, j, k + 2]
+    zp01 = a[i, j + 1, k + 2]
+    zp11 = a[i + 1, j + 1, k + 2]
+    s = lerp_cell(c000, c100, c010, c110, c001, c101, c011, c111, f)
+    sxp = lerp_cell(c100, xp00, c110, xp10, c101, xp01, c111, xp11, f)
+    sxm = lerp_cell(xm00, c000, xm10, c010, xm01, c001, xm11, c011, f)
+    syp = lerp_cell(c010, c110, yp00, yp10, c011, c111, yp01, yp11, f)
+    sym = lerp_cell(ym00, ym10, c000, c100, ym01, ym11, c001, c101, f)
+    szp = lerp_cell(c001, c101, c011, c111, zp00, zp10, zp01, zp11, f)
+    szm = lerp_cell(zm00, zm10, zm01, zm11, c000, c100, c010, c110, f)
+    g = wp.vec3((eta_of_value(m, sxp) - eta_of_value(m, sxm)) * (0.5 * inv[0]),
+                (eta_of_value(m, syp) - eta_of_value(m, sym)) * (0.5 * inv[1]),
+                (eta_of_value(m, szp) - eta_of_value(m, szm)) * (0.5 * inv[2]))
+    return s, g, 1
+
+
+@wp.func
+def camera_sample_and_gradient(m: RefractiveMedium, frame: Frame, p: wp.vec3):
+    """:func:`sample_and_gradient` at camera-frame point ``p``: ``(s, ∇η in camera-frame
+    components, inside)``."""
+    s, g, inside = sample_and_gradient(m, to_local(frame, p))
+    return s, to_camera(frame, g), inside
+
+
+@wp.func
 def ray_step(m: RefractiveMedium, frame: Frame, p: wp.vec3, v: wp.vec3, g: wp.vec3, dz: float):
     """One kick–drift–kick step of the ray equation to the next plane (``dz`` further along
     the camera's forward axis).
 
     ``p``, ``v`` and ``g = ∇η(p)`` are in camera coordinates. Returns the new
-    ``(p, v, ∇η(p), arc length, ok)``; ``ok`` is 0 when the ray turned more than 87°
-    away from the sweep direction (it is then left where it was).
+    ``(p, v, ∇η(p), s(p), inside, arc length, ok)`` (``s`` the data value, 0 and
+    ``inside = 0`` outside the box); ``ok`` is 0 when the ray turned more than 87° away
+    from the sweep direction (it is then left where it was).
     """
     t = wp.normalize(v)
     if t[2] < MIN_COS:
-        return p, v, g, 0.0, 0
+        return p, v, g, 0.0, 0, 0.0, 0
     v_half = v + g * (0.5 * dz / t[2])
     c = wp.normalize(v_half)
     if c[2] < MIN_COS:
-        return p, v, g, 0.0, 0
+        return p, v, g, 0.0, 0, 0.0, 0
     ds = dz / c[2]
     p_new = p + c * ds
-    g_new = camera_eta_gradient(m, frame, p_new)
-    return p_new, v_half + g_new * (0.5 * ds), g_new, ds, 1
+    s_new, g_new, inside = camera_sample_and_gradient(m, frame, p_new)
+    return p_new, v_half + g_new * (0.5 * ds), g_new, s_new, inside, ds, 1
 
 
 # --- kernel -------------------------------------------------------------------------------------
@@ -209,7 +298,7 @@ def trace_kernel(m: RefractiveMedium, frame: Frame, pos: wp.array(dtype=wp.vec3)
     g = camera_eta_gradient(m, frame, p)
     out[0, i] = p
     for k in range(steps):
-        p2, v2, g2, _ds, ok = ray_step(m, frame, p, v, g, dz)
+        p2, v2, g2, _s, _inside, _ds, ok = ray_step(m, frame, p, v, g, dz)
         if ok != 0:
             p = p2
             v = v2

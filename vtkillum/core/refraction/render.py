@@ -52,6 +52,7 @@ import warp as wp
 from vtkillum.core.device import resolve_device
 from vtkillum.core.lights import DIRECTIONAL
 from vtkillum.core.refraction.environment import make_environment
+from vtkillum.core.refraction.light_propagation import GP_LAYERS
 from vtkillum.core.refraction.optics import RefractiveOptics
 from vtkillum.core.refraction.preintegration import make_refractive_medium
 from vtkillum.core.refraction.planes import (
@@ -61,7 +62,7 @@ from vtkillum.core.refraction.planes import (
     make_params,
     sweep_geometry,
 )
-from vtkillum.core.refraction.sweep import SweepBuffers, sweep_launches
+from vtkillum.core.refraction.sweep import SweepBuffers, sweep_kernels, sweep_launches
 from vtkillum.core.render import RenderResult
 
 #: Method options and their defaults (also the scene file's ``refraction`` section).
@@ -258,13 +259,14 @@ class RefractionRenderer:
             def after(j):
                 if j in wanted:
                     n = geometry.texels
-                    layer = j % 3
                     lb = self.buffers.light
                     recorded[j] = {
-                        name: getattr(lb, field).numpy()[layer, :n].reshape(
+                        name: getattr(lb, field).numpy()[j % layers, :n].reshape(
                             geometry.ny, geometry.nx, -1).copy()
-                        for name, field in (("light", "l"), ("direction", "v"),
-                                            ("eta_gradient", "g"), ("tube", "p"))}
+                        for name, field, layers in (("light", "l", lb.ring),
+                                                    ("direction", "v", lb.ring),
+                                                    ("eta_gradient", "g", GP_LAYERS),
+                                                    ("tube", "p", GP_LAYERS))}
         elif progress is not None and not self._use_graph(opts):
             step = max(1, geometry.planes // 20)
 
@@ -318,19 +320,20 @@ class RefractionRenderer:
             return sweep_launches(*args, after_plane=after)
         key = (planes, width, height, self.buffers.capacity, self._medium_key,
                self._environment_key)
-        graph = self._graphs.get(key)
-        if graph is None:
+        entry = self._graphs.get(key)
+        if entry is None:
             if len(self._graphs) > 16:
                 self._graphs.clear()
+            sweep_kernels(True)  # their modules exist before the capture loads all modules
             try:
-                with wp.ScopedCapture(device=self.device) as capture:
-                    sweep_launches(*args)
+                with wp.ScopedCapture(device=self.device, force_module_load=True) as capture:
+                    launches = sweep_launches(*args)
             except Exception as err:  # a driver without graph capture: launch plane by plane
                 self._graph_error = f"{type(err).__name__}: {err}"
                 return sweep_launches(*args, after_plane=after)
-            graph = self._graphs[key] = capture.graph
-        wp.capture_launch(graph)
-        return planes + 3
+            entry = self._graphs[key] = (capture.graph, launches)
+        wp.capture_launch(entry[0])
+        return entry[1]
 
     def _get_medium(self, volume, tf, optics, u, albedo, g):
         key = (id(volume), volume.content_key, tf.scalars.tobytes(), tf.opacity.tobytes(),

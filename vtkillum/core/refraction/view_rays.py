@@ -35,8 +35,8 @@ import warp as wp
 from vtkillum.core.refraction.light_propagation import LightBuffers, light_at
 from vtkillum.core.refraction.planes import SweepParams, segment_transmission
 from vtkillum.core.refraction.preintegration import RefractiveMedium, segment_source
-from vtkillum.core.refraction.ray_equation import eta_at, ray_step, to_local
-from vtkillum.core.warp_common import hg_phase, inside_box, sample_scalar
+from vtkillum.core.refraction.ray_equation import eta_of_value, ray_step, to_local
+from vtkillum.core.warp_common import hg_phase, inside_box
 
 #: View-ray states.
 MISSED = wp.constant(0)
@@ -77,34 +77,42 @@ def cook_torrance(n: wp.vec3, to_light: wp.vec3, to_eye: wp.vec3, eta_rel: float
     return fresnel_schlick(vh, eta_rel) * beckmann(nh, roughness) * geom / (4.0 * nv)
 
 @wp.func
-def advance_view(m: RefractiveMedium, p: SweepParams, k: int, i: int, lb: LightBuffers,
-                 vp: wp.array(dtype=wp.vec3), vv: wp.array(dtype=wp.vec3),
-                 vg: wp.array(dtype=wp.vec3), vs: wp.array(dtype=wp.float32),
-                 veta: wp.array(dtype=wp.float32), vc: wp.array(dtype=wp.vec3),
-                 va: wp.array(dtype=wp.float32), vm: wp.array(dtype=wp.vec3),
-                 state: wp.array(dtype=wp.int32)):
-    """View ray ``i`` from plane ``k`` to ``k + 1`` (Algorithm 1, lines 21–36)."""
-    q = vp[i]
-    v = vv[i]
-    g = vg[i]
-    q2, v2, g2, ds, ok = ray_step(m, p.frame, q, v, g, p.dz)
+def view_segment(m: RefractiveMedium, p: SweepParams, k: int, lb: LightBuffers, q: wp.vec3,
+                 v: wp.vec3, g: wp.vec3, s: float, e: float, C: wp.vec3, A: float, M: wp.vec3,
+                 lq: wp.vec3, dq: wp.vec3, have_lq: int):
+    """One view ray from plane ``k`` to ``k + 1`` (Algorithm 1, lines 21–36).
+
+    Takes and returns the ray's state: position ``q``, direction ``v``, ``∇η`` ``g``, data
+    value ``s`` and index ``e`` at ``q``, and the composited ``C``, ``A``, ``M`` (eq. 14);
+    ``lq``, ``dq`` are the light colour and direction of plane ``k`` at ``q`` when
+    ``have_lq`` (the previous segment looked them up at its end). Returns the new state,
+    the light at the new position (and whether it was looked up) and the ray's state flag
+    (ACTIVE or DONE).
+    """
+    q2, v2, g2, s2, in2, ds, ok = ray_step(m, p.frame, q, v, g, p.dz)
     if ok == 0:
-        state[i] = DONE  # turned away from the sweep: keeps its direction for the background
-        return
-    s = vs[i]
-    e = veta[i]
-    q2l = to_local(p.frame, q2)
-    s2 = float(0.0)
+        # Turned away from the sweep: keeps its direction for the background.
+        return q, v, g, s, e, C, A, M, lq, dq, 0, DONE
+    state = ACTIVE
     e2 = m.eta_outside
-    if inside_box(q2l, m.extent):
-        s2 = sample_scalar(m.scalars, m.inv_spacing, q2l)
-        e2 = eta_at(m, q2l)
+    if in2 != 0:
+        e2 = eta_of_value(m, s2)
     ext, inside, sa, sb = segment_transmission(
         m, p.frame, q, q2, ds, s, s2, wp.where(inside_box(to_local(p.frame, q), m.extent), 1, 0), 1)
+    C2 = C
+    A2 = A
+    M2 = M
+    lb2 = lq
+    db = dq
+    have = int(0)
     if inside > 0.0:
         alpha = 1.0 - wp.exp(-ext[0] * inside)
-        la, da = light_at(m, p, lb, q, k)
+        la = lq
+        da = dq
+        if have_lq == 0:
+            la, da = light_at(m, p, lb, q, k)
         lb2, db = light_at(m, p, lb, q2, k + 1)
+        have = 1
         light = 0.5 * (la + lb2)
         to_light = -wp.normalize(da + db)
         chord = wp.normalize(q2 - q)
@@ -121,18 +129,49 @@ def advance_view(m: RefractiveMedium, p: SweepParams, k: int, i: int, lb: LightB
                 if wp.dot(n, to_eye) < 0.0:
                     n = -n
                 src += (p.specular * cook_torrance(n, to_light, to_eye, e2 / e, p.roughness)) * light
-        A = va[i]
-        M = vm[i]
-        vc[i] = vc[i] + (1.0 - A) * wp.cw_mul(M, src)
-        A = A + (1.0 - A) * alpha
-        va[i] = A
+        C2 = C + (1.0 - A) * wp.cw_mul(M, src)
+        A2 = A + (1.0 - A) * alpha
         if m.medium_white == 0:
-            vm[i] = wp.cw_mul(M, wp.vec3(wp.exp(-ext[1] * inside), wp.exp(-ext[2] * inside),
-                                         wp.exp(-ext[3] * inside)))
-        if A > p.stop_alpha:
-            state[i] = DONE
-    vp[i] = q2
-    vv[i] = v2
-    vg[i] = g2
-    vs[i] = s2
-    veta[i] = e2
+            M2 = wp.cw_mul(M, wp.vec3(wp.exp(-ext[1] * inside), wp.exp(-ext[2] * inside),
+                                      wp.exp(-ext[3] * inside)))
+        if A2 > p.stop_alpha:
+            state = DONE
+    return q2, v2, g2, s2, e2, C2, A2, M2, lb2, db, have, state
+
+
+@wp.func
+def advance_view(m: RefractiveMedium, p: SweepParams, k0: int, k1: int, i: int,
+                 lb: LightBuffers, vp: wp.array(dtype=wp.vec3), vv: wp.array(dtype=wp.vec3),
+                 vg: wp.array(dtype=wp.vec3), vs: wp.array(dtype=wp.float32),
+                 veta: wp.array(dtype=wp.float32), vc: wp.array(dtype=wp.vec3),
+                 va: wp.array(dtype=wp.float32), vm: wp.array(dtype=wp.vec3),
+                 state: wp.array(dtype=wp.int32)):
+    """View ray ``i`` from plane ``k0`` to ``k1`` (segments ``k0 … k1 - 1``), its state kept
+    in registers in between (the light planes ``k0 … k1`` must be in the ring)."""
+    q = vp[i]
+    v = vv[i]
+    g = vg[i]
+    s = vs[i]
+    e = veta[i]
+    C = vc[i]
+    A = va[i]
+    M = vm[i]
+    st = int(ACTIVE)
+    # The light at the end of one segment is the light at the start of the next.
+    lq = wp.vec3(0.0)
+    dq = wp.vec3(0.0)
+    have = int(0)
+    for k in range(k0, k1):
+        q, v, g, s, e, C, A, M, lq, dq, have, st = view_segment(m, p, k, lb, q, v, g, s, e, C, A,
+                                                                 M, lq, dq, have)
+        if st != ACTIVE:
+            break
+    vp[i] = q
+    vv[i] = v
+    vg[i] = g
+    vs[i] = s
+    veta[i] = e
+    vc[i] = C
+    va[i] = A
+    vm[i] = M
+    state[i] = st
