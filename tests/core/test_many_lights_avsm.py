@@ -208,7 +208,7 @@ def test_pool_grows_without_losing_maps_and_reuses_slots():
 
 
 def test_empty_bricks_are_exactly_transparent_and_skipping_them_changes_no_node(device):
-    """On the CT phantom most bricks are air: they are classified empty, a brick whose
+    """On the CT phantom most blocks are air: they are classified empty, a block whose
     points straddle the TF's only visible band is not (a trilinear sample between its
     values lands in the band), and maps built with skipping equal maps built without, bit
     for bit, for VLs inside the body and in the air around it."""
@@ -219,16 +219,16 @@ def test_empty_bricks_are_exactly_transparent_and_skipping_them_changes_no_node(
     scene = default_scene("ct", volume)
     medium = make_medium(volume, scene.transfer_function, volume.mean_spacing(),
                          device=device)
-    empty = empty_bricks(medium, volume.spacing, device).empty.numpy()
+    empty = empty_bricks(medium, volume.spacing, device).occupied.numpy() == 0
     assert empty.shape == (6, 6, 6) and 0.2 < empty.mean() < 0.9, empty.mean()
 
     values = np.zeros((33, 33, 33))
     values[12, 12, 12] = 1.0  # values 0 and 1 only: the visible band [0.45, 0.55] between
     band = unit_volume(values)
     tf = TransferFunction([0.0, 0.45, 0.5, 0.55, 1.0], [0.0, 0.0, 0.5, 0.0, 0.0])
-    flags = empty_bricks(make_medium(band, tf, 0.1, device=device), band.spacing,
-                         device).empty.numpy()
-    assert flags.shape == (4, 4, 4) and flags[1, 1, 1] == 0 and flags.sum() == 63
+    occupied = empty_bricks(make_medium(band, tf, 0.1, device=device), band.spacing,
+                            device).occupied.numpy()
+    assert occupied.shape == (4, 4, 4) and occupied[1, 1, 1] == 1 and occupied.sum() == 1
 
     extent = np.asarray(volume.extent, np.float32)
     origins = np.array([[0.5, 0.5, 0.5], [0.3, 0.45, 0.6], [0.05, 0.05, 0.05]], np.float32)

@@ -1,103 +1,12 @@
 """Empty-space skipping for the ambient gather: which blocks of the volume are surely empty.
 
-The volume's cells are grouped into blocks of ``BLOCK`` × ``BLOCK`` × ``BLOCK``
-cells. A block is *empty* when the extinction is 0 everywhere inside it. With
-post-classification (the transfer function applied to the trilinearly
-interpolated value) this is decided by the block's data range, not by σt at
-its points: every value between the block's minimum and maximum can occur, so
-the block is empty only if the transfer function has ``σt = 0`` on that whole
-range. The range per block depends on the data only (computed once); the
-emptiness test per transfer function is O(1) per block with a prefix count of
-the non-zero entries of the σt lookup table.
-
-The gather (:mod:`vtkillum.core.ambient.gather`) leaps over empty blocks while
-the shifted transmittance point ``x_o`` has also left all matter behind; the
-image is the same as without skipping (only the samples that are surely empty
-are left out).
+The classification (:mod:`vtkillum.core.empty_space`): blocks of ``BLOCK``³ cells whose
+data range maps to ``σt = 0`` in the transfer function. The gather
+(:mod:`vtkillum.core.ambient.gather`) leaps over empty blocks while the shifted
+transmittance point ``x_o`` has also left all matter behind; the image is the same as
+without skipping (only the samples that are surely empty are left out).
 """
 
-from __future__ import annotations
+from vtkillum.core.empty_space import BLOCK, block_ranges, block_shape, occupancy
 
-import numpy as np
-import warp as wp
-
-from vtkillum.core.device import init_warp, resolve_device
-from vtkillum.core.warp_common import Medium, table_coord
-
-init_warp()
-
-#: Cells per block edge.
-BLOCK = 8
-
-
-def block_ranges(scalars, device: str | None = None):
-    """Minimum and maximum data value per block: wp.array4d(float32) ``(bx, by, bz, 2)``.
-
-    ``scalars`` is the device copy of the volume ``(nx, ny, nz)``; block ``b`` covers
-    points ``BLOCK * b .. BLOCK * (b + 1)`` (inclusive: the cells' corner points).
-    """
-    device = resolve_device(device)
-    shape = block_shape(scalars.shape)
-    out = wp.empty(shape + (2,), dtype=wp.float32, device=device)
-    wp.launch(block_range_kernel, dim=shape, inputs=[scalars, BLOCK, out], device=device)
-    return out
-
-
-def block_shape(dims) -> tuple:
-    """Blocks per axis for a grid of ``dims`` points."""
-    return tuple(max(1, -(-(int(n) - 1) // BLOCK)) for n in dims)
-
-
-def occupancy(medium: Medium, ranges, device: str | None = None):
-    """1 for blocks where σt may be non-zero, 0 for surely empty ones: wp.array3d(int32).
-
-    Parameters
-    ----------
-    medium : Medium
-        Gives the σt lookup table and its data-value mapping.
-    ranges : wp.array4d(float32)
-        From :func:`block_ranges`.
-    """
-    device = resolve_device(device)
-    sig = medium.sigma_table.numpy()
-    nonzero = np.concatenate([[0], np.cumsum(sig > 0)]).astype(np.int32)  # prefix counts
-    counts = wp.array(nonzero, dtype=wp.int32, device=device)
-    shape = tuple(ranges.shape[:3])
-    out = wp.empty(shape, dtype=wp.int32, device=device)
-    wp.launch(occupancy_kernel, dim=shape, inputs=[medium, ranges, counts, out], device=device)
-    return out
-
-
-@wp.kernel
-def block_range_kernel(scalars: wp.array3d(dtype=wp.float32), block: int,
-                       out: wp.array4d(dtype=wp.float32)):
-    """``wp.tid()`` = block ``(bi, bj, bk)``; writes the min and max of its points."""
-    bi, bj, bk = wp.tid()
-    lo = float(1.0e30)
-    hi = float(-1.0e30)
-    i1 = wp.min(block * (bi + 1), scalars.shape[0] - 1)
-    j1 = wp.min(block * (bj + 1), scalars.shape[1] - 1)
-    k1 = wp.min(block * (bk + 1), scalars.shape[2] - 1)
-    for i in range(block * bi, i1 + 1):
-        for j in range(block * bj, j1 + 1):
-            for k in range(block * bk, k1 + 1):
-                v = scalars[i, j, k]
-                lo = wp.min(lo, v)
-                hi = wp.max(hi, v)
-    out[bi, bj, bk, 0] = lo
-    out[bi, bj, bk, 1] = hi
-
-
-@wp.kernel
-def occupancy_kernel(m: Medium, ranges: wp.array4d(dtype=wp.float32),
-                     nonzero: wp.array(dtype=wp.int32), out: wp.array3d(dtype=wp.int32)):
-    """``wp.tid()`` = block; 1 if the σt table has a non-zero entry over the block's range.
-
-    The table is interpolated linearly, so the entries bracketing the range count
-    (``floor`` of the low end to ``ceil`` of the high end).
-    """
-    bi, bj, bk = wp.tid()
-    lo = int(wp.floor(table_coord(m, ranges[bi, bj, bk, 0])))
-    hi = wp.min(int(wp.ceil(table_coord(m, ranges[bi, bj, bk, 1]))), m.sigma_table.shape[0] - 1)
-    # nonzero[i] = number of non-zero entries among the first i
-    out[bi, bj, bk] = wp.where(nonzero[hi + 1] - nonzero[lo] > 0, 1, 0)
+__all__ = ["BLOCK", "block_ranges", "block_shape", "occupancy"]
