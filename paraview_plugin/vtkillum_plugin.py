@@ -59,18 +59,25 @@ from vtkillum_paraview.glue import DEFAULT_EXPOSURE, ParaViewGlue, light_row
 from vtkillum.core.photon.mapper import DIRECT_MODES
 from vtkillum.filters.ambient_extinction import RADIUS_UNITS, AmbientExtinctionFilter
 from vtkillum.filters.base import DEFAULT_CACHE_MB
-from vtkillum.filters.convection_diffusion_light import MODELS as CD_MODELS
 from vtkillum.filters.convection_diffusion_light import (
     DEFAULT_LIGHT_VOLUME_SCALE,
     SCHEMES,
     SOLVERS,
     ConvectionDiffusionLightFilter,
 )
+from vtkillum.filters.convection_diffusion_light import MODELS as CD_MODELS
 from vtkillum.filters.light_transmittance import LightTransmittanceFilter
 from vtkillum.filters.many_lights import _CHOICES as MANY_LIGHTS_CHOICES
 from vtkillum.filters.many_lights import ManyLightsFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
 from vtkillum.filters.photon_density import PhotonDensityFilter
+from vtkillum.filters.refraction_render import (
+    DEFAULT_IMAGE_SIZE,
+    DEFAULT_LIGHT_DIRECTION,
+    MAX_IMAGE_SIZE,
+    RefractionRenderFilter,
+)
+from vtkillum.filters.refraction_render import RGB_ARRAY as REFRACTION_RGB
 from vtkillum.filters.rgba_output import RGBA_ARRAY, RGBA_TYPES, IlluminatedRGBAOutput
 
 paraview_plugin_name = "vtkIllum"
@@ -241,9 +248,11 @@ def output_xml(scale_command="SetOutputScale", scale_default=1.0, rgba=True) -> 
     return "".join(parts)
 
 
-def _proxy(name: str, label: str, *property_xmls: str, ports=("Illumination",)):
+def _proxy(name: str, label: str, *property_xmls: str, ports=("Illumination",),
+           representation: str = "Volume", hints: str = ""):
     """Declare a filter proxy: image-data input, ``property_xmls`` in panel order, output
-    ``ports`` (the first is shown as a volume), and the ``vtkIllum`` menu hint."""
+    ``ports`` (the first is shown as ``representation``), the ``vtkIllum`` menu hint and
+    further ``hints`` (XML)."""
 
     def decorate(cls):
         cls.paraview_label = label
@@ -262,7 +271,8 @@ def _proxy(name: str, label: str, *property_xmls: str, ports=("Illumination",)):
             cls = smproperty.xml("".join(f'<OutputPort name="{port}" index="{i}" />'
                                          for i, port in enumerate(ports)))(cls)
         cls = smhint.xml(f'<ShowInMenu category="{MENU}" />'
-                         '<RepresentationType view="RenderView" type="Volume" port="0" />')(cls)
+                         f'<RepresentationType view="RenderView" type="{representation}" '
+                         f'port="0" />{hints}')(cls)
         return smproxy.filter(name=name, label=label, support_reload=False)(cls)
 
     return decorate
@@ -413,6 +423,123 @@ class ManyLights(IlluminatedRGBAOutput, ParaViewGlue, ManyLightsFilter):
     memo_attributes = ("_latest_lights", "state")
 
 
+def _table(name: str, add: str, clean: str, columns, default: str, doc: str) -> str:
+    """A control-point table: ``add`` is called once per row after ``clean``."""
+    labels = "".join(f'<ComponentLabel component="{i}" label="{c}" />'
+                     for i, c in enumerate(columns))
+    n = len(columns)
+    return (f'<DoubleVectorProperty name="{name}" command="{add}" clean_command="{clean}" '
+            f'repeat_command="1" number_of_elements_per_command="{n}" '
+            f'number_of_elements="{n}" default_values="{default}">{_doc(doc)}'
+            f"<Hints><ShowComponentLabels>{labels}</ShowComponentLabels></Hints>"
+            "</DoubleVectorProperty>")
+
+
+def _group(label: str, *names: str, advanced: bool = False) -> str:
+    return (f'<PropertyGroup label="{label}"'
+            + (' panel_visibility="advanced"' if advanced else "") + ">"
+            + "".join(f'<Property name="{n}" />' for n in names) + "</PropertyGroup>")
+
+
+def refraction_xml() -> str:
+    """The refraction render's own properties: the two transfer-function tables, the light,
+    the method's options, the image and the camera."""
+    def vec(values) -> str:
+        return " ".join(f"{v:g}" for v in values)
+
+    return "".join([
+        _table("RefractiveIndex", "AddRefractiveIndexPoint", "RemoveAllRefractiveIndexPoints",
+               ("Value", "Eta"), "0 1",
+               "Refractive-index transfer function: one row per control point, data value and "
+               "refractive index eta > 0 (1 air, 1.33 water, 1.5 glass); piecewise linear, "
+               "constant outside the points. Rays bend where eta changes; one row (or none): "
+               "straight rays."),
+        _table("MediumColor", "AddMediumColorPoint", "RemoveAllMediumColorPoints",
+               ("Value", "R", "G", "B"), "0 1 1 1",
+               "Medium-colour transfer function: one row per control point, data value and "
+               "the RGB fraction a path of one Scalar Opacity Unit Distance transmits, in "
+               "[0, 1] (tinted glass, wine); white: no tint."),
+        _number("double", "LightDirection", "SetLightDirection", vec(DEFAULT_LIGHT_DIRECTION),
+                "Direction the one distant light travels (world coordinates); it must lie "
+                "within 85 degrees of the view direction (the method's limit).", elements=3),
+        _number("double", "LightIrradiance", "SetLightIrradiance", "1 1 1",
+                "RGB irradiance of the light.", lo=0.0, elements=3),
+        _number("double", "Softness", "SetSoftness", 0.0,
+                "Soft light: tan of the light's angular radius (0: hard shadows and sharp "
+                "caustics).", lo=0.0, hi=2.0),
+        _number("double", "Anisotropy", "SetAnisotropy", 0.0,
+                "Henyey-Greenstein g in (-1, 1) of the diffuse (particle) term.", lo=-0.99,
+                hi=0.99),
+        _number("double", "SampleDistance", "SetSampleDistance", 1.0,
+                "Spacing of the planes swept through the volume, in voxels (1: the paper's "
+                "setting; larger is faster and coarser).", lo=0.1, hi=8.0),
+        _number("int", "ImageSize", "SetImageSize", vec(DEFAULT_IMAGE_SIZE),
+                "Width and height of the rendered image in pixels (vtkillum_plugin."
+                "CopyViewCamera(filter, image_size=True) takes the view's).", lo=1,
+                hi=MAX_IMAGE_SIZE, elements=2),
+        _number("double", "CameraPosition", "SetCameraPosition", "0 0 0",
+                "Camera position; equal to CameraFocalPoint (0 0 0 both, the default): an "
+                "automatic camera that frames the data. vtkillum_plugin.CopyViewCamera(filter) "
+                "copies the render view's camera.", elements=3),
+        _number("double", "CameraFocalPoint", "SetCameraFocalPoint", "0 0 0",
+                "Point the camera looks at.", elements=3),
+        _number("double", "CameraViewUp", "SetCameraViewUp", "0 1 0",
+                "Camera view-up direction.", elements=3),
+        _number("double", "CameraViewAngle", "SetCameraViewAngle", 30.0,
+                "Vertical view angle in degrees (perspective).", lo=1.0, hi=179.0),
+        _boolean("CameraParallelProjection", "SetCameraParallelProjection", 0,
+                 "Orthographic projection of half-height CameraParallelScale.", advanced=True),
+        _number("double", "CameraParallelScale", "SetCameraParallelScale", 1.0,
+                "Half the view height in world units (parallel projection).", lo=0.0,
+                advanced=True),
+        _number("double", "Exposure", "SetExposure", 0.0,
+                "Factor on the radiance in the displayed colours; 0: automatic (the 99.5th "
+                "percentile of the brightest channel shows as full brightness).", lo=0.0,
+                hi=1000.0),
+        _number("double", "Gamma", "SetGamma", 2.2, "Display gamma of the colours.", lo=0.2,
+                hi=5.0, advanced=True),
+        _number("double", "Background", "SetBackground", "0 0 0",
+                "Linear RGB radiance seen where the (bent) rays leave the volume.", lo=0.0,
+                elements=3),
+        _number("double", "DirectionBlur", "SetDirectionBlur", 1.0,
+                "The soft-light kernel applied to the light directions (paper section 4.2).",
+                lo=0.0, hi=4.0, advanced=True),
+        _boolean("IntensityCorrection", "SetIntensityCorrection", 1,
+                 "Caustics from the intensity law (eqs. 11-13).", advanced=True),
+        _number("double", "Specular", "SetSpecular", 1.0,
+                "Weight of the Cook-Torrance term at refractive boundaries (0: off).", lo=0.0,
+                hi=10.0, advanced=True),
+        _number("double", "Roughness", "SetRoughness", 0.3,
+                "Beckmann RMS slope of the specular lobe.", lo=0.01, hi=1.0, advanced=True),
+        _number("int", "Seed", "SetSeed", 0, "Seed of the soft-light kernel's rotations.",
+                lo=0, hi=2147483646, advanced=True),
+        _string_list("Device", "SetDevice", ("auto", "cpu", "cuda"), "auto",
+                     "Warp device: auto (CUDA when present, else CPU; VTKILLUM_DEVICE "
+                     "overrides), cpu or cuda.", advanced=True),
+        _number("double", "CacheSizeMB", "SetCacheSizeMB", DEFAULT_CACHE_MB,
+                "Memory for images kept per time step (0: no cache).", lo=0.0, hi=65536.0,
+                advanced=True),
+        CACHE_STATISTICS,
+        _group("Refraction", "RefractiveIndex", "MediumColor"),
+        _group("Light", "LightDirection", "LightIrradiance", "Softness", "Anisotropy"),
+        _group("Image", "SampleDistance", "ImageSize", "Exposure", "Gamma", "Background"),
+        _group("Camera", "CameraPosition", "CameraFocalPoint", "CameraViewUp",
+               "CameraViewAngle", "CameraParallelProjection", "CameraParallelScale"),
+    ])
+
+
+@_proxy("vtkIllumRefractionRender", "vtkIllum Refraction Render",
+        optical_model_xml(),
+        refraction_xml(),
+        ports=("Image",), representation="Slice",
+        # The input stays shown: its colour map is the transfer function (and the one to edit).
+        hints='<Visibility replace_input="0" />')
+class RefractionRender(ParaViewGlue, RefractionRenderFilter):
+    """Magnus & Bruckner's refraction and caustics, rendered into a 2D image (port 0): the
+    refractive-index and medium-colour tables, one distant light, a camera
+    (:func:`CopyViewCamera`); show the picture with :func:`ShowRendered`."""
+
+
 # === pvpython helpers =================================================================================
 def ShowIlluminated(source, view=None, array: str = RGBA_ARRAY):
     """Show a filter's baked ``illuminated_rgba`` (OutputRGBA on) as a volume.
@@ -491,6 +618,48 @@ def SetLights(source, lights) -> None:
     source.Lights = rows
 
 
+def CopyViewCamera(source, view=None, image_size: bool = False) -> None:
+    """Copy a render view's camera into a vtkIllum Refraction Render's Camera properties.
+
+    Position, focal point, view up, view angle, parallel projection and scale of
+    ``view`` (default: the active render view); with ``image_size`` also its size
+    in pixels (``ImageSize``). The filter renders again at its next update.
+    """
+    from paraview import simple
+
+    view = view or simple.GetActiveViewOrCreate("RenderView")
+    source.CameraPosition = list(view.CameraPosition)
+    source.CameraFocalPoint = list(view.CameraFocalPoint)
+    source.CameraViewUp = list(view.CameraViewUp)
+    source.CameraViewAngle = float(view.CameraViewAngle)
+    source.CameraParallelProjection = int(view.CameraParallelProjection)
+    if float(view.CameraParallelScale) > 0:
+        source.CameraParallelScale = float(view.CameraParallelScale)
+    if image_size:
+        source.ImageSize = [int(v) for v in view.ViewSize]
+
+
+def ShowRendered(source, view=None):
+    """Show a vtkIllum Refraction Render's image as a picture: in ``view`` (default: a new
+    render view placed in the active layout) as a slice coloured directly by its RGB
+    (Map Scalars off), 2D interaction, camera fitted. Returns the representation."""
+    from paraview import simple
+
+    if view is None:
+        view = simple.CreateRenderView()
+        if hasattr(simple, "AssignViewToLayout"):  # (5.7 and later) the active layout
+            simple.AssignViewToLayout(view)
+    display = simple.Show(source, view)
+    display.SetRepresentationType("Slice")
+    simple.ColorBy(display, ("POINTS", REFRACTION_RGB))
+    display.MapScalars = 0
+    simple.HideScalarBarIfNotNeeded(simple.GetColorTransferFunction(REFRACTION_RGB), view)
+    view.InteractionMode = "2D"
+    view.OrientationAxesVisibility = 0
+    simple.ResetCamera(view)
+    return display
+
+
 def CacheStatistics(source) -> dict:
     """The time-step cache counters of a filter proxy: hits, misses, entries, megabytes."""
     source.UpdatePropertyInformation()
@@ -509,15 +678,17 @@ if _links is not None:
 
 __all__ = [
     "AmbientExtinction",
-    "ManyLights",
     "CacheStatistics",
     "ConvectionDiffusionLight",
+    "CopyViewCamera",
     "LightTransmittance",
     "ManyLights",
     "OpticalProperties",
     "PhotonDensity",
+    "RefractionRender",
     "SetLights",
     "ShowIlluminated",
+    "ShowRendered",
     "rgba_opacity_points",
     "unit_distance",
 ]

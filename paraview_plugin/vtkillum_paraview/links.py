@@ -18,6 +18,10 @@ Map Editor edits), and this module keeps them so:
 * **Scalar Opacity Unit Distance** of the display and the filter stay equal (the
   filter's 0 means ParaView's default for the display, the approximate cell length).
 
+A filter whose output is a rendered picture (:data:`IMAGE_FILTERS`: the refraction
+render) keeps the colour-map link, but its displays show the picture: coloured by its
+RGB array with Map Scalars off, no scalar bar for it, and not linked back to Scalars.
+
 Editing the colour map or the opacity function then re-executes the filter (its
 VTK object watches their content, see :class:`vtkillum_paraview.glue.ParaViewGlue`),
 and ParaView rescales them with the data as usual.
@@ -41,12 +45,19 @@ from vtkmodules.util.misc import calldata_type
 from vtkmodules.util.vtkConstants import VTK_STRING
 from vtkmodules.vtkCommonCore import vtkWeakReference
 
+from vtkillum.filters.refraction_render import RGB_ARRAY as REFRACTION_RGB
+
 FILTER_PREFIX = "vtkIllum"
+#: Filters whose output is a rendered picture (XML name -> its RGB array), not a volume on
+#: the data's grid: their displays show the picture (Map Scalars off) and are not linked
+#: to the transfer function (see :class:`ImageDisplayLink`).
+IMAGE_FILTERS = {"vtkIllumRefractionRender": REFRACTION_RGB}
 _ASSOCIATIONS = {"POINTS": 0, "CELLS": 1}
 
 _hooked_managers: dict = {}  # id(pxm) -> (weak ref, tag)
 _filters: dict = {}  # global id -> FilterLink
 _displays: dict = {}  # global id -> DisplayLink
+_scalar_bars: dict = {}  # global id -> PictureScalarBarLink
 _busy = []  # re-entrance guard (property changes made here fire the same events)
 
 
@@ -90,7 +101,17 @@ def _scan(pxm) -> None:
                 continue
             source = _input_proxy(proxy)
             if source is not None and source.GetGlobalID() in _filters:
-                _displays[gid] = DisplayLink(proxy, _filters[source.GetGlobalID()])
+                picture = IMAGE_FILTERS.get(source.GetXMLName())
+                _displays[gid] = (ImageDisplayLink(proxy, picture) if picture
+                                  else DisplayLink(proxy, _filters[source.GetGlobalID()]))
+        for proxy in _proxies(pxm, "scalar_bars"):
+            gid = proxy.GetGlobalID()
+            if gid not in _scalar_bars and proxy.GetProperty("LookupTable") is not None:
+                lut = vtkSMPropertyHelper(proxy, "LookupTable").GetAsProxy()
+                name = pxm.GetProxyName("lookup_tables", lut) if lut is not None else None
+                array = (name or "").rsplit(".PVLookupTable", 1)[0]
+                if array in IMAGE_FILTERS.values():
+                    _scalar_bars[gid] = PictureScalarBarLink(proxy, array)
         _prune()
         try:
             from vtkillum_paraview import display
@@ -101,7 +122,7 @@ def _scan(pxm) -> None:
 
 
 def _prune() -> None:
-    for table in (_filters, _displays):
+    for table in (_filters, _displays, _scalar_bars):
         for gid in [gid for gid, link in table.items() if link.proxy is None]:
             del table[gid]
 
@@ -368,6 +389,69 @@ class DisplayLink(_Link):
             self.follow()
 
 
+class ImageDisplayLink(_Link):
+    """A display of a rendered picture (:data:`IMAGE_FILTERS`): coloured by its RGB array it
+    shows the colours directly (Map Scalars off), as an image viewer would."""
+
+    def __init__(self, proxy, array: str) -> None:
+        super().__init__(proxy)
+        self.array = array
+        self.filter = None  # (not linked to the filter's colour map: it shows a picture)
+        self.follow()
+
+    def follow(self) -> None:
+        proxy = self.proxy
+        if proxy is None or proxy.GetProperty("MapScalars") is None \
+                or proxy.GetProperty("ColorArrayName") is None:
+            return
+        name = vtkSMPropertyHelper(proxy, "ColorArrayName").GetInputArrayNameToProcess()
+        helper = vtkSMPropertyHelper(proxy, "MapScalars")
+        if name == self.array and helper.GetAsInt() != 0:
+            helper.Set(0)
+            proxy.UpdateVTKObjects()
+
+    def shows_colours_directly(self) -> bool:
+        proxy = self.proxy
+        if proxy is None or proxy.GetProperty("MapScalars") is None:
+            return False
+        name = vtkSMPropertyHelper(proxy, "ColorArrayName").GetInputArrayNameToProcess()
+        return name == self.array and vtkSMPropertyHelper(proxy, "MapScalars").GetAsInt() == 0
+
+    def property_modified(self, name: str) -> None:
+        if name == "ColorArrayName":
+            self.follow()
+        if name in ("ColorArrayName", "MapScalars"):
+            for link in list(_scalar_bars.values()):
+                if link.array == self.array:
+                    link.hide()
+
+
+class PictureScalarBarLink(_Link):
+    """The scalar bar of a picture's RGB array (:data:`IMAGE_FILTERS`) stays hidden while
+    a display shows that array directly (Map Scalars off): the GUI shows one on Apply,
+    before the display's Map Scalars is switched off, and it would label nothing."""
+
+    def __init__(self, proxy, array: str) -> None:
+        super().__init__(proxy)
+        self.array = array
+        self.hide()
+
+    def hide(self) -> None:
+        proxy = self.proxy
+        direct = any(isinstance(link, ImageDisplayLink) and link.array == self.array
+                     and link.shows_colours_directly() for link in list(_displays.values()))
+        if proxy is None or not direct or proxy.GetProperty("Visibility") is None:
+            return
+        helper = vtkSMPropertyHelper(proxy, "Visibility")
+        if helper.GetAsInt() != 0:
+            helper.Set(0)
+            proxy.UpdateVTKObjects()
+
+    def property_modified(self, name: str) -> None:
+        if name == "Visibility":
+            self.hide()
+
+
 def transfer_functions_for(name: str, pxm, data_range=None):
     """ParaView's colour map and opacity function of array ``name`` (the Color Map
     Editor's); when the array has none yet they are created and, given ``data_range``,
@@ -404,4 +488,5 @@ def _warn(message: str) -> None:
     vtkOutputWindow.GetInstance().DisplayWarningText(message + "\n")
 
 
-__all__ = ["DisplayLink", "FilterLink", "install", "scan", "transfer_functions_for"]
+__all__ = ["DisplayLink", "FilterLink", "ImageDisplayLink", "PictureScalarBarLink", "install",
+           "scan", "transfer_functions_for"]

@@ -4,13 +4,16 @@ Run as ``xvfb-run -a paraview --dr --script=gui_session.py --test-script=gui_men
 with the environment of ``paraview_plugin/pvbatch_env.py`` and ``VTKILLUM_GUI_OUT``
 naming an output directory. The script runs inside the GUI's Python: it loads the
 plugin; then ParaView's test player clicks through ``gui_menu.xml`` (Sources ->
-Wavelet, Apply, Filters -> vtkIllum -> vtkIllum Light Transmittance, Apply) while
+Wavelet, Apply, Filters -> vtkIllum -> vtkIllum Light Transmittance, Apply, Filters ->
+vtkIllum -> vtkIllum Refraction Render, Apply) while
 the script plays a list of steps, each from a one-shot timer of the render view's
 interactor, so that between two steps the GUI runs its event loop (builds the
 Properties panel of the active source, paints the window) exactly as it does for a
 user:
 
-0. wait until the filter picked from the menu is shown;
+0. wait until the filters picked from the menu are shown; the refraction render (an
+   image) is made active, its refractive-index and medium-colour tables are set, the
+   view's camera copied in, and its picture checked;
 1. every vtkIllum filter is created on a Wavelet, made active (the Properties
    panel is built for it), shown, a property is changed and applied;
 2. the colour map of the coloured array is edited (a preset applied) and the
@@ -130,6 +133,78 @@ def step_wait_for_the_menu_clicks():
                                    "illuminated_volumes": swapped_volumes(view())}
         state.setdefault("proxies", {})["vtkIllum Light Transmittance"] = clicked
     log("menu clicks done")
+
+
+def step_refraction_from_the_menu():
+    """The vtkIllum Refraction Render the menu created (on the Light Transmittance): its
+    Properties panel (the two tables), the tables edited, the view's camera copied in."""
+    import numpy as np
+    import vtkillum_plugin
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    clicked = simple.FindSource("vtkIllumRefractionRender1")
+    if clicked is None and time.monotonic() - state.setdefault("refraction_since",
+                                                               time.monotonic()) < 60:
+        return "again"
+    record = summary["refraction"] = {"created": clicked.GetXMLLabel() if clicked else None}
+    if clicked is None:
+        return None
+    state.setdefault("proxies", {})["vtkIllum Refraction Render"] = clicked
+    simple.SetActiveSource(clicked)  # the Properties panel is built for it
+    display = simple.GetDisplayProperties(clicked, view())
+    record["representation"] = str(display.Representation).strip("'")
+    record["color_array"] = list(display.ColorArrayName)
+    record["map_scalars"] = int(display.MapScalars)
+    record["default_error"] = clicked.GetClientSideObject().GetLastError()
+
+    def picture():
+        clicked.UpdatePipeline()
+        data = clicked.GetClientSideObject().GetOutputDataObject(0)
+        if data.GetNumberOfPoints() == 0:
+            return None
+        return vtk_to_numpy(data.GetPointData().GetArray("refraction_rgb")).astype(float)
+
+    record["default_dims"] = list(clicked.GetDataInformation().GetExtent())
+    v = view()
+    v.CameraPosition = [30.0, -50.0, 60.0]
+    v.CameraFocalPoint = [0.0, 0.0, 0.0]
+    v.CameraViewUp = [0.0, 0.0, 1.0]
+    vtkillum_plugin.CopyViewCamera(clicked, v)
+    clicked.LightDirection = [-0.3, 0.5, -0.8]
+    clicked.ImageSize = [96, 80]
+    clicked.Exposure = 20.0
+    straight = picture()
+    clicked.RefractiveIndex = [37.0, 1.0, 150.0, 1.0, 276.0, 1.6]
+    clicked.MediumColor = [37.0, 1.0, 1.0, 1.0, 276.0, 0.9, 0.5, 0.2]
+    bent = picture()
+    record["camera_position"] = list(clicked.CameraPosition)
+    record["pictures"] = None if straight is None or bent is None else {
+        "straight_std": float(straight.std()), "bent_std": float(bent.std()),
+        "difference": float(np.abs(bent - straight).mean()), "pixels": len(bent)}
+    simple.Render(v)
+    # The picture in a view of its own beside the 3D view (ShowRendered), for the grab.
+    picture_view = simple.CreateRenderView()
+    simple.AssignViewToLayout(picture_view, hint=0)
+    vtkillum_plugin.ShowRendered(clicked, picture_view)
+    simple.Hide(clicked, v)
+    state["refraction_view"] = picture_view
+    simple.SetActiveView(v)
+    simple.SetActiveSource(clicked)
+    simple.Render(v)
+    simple.Render(picture_view)
+    log("refraction render from the menu")
+
+
+def step_grab_refraction():
+    grab_window("window_refraction.png")
+    picture_view = state.pop("refraction_view")
+    layout = simple.GetLayout(picture_view)
+    location = layout.GetViewLocation(picture_view) if layout is not None else None
+    simple.Delete(picture_view)
+    if location is not None:
+        layout.Collapse(location)  # the split goes too: later grabs show one view
+    simple.SetActiveView(view())
+    log("window grabbed with the refraction render")
 
 
 def step_setup():
@@ -296,7 +371,9 @@ def step_finish():
         display.request_close(display.find_window("ParaView 5"))
 
 
-STEPS = ([step_wait_for_the_menu_clicks, step_setup] + [make_create_step(label) for label in LABELS]
+STEPS = ([step_wait_for_the_menu_clicks, step_refraction_from_the_menu, step_grab_refraction,
+          step_setup]
+         + [make_create_step(label) for label in LABELS]
          + [make_edit_step(label) for label in LABELS[1:]]
          + [step_show_one, step_grab_1, step_bad_light, step_save_delete, step_load,
             step_select_loaded, step_grab_2, step_ct, step_grab_ct, step_finish])
@@ -304,9 +381,12 @@ STEPS = ([step_wait_for_the_menu_clicks, step_setup] + [make_create_step(label) 
 
 # === the driver: one step per timer tick, the GUI's event loop in between ====================
 def run_next(interactor, event=None):
-    if not STEPS or time.monotonic() < state.get("due", 0.0):
+    # A step that lets Qt process events (deleting a view, grabbing the window) may see a
+    # timer event of its own interactor: never start a step inside another.
+    if not STEPS or time.monotonic() < state.get("due", 0.0) or state.get("running"):
         return
     step = STEPS[0]
+    state["running"] = True
     try:
         if step() == "again":  # not ready yet: the same step at the next tick
             interactor.CreateOneShotTimer(600)
@@ -318,6 +398,8 @@ def run_next(interactor, event=None):
         log(f"FAILED {step.__name__}")
         if step is not step_finish:
             STEPS[:] = [step_finish]
+    finally:
+        state["running"] = False
     state["due"] = time.monotonic() + 0.5
     if STEPS:
         interactor.CreateOneShotTimer(600)

@@ -14,6 +14,9 @@ fails loudly when ParaView raises).
    transfer function.
 4. A 3-step plume series (.vti.series): an animation played twice; screenshots,
    per-step cache statistics, data times.
+5. vtkIllum Refraction Render (an image, not a volume: left out of 1.) on a small
+   stemmed glass: the refractive-index and medium-colour tables, the colour map link,
+   the view's camera copied in, a bad table row, the picture shown and saved.
 """
 
 import json
@@ -125,7 +128,10 @@ for module_info in pkgutil.iter_modules(vtkillum_filters.__path__):
 summary["library_filters"] = sorted(library)
 summary["library_filters_covered"] = sorted(set(summary["library_filters"]) & covered)
 
+IMAGE_FILTERS = {"vtkIllum Refraction Render"}  # a rendered picture: section 5
 for label, (name, cls) in sorted(entries.items()):
+    if label in IMAGE_FILTERS:
+        continue
     constructor = globals()[label.replace(" ", "").replace("-", "")]
     proxy = constructor(Input=reader)
     configure(proxy)
@@ -221,6 +227,100 @@ for replay in range(2):
                       "hits": stats.hits, "misses": stats.misses, "screenshot": path.name})
     passes.append(steps)
 summary["series"]["passes"] = passes
+
+# --- 5. the refraction render: a picture from the refractive-index and medium-colour tables ----
+from vtkmodules.util.numpy_support import vtk_to_numpy
+
+from vtkillum.data.procedural import glass_preset, stemmed_glass
+
+glass = stemmed_glass(32)
+write_vti(glass, OUT / "glass.vti")
+glass_scene, beer = glass_preset(glass, "beer")
+glass_reader = simple.XMLImageDataReader(FileName=[str(OUT / "glass.vti")])
+refraction = vtkIllumRefractionRender(Input=glass_reader)  # noqa: F821 (from LoadPlugin)
+refraction.Scalars = ["POINTS", "density"]
+tf = glass_scene.transfer_function
+lut = simple.GetColorTransferFunction("density")
+lut.AutomaticRescaleRangeMode = "Never"
+lut.RGBPoints = [v for x, c in zip(tf.scalars, tf.colors) for v in (float(x), *map(float, c))]
+simple.GetOpacityTransferFunction("density").Points = [
+    v for x, a in zip(tf.scalars, tf.opacity) for v in (float(x), float(a), 0.5, 0.0)]
+refraction.ScalarOpacityUnitDistance = glass_scene.opacity_unit_distance
+refraction.RefractiveIndex = [v for x, e in zip(beer.eta_scalars, beer.eta) for v in (x, e)]
+refraction.MediumColor = [v for x, c in zip(beer.medium_scalars, beer.medium_color)
+                          for v in (x, *c)]
+light = glass_scene.lights[0]
+refraction.LightDirection = list(light.direction)
+refraction.LightIrradiance = list(light.irradiance)
+refraction.ImageSize = [64, 72]
+refraction.Exposure = 6.0
+# The camera of a render view that shows the glass, copied in by the plugin's helper.
+glass_view = new_view()
+simple.Show(glass_reader, glass_view)
+glass_view.CameraPosition = list(glass_scene.camera.position)
+glass_view.CameraFocalPoint = list(glass_scene.camera.focal_point)
+glass_view.CameraViewUp = list(glass_scene.camera.view_up)
+glass_view.CameraViewAngle = glass_scene.camera.view_angle
+plugin.CopyViewCamera(refraction, glass_view)
+
+
+def refraction_picture():
+    refraction.UpdatePipeline()
+    data = refraction.GetClientSideObject().GetOutputDataObject(0)
+    pd = data.GetPointData()
+    if data.GetNumberOfPoints() == 0:
+        return None
+    return {"dims": list(data.GetDimensions()),
+            "arrays": [pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())],
+            "active": pd.GetScalars().GetName(),
+            "rgb": vtk_to_numpy(pd.GetArray("refraction_rgb")).astype(int).tolist(),
+            "radiance_sum": float(vtk_to_numpy(pd.GetArray("radiance")).sum())}
+
+
+record = {"camera": {"position": list(refraction.CameraPosition),
+                     "focal_point": list(refraction.CameraFocalPoint),
+                     "view_angle": float(refraction.CameraViewAngle)},
+          "expected_camera": glass_scene.camera.to_dict(),
+          "representation_hint": None, "lookup_table": None}
+record["beer"] = refraction_picture()
+record["lookup_table_is_the_density_colour_map"] = \
+    refraction.LookupTable.GetGlobalID() == lut.GetGlobalID()
+picture_view = new_view()
+display = plugin.ShowRendered(refraction, picture_view)
+record["representation"] = str(display.Representation)
+record["map_scalars"] = int(display.MapScalars)
+record["color_array"] = list(display.ColorArrayName)
+simple.SaveScreenshot(str(OUT / "refraction_beer.png"), picture_view, ImageResolution=[128, 144])
+# As the GUI's Apply shows it: in the 3D view, then the colour maps' scalar bars updated.
+from paraview.modules.vtkRemotingViews import vtkSMTransferFunctionManager
+
+gui_display = simple.Show(refraction, glass_view)
+manager = vtkSMTransferFunctionManager()
+manager.UpdateScalarBars(glass_view.SMProxy, manager.SHOW_USED_SCALAR_BARS)
+record["gui_like"] = {
+    "representation": str(gui_display.Representation), "map_scalars": int(gui_display.MapScalars),
+    "scalar_bar": int(simple.GetScalarBar(simple.GetColorTransferFunction("refraction_rgb"),
+                                          glass_view).Visibility),
+    "density_bar": int(simple.GetScalarBar(lut, glass_view).Visibility)}
+simple.Hide(refraction, glass_view)
+refraction.RefractiveIndex = [0.0, 1.0]  # eta = 1 everywhere: straight rays
+record["eta_one"] = refraction_picture()
+simple.SaveScreenshot(str(OUT / "refraction_eta_one.png"), picture_view,
+                      ImageResolution=[128, 144])
+misses = refraction.GetClientSideObject().GetCacheStatistics().misses
+lut.RGBPoints = [v for x, c in zip(tf.scalars, tf.colors)  # the checkered walls turn blue
+                 for v in (float(x), *(map(float, c) if x > -0.5 else (0.2, 0.4, 1.0)))]
+record["after_colour_edit"] = refraction_picture()
+record["recomputed_after_colour_edit"] = \
+    refraction.GetClientSideObject().GetCacheStatistics().misses - misses
+refraction.RefractiveIndex = [0.0, 1.0, 1.0, -1.5]  # a wrong row: an error, no picture
+record["bad_eta"] = refraction_picture()
+record["bad_eta_error"] = refraction.GetClientSideObject().GetLastError()
+refraction.RefractiveIndex = [0.0, 1.0]
+record["fixed"] = refraction_picture() is not None
+summary["refraction"] = record
+simple.Delete(picture_view)
+simple.Delete(glass_view)
 
 (OUT / "summary.json").write_text(json.dumps(summary, indent=1))
 print("pvbatch_filters: done")

@@ -100,7 +100,8 @@ def test_state_saved_deleted_and_loaded_again(gui):
     out, _, _ = gui
     summary = json.loads((out / "summary.json").read_text())
     assert summary["after_delete"] == []
-    assert len(summary["after_load"]) == len(LABELS)
+    assert len(summary["after_load"]) == len(LABELS) + 1  # and the refraction render
+    assert "vtkIllumRefractionRender1" in summary["after_load"]
     assert "vtkIllum" in (out / "session.pvsm").read_text()
     assert summary["illuminated_volumes_after_load"] >= 1  # lit again after the state load
 
@@ -116,7 +117,8 @@ def test_a_wrong_light_names_the_row_and_column_without_a_traceback(gui):
 
 def test_window_grabs_show_the_gui(gui):
     out, _, _ = gui
-    for name in ("window_filters.png", "window_after_load.png", "window_ct.png"):
+    for name in ("window_refraction.png", "window_filters.png", "window_after_load.png",
+                 "window_ct.png"):
         shot = image(out / name)
         assert shot.shape[0] > 400 and shot.shape[1] > 600, name
         assert shot.std() > 20.0, f"{name} looks blank"
@@ -144,3 +146,23 @@ def test_the_menu_entry_creates_an_illuminated_volume(gui):
     assert summary["menu_display"]["representation"] == "Volume"
     assert summary["menu_display"]["color_array"] == ["POINTS", "RTData"]
     assert summary["menu_display"]["illuminated_volumes"] == 1
+
+
+def test_the_refraction_render_menu_entry_renders_a_picture(gui):
+    """Filters -> vtkIllum -> vtkIllum Refraction Render, Apply (ParaView's test player):
+    an image shown as a picture; the tables and the view's camera set from the script
+    change it; no error, no traceback."""
+    out, _, log = gui
+    summary = json.loads((out / "summary.json").read_text())
+    record = summary["refraction"]
+    assert record["created"] == "vtkIllum Refraction Render"
+    assert record["default_error"] is None
+    assert record["default_dims"] == [0, 255, 0, 255, 0, 0]
+    assert record["representation"] == "Slice"
+    assert record["color_array"] == ["POINTS", "refraction_rgb"] and record["map_scalars"] == 0
+    assert record["camera_position"] == pytest.approx([30.0, -50.0, 60.0])
+    pictures = record["pictures"]
+    assert pictures is not None and pictures["pixels"] == 96 * 80
+    assert pictures["straight_std"] > 5.0 and pictures["bent_std"] > 5.0
+    assert pictures["difference"] > 2.0, "eta did not change the picture"
+    assert "Traceback" not in log

@@ -139,6 +139,52 @@ def test_cache_statistics_information_property(run):
         assert record["cache_attribute"] == record["cache_property"], label
 
 
+def _picture(record) -> np.ndarray:
+    return np.asarray(record["rgb"], dtype=np.float64).reshape(record["dims"][1],
+                                                               record["dims"][0], 3)
+
+
+def test_refraction_render_is_a_picture_that_follows_eta_and_the_colour_map(run):
+    """vtkIllum Refraction Render on a stemmed glass ("beer"): the tables set in pvbatch,
+    the view's camera copied in; eta = 1 and a colour-map edit change the picture."""
+    out, summary = run
+    record = summary["refraction"]
+    assert record["camera"]["position"] == pytest.approx(record["expected_camera"]["position"])
+    assert record["camera"]["view_angle"] == pytest.approx(24.0)
+    beer = record["beer"]
+    assert beer["dims"] == [64, 72, 1]
+    assert beer["active"] == "refraction_rgb"
+    assert {"radiance", "alpha"} <= set(beer["arrays"])
+    picture = _picture(beer)
+    assert picture.std() > 20.0 and (picture.max(axis=-1) > 30).mean() > 0.3  # not blank
+    straight = _picture(record["eta_one"])
+    assert np.abs(picture - straight).mean() > 5.0, "eta = 1 did not change the picture"
+    assert record["lookup_table_is_the_density_colour_map"]
+    assert record["recomputed_after_colour_edit"] == 1
+    assert np.abs(_picture(record["after_colour_edit"]) - straight).mean() > 5.0
+    # Shown as a picture: a slice coloured directly by its RGB.
+    assert record["representation"].strip("'") == "Slice"
+    assert record["map_scalars"] == 0
+    assert record["color_array"] == ["POINTS", "refraction_rgb"]
+    # Shown the GUI's way (Show, then the used scalar bars shown): the same, no scalar bar.
+    gui = record["gui_like"]
+    assert gui["representation"].strip("'") == "Slice" and gui["map_scalars"] == 0
+    assert gui["scalar_bar"] == 0
+    shot = image(out, "refraction_beer.png")
+    assert shot.std() > 20.0
+    assert np.abs(shot - image(out, "refraction_eta_one.png")).mean() > 3.0
+
+
+def test_refraction_render_bad_eta_names_the_property_and_gives_no_picture(run):
+    _, summary = run
+    record = summary["refraction"]
+    assert record["bad_eta"] is None
+    assert record["bad_eta_error"].startswith(
+        "RefractiveIndex: eta must be > 0 at every control point")
+    assert "value 1 has eta -1.5" in record["bad_eta_error"]
+    assert record["fixed"]
+
+
 def test_shim_environment_exposes_only_warp_and_vtkillum(tmp_path):
     shim = pvbatch_env.make_shim_dir(tmp_path / "shim")
     assert sorted(p.name for p in shim.iterdir()) == ["sitecustomize.py", "vtkillum", "warp"]

@@ -13,6 +13,7 @@ from vtkillum.filters.light_transmittance import LightTransmittanceFilter
 from vtkillum.filters.many_lights import ManyLightsFilter
 from vtkillum.filters.optical_properties import OpticalPropertiesFilter
 from vtkillum.filters.photon_density import PhotonDensityFilter
+from vtkillum.filters.refraction_render import RefractionRenderFilter
 
 __all__ = [
     "AmbientExtinctionFilter",
@@ -23,4 +24,5 @@ __all__ = [
     "ManyLightsFilter",
     "OpticalPropertiesFilter",
     "PhotonDensityFilter",
+    "RefractionRenderFilter",
 ]
