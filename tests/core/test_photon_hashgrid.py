@@ -71,12 +71,14 @@ def test_gather_sums_exactly_the_photons_within_the_radius(monkeypatch, per_radi
     np.testing.assert_allclose(out.numpy(), expected, rtol=1e-5, atol=1e-3)
 
 
+@pytest.mark.parametrize("max_order", [0, 1, 2])
 @pytest.mark.parametrize("lights", [[PointLight((0.3, 0.4, 0.2), (2.0, 2.0, 2.0))],
                                     [DirectionalLight((0.2, -1.0, 0.3), (1.0, 1.0, 1.0)),
                                      PointLight((0.3, 0.9, 0.2), (2.0, 2.0, 2.0))]])
-def test_emission_order_gives_the_same_photon_map(monkeypatch, lights):
+def test_emission_order_gives_the_same_photon_map(monkeypatch, lights, max_order):
     """Photons traced in the order of where they leave the lights (the GPU's order) are
-    stored exactly as in index order."""
+    stored exactly as in index order: by rounds with the counts read in between (S_n
+    unbounded), and in the one round of a bounded S_n that copies in photon order."""
     volume, m = mapper()
     medium, _ = photon_medium(volume, tf(), volume.mean_spacing(), 0.9, 0.2, "cpu")
     emitters, _ = make_emitters(lights, volume, 3000, "cpu")
@@ -86,11 +88,17 @@ def test_emission_order_gives_the_same_photon_map(monkeypatch, lights):
         order = tracing.emission_order(emitters, 11, 3000, "cpu").numpy()
         assert sorted(order) == list(range(3000))
         assert (devices == ()) == bool(np.all(order == np.arange(3000)))
-        pm = PhotonMap(3000, "cpu", seed=11, max_order=0, step=0.5 * volume.spacing.min())
-        pm.trace(medium, emitters, volume.value_range)
+        pm = PhotonMap(3000, "cpu", seed=11, max_order=max_order,
+                       step=0.5 * volume.spacing.min())
+        stats = pm.trace(medium, emitters, volume.value_range)
+        assert stats["rounds"] >= 1 and stats["total"] == pm.total > 0
+        assert stats["interactions_added"] == pm.total
         maps.append(pm.numpy())
     for key in maps[0]:
         np.testing.assert_array_equal(maps[0][key], maps[1][key], err_msg=key)
+    if max_order:
+        assert maps[0]["order"].max() == max_order
+        assert np.all(maps[0]["count"] <= max_order)
 
 
 @pytest.mark.parametrize("batch", [1 << 27, 700])

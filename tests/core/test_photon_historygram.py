@@ -12,6 +12,7 @@ from vtkillum.core.photon.historygram import (
     BITS,
     data_bin,  # noqa: F401  (kernels use it; imported to check it exists)
     interval_mask,
+    intervals_mask,
     mask_bins,
     query_mask,
     query_masks,
@@ -134,6 +135,46 @@ def test_incremental_equals_full_recompute(edit, direct):
     np.testing.assert_array_equal(image.radiance, reference.radiance)
     np.testing.assert_array_equal(image.alpha, reference.alpha)
     assert image.radiance.max() > 0
+
+
+@pytest.mark.parametrize("edit", sorted(EDITS))
+def test_bounded_order_update_equals_full_recompute(edit):
+    """With S_n = 2 a retrace ends every path in one round, queued without reading the
+    counts in between (the buffer sized for the most the round can leave): the same map
+    and image as a full recompute."""
+    def make():
+        volume = scene_volume()
+        return volume, PhotonMapper("cpu", photons=6000, radius=2.0 * volume.mean_spacing(),
+                                    max_order=2, segments=6, seed=5, direct="photons")
+
+    volume, m = make()
+    run(m, volume, tf())
+    stats, image = run(m, volume, EDITS[edit])
+    assert stats["mode"] == "incremental" and stats["photons_retraced"] > 0
+    assert stats["interactions_added"] > 0 and stats["interactions_removed"] > 0
+    assert m.map.capacity >= m.map.total
+    volume, reference = make()
+    _, expected = run(reference, volume, EDITS[edit])
+    assert stats["interactions"] == reference.map.total
+    assert_same_map(m, reference)
+    np.testing.assert_array_equal(image.radiance, expected.radiance)
+    np.testing.assert_array_equal(image.alpha, expected.alpha)
+
+
+def test_query_mask_of_many_intervals_is_the_or_of_each():
+    """The query of an edit (one vectorised pass over the changed table entries) sets
+    exactly the bins of :func:`interval_mask` of each interval."""
+    rng = np.random.default_rng(3)
+    for value_range in ((0.0, 1.0), (-3.0, 250.0), (2.0, 2.0)):
+        lo, hi = value_range
+        for _ in range(200):
+            n = int(rng.integers(0, 6))
+            a = rng.uniform(lo - 0.2 * (hi - lo + 1), hi + 0.2 * (hi - lo + 1), n)
+            b = a + rng.uniform(0.0, 0.1, n) * (hi - lo + 1) * rng.integers(0, 2, n)
+            expected = 0
+            for x, y in zip(a, b):
+                expected |= interval_mask(x, y, value_range)
+            assert intervals_mask(a, b, value_range) == expected
 
 
 def test_spatial_historygram_is_needed_for_shadows():

@@ -86,7 +86,7 @@ class TransferFunction:
     def color(self, values) -> np.ndarray:
         """RGB colour at ``values``, shape ``values.shape + (3,)``."""
         v = np.asarray(values, dtype=np.float64)
-        return np.stack([_interp(v, self.scalars, self.colors[:, c]) for c in range(3)], -1)
+        return _interp(v, self.scalars, self.colors)
 
     def sigma_t(self, values, unit_distance: float) -> np.ndarray:
         """Extinction coefficient ``-ln(1 - alpha) / u`` in 1/world units."""
@@ -184,16 +184,19 @@ def _interp(x, xp, fp):
     slope is a denormal with few significant bits, which moved values outside the range of
     their control points (negative colours from non-negative ones) or, when the gap
     overflowed, held each segment at its left value. Results stay within ``[min fp, max fp]``.
+    ``fp`` may be ``(n, k)``: ``k`` functions of the same control points, column by column.
     """
     x = np.asarray(x, dtype=np.float64)
     xp = np.asarray(xp, dtype=np.float64)
     fp = np.asarray(fp, dtype=np.float64)
     if xp.size == 1:
-        return np.full(x.shape, fp[0])
+        return np.full(x.shape + fp.shape[1:], fp[0])
     j = np.clip(np.searchsorted(xp, x, side="right") - 1, 0, xp.size - 2)
     lo, hi = 0.5 * xp[j], 0.5 * xp[j + 1]
     t = np.clip((0.5 * x - lo) / (hi - lo), 0.0, 1.0)
-    return np.clip((1.0 - t) * fp[j] + t * fp[j + 1], fp.min(), fp.max())
+    if fp.ndim > 1:  # several functions (columns of fp) at once: one search
+        t = t[..., None]
+    return np.clip((1.0 - t) * fp[j] + t * fp[j + 1], fp.min(axis=0), fp.max(axis=0))
 
 
 def _check_numeric(values, name: str) -> None:

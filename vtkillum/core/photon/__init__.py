@@ -12,9 +12,9 @@ One module per stage of the paper (numpy + warp only):
 * :mod:`~vtkillum.core.photon.storage` — the interaction buffer: an implicit linked list
   per photon path (contiguous, ordered by scattering order) and its compaction after a
   retrace.
-* :mod:`~vtkillum.core.photon.hashgrid` — the spatial hash of section 5: cell size =
-  photon radius, keys sorted on the device with warp's radix sort, cell start/end
-  tables, 27-cell queries.
+* :mod:`~vtkillum.core.photon.hashgrid` — the spatial hash of section 5: keys sorted on
+  the device with warp's radix sort, cell start tables, queries by rows of cells clipped
+  to the photon sphere (cells of half the radius).
 * :mod:`~vtkillum.core.photon.density` — the density estimate (eq. 8) at view samples
   and onto a grid (the illumination volume of :class:`PhotonDensityFilter`).
 * :mod:`~vtkillum.core.photon.historygram` — Historygrams (eqs. 9–11): 64-bit masks over

@@ -122,11 +122,32 @@ def query_masks(old_tables, new_tables, value_range) -> tuple[int, int]:
     v = np.linspace(lo, hi, n)
     masks = []
     for changed in (s0 != s1, np.any(c0 != c1, axis=-1)):
-        mask = 0
-        for i in np.flatnonzero(changed):
-            mask |= interval_mask(v[max(i - 1, 0)], v[min(i + 1, n - 1)], value_range)
-        masks.append(mask)
+        i = np.flatnonzero(changed)
+        masks.append(intervals_mask(v[np.maximum(i - 1, 0)], v[np.minimum(i + 1, n - 1)],
+                                    value_range))
     return masks[0], masks[1]
+
+
+def intervals_mask(a: np.ndarray, b: np.ndarray, value_range) -> int:
+    """The OR of :func:`interval_mask` over the intervals ``[a[i], b[i]]`` (``a <= b``), in
+    one pass (an edit can change thousands of table entries)."""
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    if a.size == 0:
+        return 0
+    lo, hi = (float(v) for v in value_range)
+    if hi <= lo:
+        return 1
+    width = (hi - lo) / BITS
+    eps = 1e-6 * (hi - lo)
+    keep = ~((b + eps < lo) | (a - eps > hi))
+    i0 = np.clip(np.floor((a[keep] - eps - lo) / width), 0, BITS - 1).astype(np.int64)
+    i1 = np.clip(np.floor((b[keep] + eps - lo) / width), 0, BITS - 1).astype(np.int64)
+    edges = np.zeros(BITS + 1, np.int64)
+    np.add.at(edges, i0, 1)
+    np.add.at(edges, i1 + 1, -1)
+    covered = np.flatnonzero(np.cumsum(edges[:BITS]) > 0)
+    return sum(1 << int(k) for k in covered)
 
 
 def query_mask(old_tables, new_tables, value_range) -> int:
@@ -152,7 +173,7 @@ def photon_query_kernel(start: wp.array(dtype=wp.int32), count: wp.array(dtype=w
                         query: wp.uint64, cquery: wp.uint64, min_order: int,
                         spatial_scale: wp.vec3,
                         flags: wp.array(dtype=wp.int32), restart: wp.array(dtype=wp.int32),
-                        spatial: wp.array(dtype=wp.uint64), removed: wp.array(dtype=wp.int32)):
+                        spatial: wp.array(dtype=wp.uint64)):
     """Find each photon's first invalid interaction (section 4.3.1).
 
     ``wp.tid()`` indexes photon paths. A path whose Historygrams miss the queries
@@ -160,7 +181,8 @@ def photon_query_kernel(start: wp.array(dtype=wp.int32), count: wp.array(dtype=w
     from its last interaction while the interaction's Historygrams meet them: ``restart[p]`` is the last valid interaction (buffer
     index; -1: none, retrace from the light) and ``flags[p] = 1``. Removed interactions
     of order ``>= min_order`` set their position's bits in the spatial Historygram
-    (``spatial[a]``, 64 bins over ``[0, extent_a]``); ``removed[0]`` counts them all.
+    (``spatial[a]``, 64 bins over ``[0, extent_a]``); ``spatial[3]`` counts them all,
+    ``spatial[4]`` the photons flagged (one array: one copy to the host).
     """
     p = wp.tid()
     flags[p] = 0
@@ -178,7 +200,8 @@ def photon_query_kernel(start: wp.array(dtype=wp.int32), count: wp.array(dtype=w
             wp.atomic_or(spatial, 1, by)
             wp.atomic_or(spatial, 2, bz)
         j -= 1
-    wp.atomic_add(removed, 0, s0 + count[p] - 1 - j)
+    wp.atomic_add(spatial, 3, wp.uint64(s0 + count[p] - 1 - j))
+    wp.atomic_add(spatial, 4, wp.uint64(1))
     flags[p] = 1
     if j >= s0:
         restart[p] = j

@@ -26,6 +26,11 @@ and variance both vanish as passes accumulate, so the image converges to the pat
 tracer's. Only the first pass is kept for incremental updates; an edit or a camera move
 restarts the average from it.
 
+On CUDA an update queues the trace, the hash and σ̄t and waits for the device once, at
+its end (an incremental one also once after the photon query, for the number of photons
+to retrace); a render waits once after finding the segments to compute (how many, and
+their samples) and once for the image.
+
 Simplifications: the update budget per frame is a number of passes (or seconds) for
 :meth:`PhotonMapper.refine`; an incremental update itself always completes (a partly
 updated photon map would be inconsistent with the Historygrams).
@@ -33,6 +38,7 @@ updated photon map would be inconsistent with the Historygrams).
 
 from __future__ import annotations
 
+import sys
 import time
 
 import numpy as np
@@ -40,7 +46,6 @@ import warp as wp
 
 from vtkillum.core.photon.density import mean_extinction
 from vtkillum.core.photon.emission import make_emitters
-from vtkillum.core.photon.material import make_surface
 from vtkillum.core.photon.hashgrid import build_photon_grid
 from vtkillum.core.photon.historygram import (
     ALL_BITS,
@@ -51,10 +56,11 @@ from vtkillum.core.photon.historygram import (
     photon_query_kernel,
     query_masks,
 )
+from vtkillum.core.photon.material import make_surface
 from vtkillum.core.photon.segments import (
     ViewParams,
     composite_segments,
-    recompute_kernel,
+    recompute_flagged,
     segment_query_kernel,
 )
 from vtkillum.core.photon.storage import select
@@ -121,6 +127,7 @@ class PhotonMapper:
                  surface: dict | None = None) -> None:
         check_config(photons, radius, max_order, segments, direct, alpha)
         self.device = device
+        keep_pool_memory(device)
         self.photons = int(photons)
         self.radius = float(radius)
         self.max_order = int(max_order)
@@ -150,6 +157,7 @@ class PhotonMapper:
         self._pending_spatial = np.zeros(3, np.uint64)
         self._full_pending = True
         self._accum = None  # (radiance sum, alpha sum, passes)
+        self._pinned = None  # sets of page-locked host buffers of the image (CUDA)
         self.last_update: dict = {}
         self.last_render: dict = {}
 
@@ -175,17 +183,24 @@ class PhotonMapper:
                  "interactions_removed": 0, "interactions_added": 0, "query_bins": 0,
                  "ms": {"query": 0.0, "trace": 0.0, "hash": 0.0}}
         full = (self.map is None or light_key != self._light_key or not self.historygrams)
+        pending = None
         if full:
             self._volume = volume
+            self.medium, self.tables = medium, tables
+            # Every upload before the first launch: a copy from pageable host memory waits
+            # for the work queued before it.
             self.lights = make_lights(lights, volume, device)
             self.surface = make_surface(self.surface_options, volume)
             self.emitters, _ = make_emitters(lights, volume, self.photons, device)
             self.map = PhotonMap(self.photons, device, stream_seed(self.seed, 0, PHOTON_SALT),
                                  self.max_order, step, self.memory_limit_mb, self.surface)
-            self.medium, self.tables = medium, tables
-            trace = self.map.trace(medium, self.emitters, volume.value_range)
+            # σ̄t needs no photons: queued first, the device works on it while the host
+            # prepares the trace.
+            self.extinction = mean_extinction(self.medium, volume, self.radius, device,
+                                              None, bin_scale(volume.value_range))
+            trace = self.map.trace(medium, self.emitters, volume.value_range, resolve=False)
             stats.update(mode="full", photons_retraced=self.photons, photon_fraction=1.0,
-                         interactions_added=trace["interactions_added"], query_bins=BITS)
+                         query_bins=BITS)
             stats["ms"]["trace"] = trace["ms"]
             self._light_key = light_key
             self._full_pending = True
@@ -194,20 +209,32 @@ class PhotonMapper:
             hq = query_masks(self.tables, tables, volume.value_range)
             self.medium, self.tables = medium, tables
             if hq[0] or hq[1]:
-                stats.update(self._incremental(volume, hq))
+                inc, pending = self._incremental(volume, hq)
+                stats.update(inc)
         if stats["mode"] != "unchanged":
             t_hash = time.perf_counter()
-            # The hash only moves when photons did; σ̄t only when σt did.
+            # The hash only moves when photons did; σ̄t only when σt did (and was made first
+            # in a full update). All queued without waiting: one wait at the end.
+            grid_count = None
             if stats["mode"] == "full" or stats["photons_retraced"] > 0:
-                self.grid = build_photon_grid(self.map.interactions, self.map.total,
-                                              volume.extent, self.radius, self.min_order,
-                                              device)
-            if stats["mode"] == "full" or stats.get("sigma_changed", True):
-                self.extinction = mean_extinction(
-                    self.medium, volume, self.radius, device,
-                    None if stats["mode"] == "full" else self.extinction.mask,
-                    bin_scale(volume.value_range))
-            wp.synchronize_device(device)
+                pm = self.map
+                self.grid, grid_count = build_photon_grid(
+                    pm.interactions, pm.capacity if pm._total is None else pm.total,
+                    volume.extent, self.radius, self.min_order, device,
+                    stored=pm._counters if pm._total is None else None, defer=True)
+            if stats["mode"] != "full" and stats.get("sigma_changed", True):
+                self.extinction = mean_extinction(self.medium, volume, self.radius, device,
+                                                  self.extinction.mask,
+                                                  bin_scale(volume.value_range))
+            if grid_count is not None or stats["mode"] == "full" or stats["sigma_changed"]:
+                wp.synchronize_device(device)  # (else nothing was queued since the query)
+            trace = self.map.resolve()
+            if grid_count is not None:
+                self.grid.count = int(grid_count.numpy()[0])
+            if stats["photons_retraced"] > 0:
+                stats["interactions_added"] = trace["interactions_added"]
+            if pending is not None:
+                self._pending_spatial |= pending.numpy()[:3]
             stats["ms"]["hash"] = 1e3 * (time.perf_counter() - t_hash)
             self._accum = None
         stats["ms"]["total"] = 1e3 * (time.perf_counter() - t0)
@@ -216,48 +243,50 @@ class PhotonMapper:
         self.last_update = stats
         return stats
 
-    def _incremental(self, volume, hq: tuple) -> dict:
+    def _incremental(self, volume, hq: tuple):
+        """Query the photons (one wait, for how many to retrace) and queue their retrace;
+        returns the stats and the device array to read at the end of :meth:`update` (the
+        spatial Historygram, None when it is read already)."""
         device = self.device
         pm = self.map
         t0 = time.perf_counter()
         n = pm.n_photons
         flags = wp.empty(n, dtype=wp.int32, device=device)
         restart = wp.empty(n, dtype=wp.int32, device=device)
-        spatial = wp.zeros(3, dtype=wp.uint64, device=device)
-        removed = wp.zeros(1, dtype=wp.int32, device=device)
+        # Spatial Historygram (3 axes), interactions removed, photons flagged.
+        spatial = wp.zeros(5, dtype=wp.uint64, device=device)
         scale = wp.vec3(*(BITS / np.asarray(volume.extent, np.float64)).astype(np.float32))
         wp.launch(photon_query_kernel, dim=n,
                   inputs=[pm.start, pm.count, pm.path_hist, pm.path_chist, pm.interactions,
                           wp.uint64(hq[0]), wp.uint64(hq[1]), self.min_order, scale, flags,
-                          restart, spatial, removed],
+                          restart, spatial],
                   device=device)
-        photons, restarts = select(flags, restart, device)
+        queried = spatial.numpy()  # the one wait
+        n_removed, n_flagged = int(queried[3]), int(queried[4])
+        photons, restarts = select(flags, restart, device, n_flagged)
         n_work = int(photons.shape[0])
-        kept = wp.zeros(max(n_work, 1), dtype=wp.int32, device=device)
+        t_trace = time.perf_counter()
         if n_work:
+            kept = wp.empty(n_work, dtype=wp.int32, device=device)
             wp.launch(kept_count_kernel, dim=n_work, inputs=[photons, restarts, pm.start, kept],
                       device=device)
-        wp.synchronize_device(device)
-        t_trace = time.perf_counter()
-        added = 0
-        if n_work:
-            trace = pm.retrace(self.medium, self.emitters, volume.value_range, photons,
-                               restarts)
-            added = trace["interactions_added"]
+            pm.retrace(self.medium, self.emitters, volume.value_range, photons, restarts,
+                       resolve=False)
             wp.launch(mark_added_kernel, dim=n_work,
                       inputs=[photons, kept, pm.start, pm.count, pm.interactions,
                               self.min_order, scale, spatial], device=device)
-        wp.synchronize_device(device)
         t_end = time.perf_counter()
         self._pending_query = (self._pending_query[0] | int(hq[0]),
                                self._pending_query[1] | int(hq[1]))
-        self._pending_spatial |= spatial.numpy()
-        return {"mode": "incremental", "photons_retraced": n_work, "sigma_changed": bool(hq[0]),
-                "photon_fraction": n_work / n, "interactions_removed": int(removed.numpy()[0]),
-                "interactions_added": int(added),
-                "query_bins": (int(hq[0]) | int(hq[1])).bit_count(),
-                "ms": {"query": 1e3 * (t_trace - t0), "trace": 1e3 * (t_end - t_trace),
-                       "hash": 0.0}}
+        if not n_work:  # the spatial Historygram is complete: no photon was added
+            self._pending_spatial |= queried[:3]
+            spatial = None
+        return ({"mode": "incremental", "photons_retraced": n_work,
+                 "sigma_changed": bool(hq[0]), "photon_fraction": n_work / n,
+                 "query_bins": (int(hq[0]) | int(hq[1])).bit_count(),
+                 "interactions_removed": n_removed,
+                 "ms": {"query": 1e3 * (t_trace - t0), "trace": 1e3 * (t_end - t_trace),
+                        "hash": 0.0}}, spatial)
 
     # --- images ----------------------------------------------------------------------------------
     def render(self, volume, camera, width: int, height: int, step: float, jitter: bool = True,
@@ -299,47 +328,91 @@ class PhotonMapper:
                               wp.uint64(self._pending_query[1]), spatial,
                               int(self.spatial_historygram), scale, self.radius, flags],
                       device=device)
-            work, _ = select(flags, flags, device)
-            recomputed = int(work.shape[0])
-            if recomputed:
-                wp.launch(recompute_kernel, dim=recomputed,
-                          inputs=[self.medium, cam, self.lights, self.grid, self.extinction,
-                                  self.surface, vp, work, self._seg["rad"], self._seg["t"], self._seg["hist"],
-                                  self._seg["chist"]],
-                          device=device)
+            recomputed = recompute_flagged(self.medium, cam, self.lights, self.grid,
+                                           self.extinction, self.surface, vp, self._seg, flags,
+                                           device)
             mode = "incremental"
         else:
             _, vp, cam, _, _ = self._view
             mode = "unchanged"
         t_seg = time.perf_counter()
+        # Without a σt edit since the last composite, the visible segments are all stored.
+        find_visible = mode == "full" or self._pending_query[0] != 0
         radiance, alpha, computed = composite_segments(
             self.medium, cam, self.lights, self.grid, self.extinction, self.surface, vp,
             self._seg, int(width), int(height), device,
-            None if progress is None else (lambda f: progress(0.95 * f)))
-        wp.synchronize_device(device)
-        t_end = time.perf_counter()
+            None if progress is None else (lambda f: progress(0.95 * f)), find_visible)
         self._pending_query = (0, 0)
         self._pending_spatial[:] = 0
         self._full_pending = False
-        n_computed = int(computed.numpy()[0])
+        rad_host, alpha_host, n_computed = self._to_host(radiance, alpha, computed)  # waits
+        t_end = time.perf_counter()
         info = {"mode": mode, "segments": n_seg,
                 "segments_recomputed": recomputed + n_computed,
                 "segment_fraction": (recomputed + n_computed) / max(n_seg, 1),
                 "segments_queried": queried,
                 "ms": {"segments": 1e3 * (t_seg - t0), "composite": 1e3 * (t_end - t_seg)}}
         self.last_render = info
-        result = RenderResult(radiance.numpy().astype(np.float32),
-                              alpha.numpy().astype(np.float32), {"photon_render": info})
+        result = RenderResult(rad_host, alpha_host, {"photon_render": info})
         if mode == "unchanged" and self._accum is not None and self._accum[2] > 1:
             rad_sum, alpha_sum, done = self._accum  # keep the progressive average
             result = RenderResult((rad_sum / done).astype(np.float32),
                                   (alpha_sum / done).astype(np.float32), result.info)
         else:
-            self._accum = (result.radiance.astype(np.float64), result.alpha.astype(np.float64), 1)
+            # One pass, float32 (refine() sums in float64 from there).
+            self._accum = (rad_host, alpha_host, 1)
         info["passes"] = self._accum[2]
         if progress is not None:
             progress(1.0)
         return result
+
+    def _to_host(self, radiance: wp.array, alpha: wp.array, computed: wp.array):
+        """The image (host arrays, float32, the caller's to keep) and the count of segments
+        computed.
+
+        On CUDA the image is copied to page-locked buffers (a copy to pageable memory is
+        several times slower) and handed out as they are, without another copy: a set of
+        buffers is used again only once nothing outside the mapper refers to the arrays it
+        handed out last (every view of them refers to them), else another set is made
+        (up to :data:`HOST_BUFFER_SETS`, then the image is copied out).
+        """
+        if not wp.get_device(self.device).is_cuda:
+            return (radiance.numpy().copy(), alpha.numpy().copy(),
+                    int(computed.numpy()[0]))
+        if self._pinned is None or self._pinned[0][0].shape != radiance.shape:
+            self._pinned = []
+        free = next((s for s in self._pinned if self._unreferenced(s)), None)
+        copy_out = False
+        if free is None and len(self._pinned) < HOST_BUFFER_SETS:
+            h, w = radiance.shape
+            free = [wp.empty((h, w), dtype=wp.vec3, device="cpu", pinned=True),
+                    wp.empty((h, w), dtype=wp.float32, device="cpu", pinned=True),
+                    wp.empty(1, dtype=wp.int32, device="cpu", pinned=True), None, None]
+            self._pinned.append(free)
+        elif free is None:
+            free, copy_out = self._pinned[0], True
+        rad, al, cnt = free[:3]
+        wp.copy(rad, radiance)
+        wp.copy(al, alpha)
+        wp.copy(cnt, computed)
+        wp.synchronize_device(self.device)
+        if copy_out:
+            return rad.numpy().copy(), al.numpy().copy(), int(cnt.numpy()[0])
+        free[3], free[4] = rad.numpy(), al.numpy()  # the arrays handed out
+        return free[3], free[4], int(cnt.numpy()[0])
+
+    def _unreferenced(self, buffers: list) -> bool:
+        """Whether the arrays last handed out from ``buffers`` are referred to only by the
+        mapper (the set itself and the progressive average)."""
+        for i in (3, 4):
+            view = buffers[i]
+            if view is None:
+                continue
+            own = 3 + int(self._accum is not None and (self._accum[0] is view
+                                                       or self._accum[1] is view))
+            if sys.getrefcount(view) > own:  # the list entry, the name, the argument
+                return False
+        return True
 
     def refine(self, volume, camera, width: int, height: int, step: float, passes: int = 1,
                jitter: bool = True, seed: int = 0, early_termination: float = 0.999,
@@ -353,6 +426,8 @@ class PhotonMapper:
         if self._accum is None or self._view is None:
             raise ValueError("refine() continues the image of the last render(); render first")
         rad_sum, alpha_sum, done = self._accum
+        rad_sum = rad_sum.astype(np.float64)
+        alpha_sum = alpha_sum.astype(np.float64)
         first = done
         start = time.perf_counter()
         radii = radius_schedule(self.radius, done + int(passes), self.alpha)
@@ -447,6 +522,30 @@ class PhotonMapper:
         vp.direct = int(self.direct == "exact")
         vp.bin_lo, vp.bin_scale = bin_scale(volume.value_range)
         return vp
+
+
+#: Sets of page-locked host buffers an image may be handed out in (more while the caller
+#: keeps earlier images; beyond, images are copied out of the first set).
+HOST_BUFFER_SETS = 4
+#: Device memory the CUDA memory pool keeps for reuse instead of handing it back at each
+#: synchronisation (fraction of the device's memory; at least what warp has set). A trace
+#: and a gather allocate and free about a gigabyte of buffers each time (4 M photons, 512²
+#: with 7 segments); handed back, it must be mapped again the next time.
+POOL_KEEP = 0.25
+
+
+def keep_pool_memory(device: str) -> None:
+    """Raise the release threshold of ``device``'s memory pool to :data:`POOL_KEEP` (CUDA
+    devices with memory pools; nothing elsewhere)."""
+    try:
+        d = wp.get_device(device)
+        if not (d.is_cuda and d.is_mempool_supported and d.is_mempool_enabled):
+            return
+        want = int(POOL_KEEP * d.total_memory)
+        if wp.get_mempool_release_threshold(d) < want:
+            wp.set_mempool_release_threshold(d, want)
+    except (RuntimeError, ValueError, AttributeError):
+        pass
 
 
 def check_config(photons, radius, max_order, segments, direct, alpha) -> None:

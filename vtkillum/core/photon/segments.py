@@ -40,7 +40,12 @@ from vtkillum.core.photon.density import MeanExtinction, kernel_bins, photon_rad
 from vtkillum.core.photon.hashgrid import PhotonGrid
 from vtkillum.core.photon.historygram import axis_bits, data_bin
 from vtkillum.core.photon.material import SurfaceParams, scattering, surface_normal
-from vtkillum.core.photon.storage import exclusive_scan, select
+from vtkillum.core.photon.storage import (
+    capped_kernel,
+    exclusive_scan,
+    scan_total_kernel,
+    select,
+)
 from vtkillum.core.raymarch import pixel_ray, sample_count
 from vtkillum.core.warp_common import (
     CameraParams,
@@ -60,8 +65,18 @@ CPU_PROGRESS_STEPS = 20
 #: Devices (name prefixes) on which photon-only segments are gathered one thread per
 #: sample (:func:`composite_segments`).
 SAMPLE_PARALLEL_DEVICES = ("cuda",)
-#: Samples whose light is held at once by the per-sample gather (12 bytes each).
+#: Samples whose light is held at once by the per-sample gather (16 bytes each: the light
+#: and the sample's work item).
 SAMPLES_PER_BATCH = 1 << 27
+#: Register cap and block size of the per-sample gather on CUDA: the kernel waits on
+#: memory, and fewer registers let more warps wait together than the 118 it takes uncapped
+#: (H100, Cornell box 512², before the isotropic phase: 55 ms uncapped, 40.5 with 64, 38.6
+#: with 48; after it: 27.3 with 64, 26.4 with 48, 25.2 with 40; blocks of 128 or 256
+#: alike).
+SAMPLE_REGISTERS = 40
+SAMPLE_BLOCK = 256
+#: Register cap of :func:`shade_segment_kernel` on CUDA (0: none).
+SHADE_REGISTERS = 0
 
 #: Segment states.
 NOT_COMPUTED = wp.constant(0)
@@ -199,6 +214,45 @@ def segment_transmittance(m: Medium, cam: CameraParams, vp: ViewParams, row: int
 
 
 @wp.kernel
+def segment_transmittance_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
+                                 seg_t: wp.array(dtype=wp.float32),
+                                 seg_state: wp.array(dtype=wp.int32),
+                                 trans: wp.array(dtype=wp.float32),
+                                 length: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` = segment entry ``pixel * V_n + i``: its transmittance (stored, or
+    :func:`segment_transmittance` when not computed, with the samples it marches), what
+    :func:`visible_segments_kernel` takes for it -- every segment at once, occluded or not."""
+    idx = wp.tid()
+    if seg_state[idx] == NOT_COMPUTED:
+        row, col, i = segment_of(cam, vp, idx)
+        t, n = segment_transmittance(m, cam, vp, row, col, i)
+        trans[idx] = t
+        length[idx] = n
+    else:
+        trans[idx] = seg_t[idx]
+        length[idx] = 0
+
+
+@wp.kernel
+def visible_from_kernel(vp: ViewParams, width: int, trans: wp.array(dtype=wp.float32),
+                        length: wp.array(dtype=wp.int32), seg_state: wp.array(dtype=wp.int32),
+                        flags: wp.array(dtype=wp.int32), seg_len: wp.array(dtype=wp.int32)):
+    """:func:`visible_segments_kernel` from the transmittances and lengths of
+    :func:`segment_transmittance_kernel` (the same products in the same order)."""
+    row, col = wp.tid()
+    base = (row * width + col) * vp.segments
+    prefix = float(1.0)
+    for i in range(vp.segments):
+        if prefix < vp.stop_t:
+            break
+        idx = base + i
+        if seg_state[idx] == NOT_COMPUTED:
+            flags[idx] = 1
+            seg_len[idx] = length[idx]
+        prefix *= trans[idx]
+
+
+@wp.kernel
 def visible_segments_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
                             seg_t: wp.array(dtype=wp.float32),
                             seg_state: wp.array(dtype=wp.int32), flags: wp.array(dtype=wp.int32),
@@ -272,7 +326,8 @@ def compute_flagged_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: P
 
 def composite_segments(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
                        me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, seg: dict,
-                       width: int, height: int, device: str, progress=None):
+                       width: int, height: int, device: str, progress=None,
+                       find_visible: bool = True):
     """Compute the visible segments not stored yet, then composite every pixel (eq. 4).
 
     The result is :func:`composite_kernel`'s, which computes them in turn per pixel; here
@@ -295,20 +350,39 @@ def composite_segments(m: Medium, cam: CameraParams, lights: Lights, grid: Photo
     parts). ``seg``: the segment arrays (``rad``, ``t``, ``hist``, ``chist``, ``state``). Returns
     ``(radiance (height, width) vec3, alpha (height, width) float32, computed (1,) int32)``
     on the device.
+
+    ``find_visible=False`` goes straight to the composite: for segments composited before
+    whose transmittances did not change since (no σt edit), every visible one is stored
+    and the search would find none (:func:`composite_kernel` would still compute any).
     """
     h, w = int(height), int(width)
     n_seg = h * w * vp.segments
-    flags = wp.zeros(n_seg, dtype=wp.int32, device=device)
-    seg_len = wp.zeros(n_seg, dtype=wp.int32, device=device)
     computed = wp.zeros(1, dtype=wp.int32, device=device)
-    wp.launch(visible_segments_kernel, dim=(h, w),
-              inputs=[m, cam, vp, seg["t"], seg["state"], flags, seg_len], device=device)
     tiles_x = (w + 7) // 8
     tiles = tiles_x * ((h + 3) // 4)
-    if vp.direct == 0 and str(device).startswith(tuple(SAMPLE_PARALLEL_DEVICES)):
+    if find_visible:
+        flags = wp.zeros(n_seg, dtype=wp.int32, device=device)
+        seg_len = wp.zeros(n_seg, dtype=wp.int32, device=device)
+        if per_sample(vp, device):
+            # Every segment's transmittance in parallel, then the prefix products per pixel
+            # (a thread per pixel marching its segments one after the other leaves the GPU
+            # mostly idle; marching the occluded ones too costs less).
+            trans = wp.empty(n_seg, dtype=wp.float32, device=device)
+            length = wp.empty(n_seg, dtype=wp.int32, device=device)
+            wp.launch(segment_transmittance_kernel, dim=n_seg,
+                      inputs=[m, cam, vp, seg["t"], seg["state"], trans, length],
+                      device=device)
+            wp.launch(visible_from_kernel, dim=(h, w),
+                      inputs=[vp, w, trans, length, seg["state"], flags, seg_len],
+                      device=device)
+        else:
+            wp.launch(visible_segments_kernel, dim=(h, w),
+                      inputs=[m, cam, vp, seg["t"], seg["state"], flags, seg_len],
+                      device=device)
+    if find_visible and per_sample(vp, device):
         _sample_parallel(m, cam, lights, grid, me, sp, vp, seg, flags, seg_len, tiles_x, tiles,
                          computed, device)
-    else:
+    elif find_visible:
         total = vp.segments * tiles * 32
         parts = 1 if wp.get_device(device).is_cuda else CPU_PROGRESS_STEPS
         step = max(32, -(-total // parts // 32) * 32)  # whole warps
@@ -320,8 +394,8 @@ def composite_segments(m: Medium, cam: CameraParams, lights: Lights, grid: Photo
                       device=device)
             if progress is not None:
                 progress(min(first + step, total) / total)
-    radiance = wp.zeros((h, w), dtype=wp.vec3, device=device)
-    alpha = wp.zeros((h, w), dtype=wp.float32, device=device)
+    radiance = wp.empty((h, w), dtype=wp.vec3, device=device)  # every pixel is written
+    alpha = wp.empty((h, w), dtype=wp.float32, device=device)
     wp.launch(composite_kernel, dim=(h, w),
               inputs=[m, cam, lights, grid, me, sp, vp, seg["rad"], seg["t"], seg["hist"],
                       seg["chist"], seg["state"], radiance, alpha, computed], device=device)
@@ -338,38 +412,180 @@ def _sample_parallel(m, cam, lights, grid, me, sp, vp, seg, flags, seg_len, tile
     tidx = wp.empty(n_tiled, dtype=wp.int32, device=device)
     wp.launch(tiled_flags_kernel, dim=n_tiled,
               inputs=[cam, vp, tiles_x, tiles, flags, tflag, tidx], device=device)
-    _, work = select(tflag, tidx, device)  # flagged segments, tile by tile
+    # One wait for both counts: the flagged segments and their samples (seg_len is zero
+    # for the others).
+    n_work, total = sums(tflag, seg_len, device)
+    if n_work == 0:
+        return
+    _, work = select(tflag, tidx, device, n_work)  # flagged segments, tile by tile
+    lengths = wp.empty(n_work, dtype=wp.int32, device=device)
+    wp.launch(gather_lengths_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
+    gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device, total)
+    wp.launch(add_count_kernel, dim=1, inputs=[computed, n_work], device=device)
+
+
+def sums(a: wp.array, b: wp.array, device: str) -> tuple[int, int]:
+    """The sums of two int32 arrays, read with one wait."""
+    scratch = wp.empty(max(a.shape[0], b.shape[0], 1), dtype=wp.int32, device=device)
+    counts = wp.zeros(2, dtype=wp.int64, device=device)
+    for i, x in enumerate((a, b)):
+        if x.shape[0] > 0:
+            wp.utils.array_scan(x, scratch[:x.shape[0]], inclusive=False)
+            wp.launch(scan_total_kernel, dim=1, inputs=[x, scratch[:x.shape[0]],
+                                                        counts[i:i + 1]], device=device)
+    s0, s1 = (int(c) for c in counts.numpy())
+    return s0, s1
+
+
+def recompute_flagged(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
+                      me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, seg: dict,
+                      flags: wp.array, device: str) -> int:
+    """Recompute the stored segments flagged in ``flags`` (indexed like the segments) with
+    :func:`recompute_segments`; returns how many. Where :func:`per_sample`, the samples
+    of each flagged segment are counted beside the flags (one wait for both)."""
+    if not per_sample(vp, device):
+        work, _ = select(flags, flags, device)
+        recompute_segments(m, cam, lights, grid, me, sp, vp, seg, work, device)
+        return int(work.shape[0])
+    n_seg = flags.shape[0]
+    seg_len = wp.empty(n_seg, dtype=wp.int32, device=device)
+    wp.launch(flagged_lengths_kernel, dim=n_seg, inputs=[m, cam, vp, flags, seg_len],
+              device=device)
+    n_work, total = sums(flags, seg_len, device)
+    if n_work == 0:
+        return 0
+    work, _ = select(flags, flags, device, n_work)
+    lengths = wp.empty(n_work, dtype=wp.int32, device=device)
+    wp.launch(gather_lengths_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
+    gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device, total)
+    return n_work
+
+
+@wp.kernel
+def flagged_lengths_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
+                           flags: wp.array(dtype=wp.int32), seg_len: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` = segment entry: the samples a flagged segment marches
+    (:func:`segment_transmittance`), 0 for the others."""
+    idx = wp.tid()
+    seg_len[idx] = 0
+    if flags[idx] != 0:
+        row, col, i = segment_of(cam, vp, idx)
+        _t, n = segment_transmittance(m, cam, vp, row, col, i)
+        seg_len[idx] = n
+
+
+def per_sample(vp: ViewParams, device: str) -> bool:
+    """Whether segments are computed one thread per sample (photons only, on a device of
+    :data:`SAMPLE_PARALLEL_DEVICES`)."""
+    return vp.direct == 0 and str(device).startswith(tuple(SAMPLE_PARALLEL_DEVICES))
+
+
+def recompute_segments(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
+                       me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, seg: dict,
+                       work: wp.array, device: str) -> None:
+    """Recompute the stored segments listed in ``work`` (entries ``pixel * V_n + i``), each
+    on its own (the paper's load-balanced update): one thread per sample where
+    :func:`per_sample` (the same bits as :func:`compute_segment`), else one per segment."""
     n_work = int(work.shape[0])
     if n_work == 0:
         return
-    lengths = wp.empty(n_work, dtype=wp.int32, device=device)
-    wp.launch(gather_lengths_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
+    if per_sample(vp, device):
+        lengths = wp.empty(n_work, dtype=wp.int32, device=device)
+        wp.launch(segment_lengths_kernel, dim=n_work, inputs=[m, cam, vp, work, lengths],
+                  device=device)
+        gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device)
+        return
+    wp.launch(recompute_kernel, dim=n_work,
+              inputs=[m, cam, lights, grid, me, sp, vp, work, seg["rad"], seg["t"],
+                      seg["hist"], seg["chist"]], device=device)
+
+
+@wp.struct
+class SegmentRay:
+    """The ray of a work item's segment (:func:`ray_setup`): origin ``o``, direction ``d``,
+    entry ``t0``, jitter ``xi``; ``k0``: the segment's first sample."""
+
+    o: wp.vec3
+    d: wp.vec3
+    t0: float
+    xi: float
+    k0: int
+
+
+def gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device,
+                total: int | None = None) -> None:
+    """Compute the segments of ``work`` (``lengths``: the samples each marches) by
+    :func:`sample_light_kernel` and :func:`shade_segment_kernel`, in batches of at most
+    :data:`SAMPLES_PER_BATCH` samples.
+
+    The samples of a batch are one flat list (work item after work item), a thread each:
+    :func:`sample_segments_kernel` writes each sample's work item and
+    :func:`segment_rays_kernel` each work item's ray, so that no thread idles and warps
+    hold 32 consecutive samples of a ray.
+    """
+    n_work = int(work.shape[0])
     offsets = wp.empty(n_work, dtype=wp.int32, device=device)
-    total = exclusive_scan(lengths, offsets)
-    # Samples per segment at most: the longest ray through the box, split V_n ways.
-    diagonal = float(np.linalg.norm([m.extent[0], m.extent[1], m.extent[2]]))
-    max_len = (int(np.ceil(diagonal / vp.step)) + 2) // vp.segments + 2
+    if total is None:  # (``total``: the sum of ``lengths`` when known)
+        total = exclusive_scan(lengths, offsets)
+    else:
+        wp.utils.array_scan(lengths, offsets, inclusive=False)
     if total <= SAMPLES_PER_BATCH:
-        batches = [(0, n_work, 0)]
+        batches = [(0, n_work, 0, total)]
     else:  # split the work list where the sample count crosses the budget
         off = offsets.numpy()
+        ends = np.append(off, total)
         batches, w0 = [], 0
         while w0 < n_work:
             w1 = int(np.searchsorted(off, off[w0] + SAMPLES_PER_BATCH, side="left"))
             w1 = min(max(w1, w0 + 1), n_work)
-            batches.append((w0, w1, int(off[w0])))
+            batches.append((w0, w1, int(off[w0]), int(ends[w1] - off[w0])))
             w0 = w1
-    size = total if len(batches) == 1 else SAMPLES_PER_BATCH + max_len
+    size = max(b[3] for b in batches)
+    rays = wp.empty(n_work, dtype=SegmentRay, device=device)
+    wp.launch(segment_rays_kernel, dim=n_work, inputs=[m, cam, vp, work, rays], device=device)
     light = wp.empty(max(size, 1), dtype=wp.vec3, device=device)
-    for w0, w1, base in batches:
-        wp.launch(sample_light_kernel, dim=(w1 - w0, max_len),
-                  inputs=[m, cam, grid, me, sp, vp, work, offsets, lengths, w0, base, light],
-                  device=device)
+    sample_work = wp.empty(max(size, 1), dtype=wp.int32, device=device)
+    for w0, w1, base, count in batches:
+        if count > 0:
+            wp.launch(sample_segments_kernel, dim=(w1 - w0) * 32,
+                      inputs=[offsets, lengths, w0, base, sample_work], device=device)
+            wp.launch(sample_light_kernel, dim=count,
+                      inputs=[m, grid, me, sp, vp, rays, offsets, sample_work, base, light],
+                      device=device, block_dim=SAMPLE_BLOCK)
         wp.launch(shade_segment_kernel, dim=w1 - w0,
                   inputs=[m, cam, me, grid, vp, work, offsets, lengths, w0, base, light,
                           seg["rad"],
                           seg["t"], seg["hist"], seg["chist"], seg["state"]], device=device)
-    wp.launch(add_count_kernel, dim=1, inputs=[computed, n_work], device=device)
+
+
+@wp.kernel
+def segment_rays_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
+                        work: wp.array(dtype=wp.int32), rays: wp.array(dtype=SegmentRay)):
+    """``wp.tid()`` indexes the work list: the ray of its segment."""
+    w = wp.tid()
+    row, col, i = segment_of(cam, vp, work[w])
+    o, d, t0, xi, n = ray_setup(m, cam, vp, row, col)
+    k0, _k1 = segment_samples(n, vp.segments, i)
+    r = SegmentRay()
+    r.o = o
+    r.d = d
+    r.t0 = t0
+    r.xi = xi
+    r.k0 = k0
+    rays[w] = r
+
+
+@wp.kernel
+def sample_segments_kernel(offsets: wp.array(dtype=wp.int32), lengths: wp.array(dtype=wp.int32),
+                           w0: int, base: int, sample_work: wp.array(dtype=wp.int32)):
+    """32 threads per work item ``w = w0 + wp.tid() // 32``: ``sample_work[s - base] = w`` for
+    its samples ``s`` in ``[offsets[w], offsets[w] + lengths[w])``."""
+    t = wp.tid()
+    w = w0 + t // 32
+    lane = t - (w - w0) * 32
+    a = offsets[w] - base
+    for kl in range(lane, lengths[w], 32):
+        sample_work[a + kl] = w
 
 
 @wp.func
@@ -407,36 +623,44 @@ def gather_lengths_kernel(work: wp.array(dtype=wp.int32), seg_len: wp.array(dtyp
 
 
 @wp.kernel
+def segment_lengths_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
+                           work: wp.array(dtype=wp.int32), lengths: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` indexes the work list: the samples its segment marches
+    (:func:`segment_transmittance`)."""
+    w = wp.tid()
+    row, col, i = segment_of(cam, vp, work[w])
+    _t, n = segment_transmittance(m, cam, vp, row, col, i)
+    lengths[w] = n
+
+
+@wp.kernel
 def add_count_kernel(counter: wp.array(dtype=wp.int32), n: int):
     """``counter[0] += n``."""
     counter[0] = counter[0] + n
 
 
-@wp.kernel
-def sample_light_kernel(m: Medium, cam: CameraParams, grid: PhotonGrid, me: MeanExtinction,
-                        sp: SurfaceParams, vp: ViewParams, work: wp.array(dtype=wp.int32),
-                        offsets: wp.array(dtype=wp.int32), lengths: wp.array(dtype=wp.int32),
-                        w0: int, base: int, light: wp.array(dtype=wp.vec3)):
-    """``wp.tid()`` = ``(w - w0, kl)``: sample ``kl`` of work item ``w``'s segment: its photon
-    radiance (as :func:`compute_segment` computes it; samples with σt = 0 are not read)
-    into ``light[offsets[w] - base + kl]``."""
-    wl, kl = wp.tid()
-    w = w0 + wl
-    if kl >= lengths[w]:
-        return
-    row, col, i = segment_of(cam, vp, work[w])
-    o, d, t0, xi, n = ray_setup(m, cam, vp, row, col)
-    k0, _k1 = segment_samples(n, vp.segments, i)
-    k = k0 + kl
-    p = o + (t0 + (float(k) + xi) * vp.step) * d
+@capped_kernel(SAMPLE_REGISTERS)
+def sample_light_kernel(m: Medium, grid: PhotonGrid, me: MeanExtinction, sp: SurfaceParams,
+                        vp: ViewParams, rays: wp.array(dtype=SegmentRay),
+                        offsets: wp.array(dtype=wp.int32), sample_work: wp.array(dtype=wp.int32),
+                        base: int, light: wp.array(dtype=wp.vec3)):
+    """``wp.tid()`` = ``s - base``: sample ``s`` of the flat sample list, sample ``s -
+    offsets[w]`` of work item ``w = sample_work[s - base]``'s segment: its photon radiance
+    (as :func:`compute_segment` computes it; samples with σt = 0 are not read) into
+    ``light[s - base]``."""
+    t = wp.tid()
+    w = sample_work[t]
+    r = rays[w]
+    k = r.k0 + (base + t - offsets[w])
+    p = r.o + (r.t0 + (float(k) + r.xi) * vp.step) * r.d
     s = sample_scalar(m.scalars, m.inv_spacing, p)
     sig = lookup_sigma_t(m, s)
     if sig > 0.0:
         surf, normal = surface_normal(m, sp, p, s)
-        light[offsets[w] - base + kl] = photon_radiance(grid, me, p, -d, m.g, surf, normal, sp)
+        light[t] = photon_radiance(grid, me, p, -r.d, m.g, surf, normal, sp)
 
 
-@wp.kernel
+@capped_kernel(SHADE_REGISTERS)
 def shade_segment_kernel(m: Medium, cam: CameraParams, me: MeanExtinction, grid: PhotonGrid,
                          vp: ViewParams, work: wp.array(dtype=wp.int32),
                          offsets: wp.array(dtype=wp.int32), lengths: wp.array(dtype=wp.int32),

@@ -18,16 +18,20 @@ and colour bins), the random-number state after placing it
 (a retrace continues from here), the scattering order and the owning photon.
 
 A retrace (:func:`vtkillum.core.photon.tracing.retrace`) replaces the tail of some
-paths: it writes the new interactions to a scratch buffer, then
-:func:`compact` builds the new buffer in three parallel copies (kept prefixes,
-new tails, path tables).
+paths: it writes the new interactions to a scratch buffer (:class:`Record`: one
+interaction's fields side by side, so that a thread's store or load is one contiguous
+piece of memory), then :func:`compact` builds the new buffer in three parallel copies
+(kept prefixes, new tails, path tables). When the work items are not in photon order (a
+full trace in the order of :func:`~vtkillum.core.photon.tracing.emission_order`) the new
+tails are copied in the order of the destination (:func:`copy_scratch_by_photon_kernel`):
+reads of whole records from scattered places, writes in order, instead of nine scattered
+writes per interaction.
 """
 
 from __future__ import annotations
 
 import os
 
-import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp
@@ -61,6 +65,42 @@ class Interactions:
     rng: wp.array(dtype=wp.uint32)
     order: wp.array(dtype=wp.int32)
     owner: wp.array(dtype=wp.int32)
+
+
+@wp.struct
+class Record:
+    """One interaction in the tracing scratch (the fields of :class:`Interactions`)."""
+
+    pos: wp.vec3
+    dir: wp.vec3
+    flux: wp.vec3
+    value: wp.float32
+    hist: wp.uint64
+    chist: wp.uint64
+    rng: wp.uint32
+    order: wp.int32
+    owner: wp.int32
+
+
+#: Bytes per scratch record (the struct's C layout: 8-byte aligned).
+RECORD_BYTES = 72
+
+
+def capped_kernel(registers: int):
+    """``wp.kernel`` with a cap on the registers per thread of its CUDA code (warp >= 1.10's
+    ``cuda_max_registers``; a plain ``wp.kernel`` where warp has no such option, or for a
+    cap of 0)."""
+    if int(registers) <= 0:
+        return wp.kernel
+    try:
+        return wp.kernel(cuda_max_registers=int(registers))
+    except TypeError:
+        return wp.kernel
+
+
+def allocate_scratch(n: int, device: str) -> wp.array:
+    """Uninitialised scratch records for ``n`` interactions (at least one)."""
+    return wp.empty(max(int(n), 1), dtype=Record, device=device)
 
 
 def allocate(n: int, device: str) -> Interactions:
@@ -130,34 +170,57 @@ def exclusive_scan(counts: wp.array, out: wp.array) -> int:
     if n == 0:
         return 0
     wp.utils.array_scan(counts, out, inclusive=False)
-    last = np.concatenate([out[n - 1:n].numpy(), counts[n - 1:n].numpy()])
-    return int(last.sum(dtype=np.int64))
+    total = wp.empty(1, dtype=wp.int64, device=counts.device)
+    wp.launch(scan_total_kernel, dim=1, inputs=[counts, out, total], device=counts.device)
+    return int(total.numpy()[0])  # one wait and one copy
+
+
+@wp.kernel
+def scan_total_kernel(counts: wp.array(dtype=wp.int32), offsets: wp.array(dtype=wp.int32),
+                      total: wp.array(dtype=wp.int64)):
+    """``total[0]``: the sum of ``counts`` from its exclusive prefix sum ``offsets``."""
+    n = counts.shape[0]
+    total[0] = wp.int64(offsets[n - 1]) + wp.int64(counts[n - 1])
 
 
 def compact(old: Interactions, old_total: int, start: wp.array, keep: wp.array,
-            new_start: wp.array, scratch: Interactions, capacity: int,
+            new_start: wp.array, scratch: wp.array, capacity: int,
             work_photon: wp.array, work_count: wp.array, new_total: int,
-            device: str) -> Interactions:
+            device: str, work_of: wp.array | None = None) -> Interactions:
     """New interaction buffer: each photon's first ``keep[p]`` old interactions, then its
     scratch interactions (work item ``w`` owns scratch ``[w * capacity, ... + work_count[w])``).
+
+    ``new_total``: size of the new buffer (the interactions it will hold, or more).
+    ``work_of``: each photon's work item (-1: none), given when the work items are not in
+    photon order: the tails are then copied in the order of the destination.
     """
     new = allocate(new_total, device)
     if old_total > 0:
         wp.launch(copy_kept_kernel, dim=old_total, inputs=[old, start, keep, new_start, new],
                   device=device)
     n_work = work_photon.shape[0]
-    if n_work > 0:
+    if n_work > 0 and work_of is not None:
+        wp.launch(copy_scratch_by_photon_kernel, dim=(work_of.shape[0], capacity),
+                  inputs=[scratch, capacity, work_of, work_count, keep, new_start, new],
+                  device=device)
+    elif n_work > 0:
         wp.launch(copy_scratch_kernel, dim=(n_work, capacity),
                   inputs=[scratch, capacity, work_photon, work_count, keep, new_start, new],
                   device=device)
     return new
 
 
-def select(flags: wp.array, values: wp.array, device: str) -> tuple[wp.array, wp.array]:
-    """Indices ``p`` with ``flags[p] != 0`` and their ``values[p]``, in order (on the device)."""
+def select(flags: wp.array, values: wp.array, device: str,
+           total: int | None = None) -> tuple[wp.array, wp.array]:
+    """Indices ``p`` with ``flags[p] != 0`` and their ``values[p]``, in order (on the device).
+
+    ``total``: the number of flags set, when known (no wait for the device then)."""
     n = flags.shape[0]
     offsets = wp.empty(n, dtype=wp.int32, device=device)
-    total = exclusive_scan(flags, offsets)
+    if total is None:
+        total = exclusive_scan(flags, offsets)
+    elif total > 0:
+        wp.utils.array_scan(flags, offsets, inclusive=False)
     idx = wp.empty(max(total, 0), dtype=wp.int32, device=device)
     val = wp.empty(max(total, 0), dtype=wp.int32, device=device)
     if total > 0:
@@ -192,8 +255,21 @@ def copy_kept_kernel(old: Interactions, start: wp.array(dtype=wp.int32),
         copy_interaction(old, i, dst, new_start[p] + k)
 
 
+@wp.func
+def store_record(r: Record, dst: Interactions, j: int):
+    dst.pos[j] = r.pos
+    dst.dir[j] = r.dir
+    dst.flux[j] = r.flux
+    dst.value[j] = r.value
+    dst.hist[j] = r.hist
+    dst.chist[j] = r.chist
+    dst.rng[j] = r.rng
+    dst.order[j] = r.order
+    dst.owner[j] = r.owner
+
+
 @wp.kernel
-def copy_scratch_kernel(scratch: Interactions, capacity: int,
+def copy_scratch_kernel(scratch: wp.array(dtype=Record), capacity: int,
                         work_photon: wp.array(dtype=wp.int32),
                         work_count: wp.array(dtype=wp.int32), keep: wp.array(dtype=wp.int32),
                         new_start: wp.array(dtype=wp.int32), dst: Interactions):
@@ -202,7 +278,23 @@ def copy_scratch_kernel(scratch: Interactions, capacity: int,
     w, k = wp.tid()
     if k < work_count[w]:
         p = work_photon[w]
-        copy_interaction(scratch, w * capacity + k, dst, new_start[p] + keep[p] + k)
+        store_record(scratch[w * capacity + k], dst, new_start[p] + keep[p] + k)
+
+
+@wp.kernel
+def copy_scratch_by_photon_kernel(scratch: wp.array(dtype=Record), capacity: int,
+                                  work_of: wp.array(dtype=wp.int32),
+                                  work_count: wp.array(dtype=wp.int32),
+                                  keep: wp.array(dtype=wp.int32),
+                                  new_start: wp.array(dtype=wp.int32), dst: Interactions):
+    """``wp.tid()`` = (photon, slot): what :func:`copy_scratch_kernel` copies, in the order of
+    the destination (``work_of[p]``: the photon's work item, -1: none)."""
+    p, k = wp.tid()
+    w = work_of[p]
+    if w < 0:
+        return
+    if k < work_count[w]:
+        store_record(scratch[w * capacity + k], dst, new_start[p] + keep[p] + k)
 
 
 @wp.kernel

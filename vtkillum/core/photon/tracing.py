@@ -31,6 +31,11 @@ so a photon retraced from interaction ``j`` repeats exactly what a trace from sc
 would do past ``j`` under the same optical properties (the basis of the "incremental
 == full recompute" guarantee of the Historygrams).
 
+On the GPU the tracing queues its work without waiting for the device where it can: with
+a bounded ``S_n`` every path ends in one round, and the counts (interactions stored,
+added, capped) stay on the device until :meth:`PhotonMap.resolve` reads them once, after
+the hash and σ̄t are queued too (:meth:`~vtkillum.core.photon.mapper.PhotonMapper.update`).
+
 A walk that goes on past :data:`MAX_VERTICES` interactions (albedo ~1 without escape) is
 cut there and counted (``PhotonMap.stats["capped"]``), never silently. A flight marches
 at most ``MAX_STEPS_PER_RAY`` steps across the volume (a smaller ``photon_step`` is
@@ -45,7 +50,7 @@ import time
 import numpy as np
 import warp as wp
 
-from vtkillum.core.device import init_warp
+from vtkillum.core.device import init_warp, resolve_device
 from vtkillum.core.photon.emission import Emitters, emit_photon
 from vtkillum.core.photon.historygram import bin_scale, data_bin
 from vtkillum.core.photon.material import (
@@ -58,13 +63,19 @@ from vtkillum.core.photon.storage import (
     ABSORBED,
     CAPPED,
     ESCAPED,
+    INTERACTION_BYTES,
     ORDER_LIMIT,
     OVERFLOW,
+    RECORD_BYTES,
     Interactions,
+    Record,
     allocate,
+    allocate_scratch,
+    capped_kernel,
     check_fits,
     compact,
     exclusive_scan,
+    free_bytes,
     select,
 )
 from vtkillum.core.raymarch import MAX_STEPS_PER_RAY
@@ -73,9 +84,9 @@ from vtkillum.core.warp_common import (
     Medium,
     lookup_color,
     lookup_sigma_t,
-    make_medium,
     ray_box,
     sample_scalar,
+    to_device,
     uniform,
 )
 
@@ -91,6 +102,9 @@ MAX_ROUND_SLOTS = 4096
 #: step`` samples per photon): CPU launches stay well under a second, so Ctrl-C is seen.
 TRACE_CHUNK_SAMPLES = {"cpu": 1 << 23, "cuda": 1 << 62}
 FLIGHTS_PER_PHOTON = 4
+#: Register cap of the tracing kernel on CUDA (more warps waiting on the volume at once;
+#: H100, 4 M photons: 8.6 -> 7.9 ms, from 126 registers).
+TRACE_REGISTERS = 64
 #: Devices (name prefixes) on which photons are traced in the order of where they leave
 #: the lights (:func:`emission_order`; the CPU has no warps to keep together).
 COHERENT_DEVICES = ("cuda",)
@@ -141,7 +155,14 @@ def photon_medium(volume, transfer_function, unit_distance: float, albedo: float
                   device: str):
     """A :class:`Medium` whose tables are :func:`photon_tables` (returned as well)."""
     sigma, color, lo, hi = photon_tables(transfer_function, unit_distance, volume.value_range)
-    m = make_medium(volume, transfer_function, unit_distance, albedo, g, device)
+    device = resolve_device(device)
+    m = Medium()  # make_medium's fields, with these tables (not make_medium's own)
+    m.scalars = volume.derived(f"scalars@{device}", None,
+                               lambda: to_device(volume.scalars, wp.float32, device))
+    m.extent = wp.vec3(*volume.extent.astype(np.float32))
+    m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
+    m.albedo = float(albedo)
+    m.g = float(g)
     m.sigma_table = wp.array(sigma, dtype=wp.float32, device=device)
     m.color_table = wp.array(color, dtype=wp.vec3, device=device)
     m.table_lo = float(lo)
@@ -210,27 +231,68 @@ class PhotonMap:
         self.path_chist = wp.zeros(n, dtype=wp.uint64, device=device)
         self.end = wp.zeros(n, dtype=wp.int32, device=device)
         self.interactions: Interactions = allocate(1, device)
-        self.total = 0
+        self._total = 0
+        self._counters = None  # device (added, capped, total) of a trace not yet resolved
         self.stats: dict = {}
 
+    @property
+    def total(self) -> int:
+        """Stored interactions (waits for the device when a trace is still pending)."""
+        if self._total is None:
+            self.resolve()
+        return self._total
+
+    @total.setter
+    def total(self, value: int) -> None:
+        self._total = int(value)
+
+    @property
+    def capacity(self) -> int:
+        """Slots of the interaction buffer (at least :attr:`total`)."""
+        return int(self.interactions.pos.shape[0])
+
+    def resolve(self) -> dict:
+        """Read the counts of the last trace from the device (one wait) into :attr:`stats`
+        (``interactions_added``, ``capped``, ``total``) and :attr:`total`."""
+        if self._counters is not None:
+            added, capped, total = (int(c) for c in self._counters.numpy())
+            self._counters = None
+            if self._total is None:
+                self._total = total
+            self.stats.update(interactions_added=added, capped=capped)
+        self.stats["total"] = self._total
+        return self.stats
+
     # --- tracing ---------------------------------------------------------------------------------
-    def trace(self, medium: Medium, emitters: Emitters, value_range) -> dict:
-        """Trace every photon from its light (discarding what was stored)."""
+    def trace(self, medium: Medium, emitters: Emitters, value_range,
+              resolve: bool = True) -> dict:
+        """Trace every photon from its light (discarding what was stored); ``resolve`` as in
+        :meth:`retrace`."""
         self.count.zero_()
         self.start.zero_()
         self.total = 0
+        self._counters = None
         photons = emission_order(emitters, self.seed, self.n_photons, self.device)
         restart = wp.full(self.n_photons, -1, dtype=wp.int32, device=self.device)
-        return self.retrace(medium, emitters, value_range, photons, restart)
+        return self.retrace(medium, emitters, value_range, photons, restart, resolve,
+                            _from_light=True)
 
     def retrace(self, medium: Medium, emitters: Emitters, value_range, photons: wp.array,
-                restart: wp.array) -> dict:
+                restart: wp.array, resolve: bool = True, *, _from_light: bool = False) -> dict:
         """Retrace ``photons`` from their interaction ``restart`` (buffer index; -1: the light).
 
         Each listed photon keeps its interactions up to and including ``restart`` and gets
         a new tail traced from there with the stored random state; all other photons keep
         theirs. ``photons`` must be unique; their order is the order of the work items
         (the stored layout does not depend on it).
+
+        With ``0 < S_n <=`` :data:`FIRST_ROUND_SLOTS` every path ends in one round (its
+        scratch holds ``S_n`` interactions), and the round runs without waiting for the
+        device: the new buffer is allocated for the most interactions the round can leave
+        (the old ones plus ``S_n`` per work item) and the count stays on the device until
+        :meth:`resolve` (``resolve=False``: the caller resolves later, so that more work can
+        be queued first; :attr:`total` resolves when read). Otherwise rounds continue the
+        paths whose scratch overflowed, with the counts read after each.
         """
         t0 = time.perf_counter()
         device = self.device
@@ -244,9 +306,24 @@ class PhotonMap:
         chunk = max(1, budget // (FLIGHTS_PER_PHOTON * flight))
         lo, scale = bin_scale(value_range)
         traced = int(photons.shape[0])
-        counters = wp.zeros(2, dtype=wp.int32, device=device)  # added, capped
+        counters = wp.zeros(3, dtype=wp.int32, device=device)  # added, capped, total
         rounds = 0
         slots = self.first_slots
+        if 0 < self.max_order <= FIRST_ROUND_SLOTS and traced > 0:
+            params = TraceParams()
+            params.seed = self.seed
+            params.step = self.step
+            params.max_order = self.max_order
+            params.max_vertices = MAX_VERTICES
+            params.capacity = self.max_order
+            params.bin_lo = lo
+            params.bin_scale = scale
+            if self._one_round(medium, emitters, params, photons, restart, chunk, counters,
+                               _from_light):
+                self.stats = {"photons": traced, "rounds": 1,
+                              "ms": 1e3 * (time.perf_counter() - t0)}
+                self._counters = counters
+                return self.resolve() if resolve else self.stats
         while photons.shape[0] > 0:
             n_work = int(photons.shape[0])
             if rounds > 0:
@@ -299,11 +376,75 @@ class PhotonMap:
                 wp.launch(gather_int_kernel, dim=work_idx.shape[0],
                           inputs=[work_idx, finished, photons], device=device)
             rounds += 1
-        added, capped = (int(c) for c in counters.numpy())
+        added, capped, _ = (int(c) for c in counters.numpy())
         self.stats = {"photons": traced, "interactions_added": added, "rounds": rounds,
                       "capped": capped, "total": self.total,
                       "ms": 1e3 * (time.perf_counter() - t0)}
         return self.stats
+
+    def _one_round(self, medium, emitters, params, photons, restart, chunk, counters,
+                   from_light: bool) -> bool:
+        """The round of :meth:`retrace` when every path ends in it, queued without a wait
+        (False, nothing done: the buffers for the most it can leave do not fit).
+
+        ``from_light``: every photon traced from its light (:meth:`trace`, all counts zero,
+        work items in the emission order): the results are then gathered in photon order
+        (:func:`from_light_paths_kernel`, :func:`~vtkillum.core.photon.storage.compact`),
+        reads from scattered places instead of writes."""
+        device = self.device
+        n_work = int(photons.shape[0])
+        slots = int(params.capacity)
+        old_total = self.total
+        capacity = old_total + n_work * slots
+        need = (n_work * slots * RECORD_BYTES + capacity * INTERACTION_BYTES
+                + n_work * 32 + self.n_photons * 16)
+        if capacity >= 2**31 - 1 or need > free_bytes(device, self.memory_limit_mb):
+            return False
+        scratch = allocate_scratch(n_work * slots, device)
+        work_count = wp.empty(n_work, dtype=wp.int32, device=device)
+        work_hist = wp.empty(n_work, dtype=wp.uint64, device=device)
+        work_chist = wp.empty(n_work, dtype=wp.uint64, device=device)
+        work_end = wp.empty(n_work, dtype=wp.int32, device=device)
+        for w0 in range(0, n_work, chunk):
+            wp.launch(trace_kernel, dim=min(chunk, n_work - w0),
+                      inputs=[medium, emitters, params, self.surface, photons, restart,
+                              self.interactions, w0,
+                              scratch, work_count, work_hist, work_chist, work_end],
+                      device=device)
+        new_start = wp.empty(self.n_photons, dtype=wp.int32, device=device)
+        if from_light:
+            work_of = wp.empty(self.n_photons, dtype=wp.int32, device=device)
+            wp.launch(inverse_kernel, dim=n_work, inputs=[photons, work_of], device=device)
+            keep = self.count  # zero
+            new_count = wp.empty(self.n_photons, dtype=wp.int32, device=device)
+            wp.launch(from_light_paths_kernel, dim=self.n_photons,
+                      inputs=[work_of, work_count, work_hist, work_chist, work_end, new_count,
+                              self.path_hist, self.path_chist, self.end, counters],
+                      device=device)
+            wp.utils.array_scan(new_count, new_start, inclusive=False)
+            wp.launch(total_kernel, dim=1, inputs=[new_start, new_count, counters, 1],
+                      device=device)
+            new = compact(self.interactions, 0, self.start, keep, new_start, scratch, slots,
+                          photons, work_count, capacity, device, work_of)
+        else:
+            keep = wp.clone(self.count)
+            new_count = wp.clone(self.count)
+            wp.launch(new_counts_kernel, dim=n_work,
+                      inputs=[photons, restart, self.start, work_count, work_end, keep,
+                              new_count, counters], device=device)
+            wp.utils.array_scan(new_count, new_start, inclusive=False)
+            wp.launch(total_kernel, dim=1, inputs=[new_start, new_count, counters, 0],
+                      device=device)
+            new = compact(self.interactions, old_total, self.start, keep, new_start, scratch,
+                          slots, photons, work_count, capacity, device)
+            unused = wp.empty(1, dtype=wp.int32, device=device)  # no path overflows here
+            wp.launch(finish_paths_kernel, dim=n_work,
+                      inputs=[photons, work_hist, work_chist, work_end, new_start, new_count,
+                              self.path_hist, self.path_chist, self.end, unused, unused],
+                      device=device)
+        self.interactions, self.start, self.count = new, new_start, new_count
+        self._total = None
+        return True
 
     # --- inspection ------------------------------------------------------------------------------
     def numpy(self) -> dict:
@@ -343,18 +484,14 @@ def emission_order(emitters: Emitters, seed: int, n_photons: int, device: str) -
     return photons
 
 
-def _allocate_checked(n: int, device: str, limit_mb, n_photons: int) -> Interactions:
-    from vtkillum.core.photon.storage import INTERACTION_BYTES, free_bytes
-
-    need = max(n, 1) * INTERACTION_BYTES
+def _allocate_checked(n: int, device: str, limit_mb, n_photons: int) -> wp.array:
+    need = max(n, 1) * RECORD_BYTES
     if need > free_bytes(device, limit_mb):
         check_fits(n_photons, n / max(n_photons, 1), 0, device, limit_mb)
-    return allocate(n, device)
+    return allocate_scratch(n, device)
 
 
 def _check_total(new_total: int, old_total: int, n_photons: int, device: str, limit_mb) -> None:
-    from vtkillum.core.photon.storage import INTERACTION_BYTES, free_bytes
-
     if new_total >= 2**31 - 1:
         raise MemoryError(f"{new_total:,} photon interactions exceed the 32-bit index range; "
                           f"use fewer photons (at most about {n_photons * 2**31 // new_total:,})")
@@ -363,11 +500,11 @@ def _check_total(new_total: int, old_total: int, n_photons: int, device: str, li
 
 
 # --- kernels -------------------------------------------------------------------------------------
-@wp.kernel
+@capped_kernel(TRACE_REGISTERS)
 def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, sp: SurfaceParams,
                  work_photon: wp.array(dtype=wp.int32),
                  work_restart: wp.array(dtype=wp.int32), stored: Interactions, w0: int,
-                 scratch: Interactions, work_count: wp.array(dtype=wp.int32),
+                 scratch: wp.array(dtype=Record), work_count: wp.array(dtype=wp.int32),
                  work_hist: wp.array(dtype=wp.uint64), work_chist: wp.array(dtype=wp.uint64),
                  work_end: wp.array(dtype=wp.int32)):
     """Trace one photon path (or its tail) into scratch.
@@ -458,16 +595,17 @@ def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, sp: SurfaceParams,
             break
         x = x + tc * d
         order += 1
-        k = base + n
-        scratch.pos[k] = x
-        scratch.dir[k] = d
-        scratch.flux[k] = phi
-        scratch.value[k] = s
-        scratch.hist[k] = H
-        scratch.chist[k] = C
-        scratch.rng[k] = state
-        scratch.order[k] = order
-        scratch.owner[k] = p
+        rec = Record()
+        rec.pos = x
+        rec.dir = d
+        rec.flux = phi
+        rec.value = s
+        rec.hist = H
+        rec.chist = C
+        rec.rng = state
+        rec.order = order
+        rec.owner = p
+        scratch[base + n] = rec
         n += 1
         if tp.max_order > 0 and order >= tp.max_order:
             # What the next round would find on restarting here (before any random number
@@ -521,6 +659,47 @@ def finish_paths_kernel(work_photon: wp.array(dtype=wp.int32), work_hist: wp.arr
     if work_end[w] == OVERFLOW:
         next_flag[w] = 1
         next_restart[w] = new_start[p] + new_count[p] - 1
+
+
+@wp.kernel
+def total_kernel(new_start: wp.array(dtype=wp.int32), new_count: wp.array(dtype=wp.int32),
+                 counters: wp.array(dtype=wp.int32), all_added: int):
+    """``counters[2]``: the interactions stored (the end of the last path); ``all_added``:
+    every one of them was added by this trace (``counters[0]``)."""
+    n = new_start.shape[0]
+    counters[2] = new_start[n - 1] + new_count[n - 1]
+    if all_added != 0:
+        counters[0] = counters[2]
+
+
+@wp.kernel
+def inverse_kernel(photons: wp.array(dtype=wp.int32), work_of: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` indexes the work list: ``work_of[photons[w]] = w``."""
+    w = wp.tid()
+    work_of[photons[w]] = w
+
+
+@wp.kernel
+def from_light_paths_kernel(work_of: wp.array(dtype=wp.int32),
+                            work_count: wp.array(dtype=wp.int32),
+                            work_hist: wp.array(dtype=wp.uint64),
+                            work_chist: wp.array(dtype=wp.uint64),
+                            work_end: wp.array(dtype=wp.int32),
+                            new_count: wp.array(dtype=wp.int32),
+                            path_hist: wp.array(dtype=wp.uint64),
+                            path_chist: wp.array(dtype=wp.uint64), end: wp.array(dtype=wp.int32),
+                            counters: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` = photon ``p``, traced from its light as work item ``work_of[p]`` in a
+    round that ends every path: its count and how it ended (:func:`new_counts_kernel` and
+    :func:`finish_paths_kernel` in photon order; capped paths in ``counters[1]``)."""
+    p = wp.tid()
+    w = work_of[p]
+    new_count[p] = work_count[w]
+    path_hist[p] = work_hist[w]
+    path_chist[p] = work_chist[w]
+    end[p] = work_end[w]
+    if work_end[w] == CAPPED:
+        wp.atomic_add(counters, 1, 1)
 
 
 @wp.func
