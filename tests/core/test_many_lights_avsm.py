@@ -207,27 +207,26 @@ def test_pool_grows_without_losing_maps_and_reuses_slots():
     assert sorted(again) == sorted(first[:2])
 
 
-def test_empty_bricks_are_exactly_transparent_and_skipping_them_changes_no_node(device):
+def test_empty_blocks_are_exactly_transparent_and_skipping_them_changes_nothing(device):
     """On the CT phantom most blocks are air: they are classified empty, a block whose
     points straddle the TF's only visible band is not (a trilinear sample between its
-    values lands in the band), and maps built with skipping equal maps built without, bit
-    for bit, for VLs inside the body and in the air around it."""
-    from vtkillum.core.many_lights.empty_space import empty_bricks
+    values lands in the band), and AVSMs and shadow rays with skipping equal those without,
+    bit for bit, for VLs and points inside the body and in the air around it."""
     from vtkillum.data.procedural import ct_phantom, default_scene
 
     volume = ct_phantom(48)
     scene = default_scene("ct", volume)
-    medium = make_medium(volume, scene.transfer_function, volume.mean_spacing(),
-                         device=device)
-    empty = empty_bricks(medium, volume.spacing, device).occupied.numpy() == 0
+    media = [make_medium(volume, scene.transfer_function, volume.mean_spacing(), device=device,
+                         skip_empty=skip) for skip in (True, False)]
+    empty = media[0].occupied.numpy() == 0
     assert empty.shape == (6, 6, 6) and 0.2 < empty.mean() < 0.9, empty.mean()
+    assert media[1].occupied.numpy().all()
 
     values = np.zeros((33, 33, 33))
     values[12, 12, 12] = 1.0  # values 0 and 1 only: the visible band [0.45, 0.55] between
     band = unit_volume(values)
     tf = TransferFunction([0.0, 0.45, 0.5, 0.55, 1.0], [0.0, 0.0, 0.5, 0.0, 0.0])
-    occupied = empty_bricks(make_medium(band, tf, 0.1, device=device), band.spacing,
-                            device).occupied.numpy()
+    occupied = make_medium(band, tf, 0.1, device=device).occupied.numpy()
     assert occupied.shape == (4, 4, 4) and occupied[1, 1, 1] == 1 and occupied.sum() == 1
 
     extent = np.asarray(volume.extent, np.float32)
@@ -235,11 +234,33 @@ def test_empty_bricks_are_exactly_transparent_and_skipping_them_changes_no_node(
     origins *= extent
     positions = wp.array(origins, dtype=wp.vec3, device=device)
     maps = []
-    for skip in (True, False):
+    for medium in media:
         pool = ShadowMapPool(8, 8, device)
         slots = pool.allocate(3)
-        pool.build(medium, positions, [0, 1, 2], slots, float(min(volume.spacing)), 0,
-                   skip_empty=skip)
+        pool.build(medium, positions, [0, 1, 2], slots, float(min(volume.spacing)), 0)
         maps.append(pool.nodes.numpy())
     np.testing.assert_array_equal(maps[0], maps[1])
     assert np.ptp(maps[0][..., 1]) > 0.5  # the maps do see the body
+
+    # Shadow rays (the single-scattering term, light volumes) from random points.
+    rng = np.random.default_rng(3)
+    points = wp.array((rng.random((64, 3)) * extent).astype(np.float32), dtype=wp.vec3,
+                      device=device)
+    dirs = rng.normal(size=(64, 3))
+    dirs = wp.array((dirs / np.linalg.norm(dirs, axis=1)[:, None]).astype(np.float32),
+                    dtype=wp.vec3, device=device)
+    marched = []
+    for medium in media:
+        out = wp.zeros(64, dtype=wp.float32, device=device)
+        wp.launch(shadow_kernel, dim=64, inputs=[medium, points, dirs, out], device=device)
+        marched.append(out.numpy())
+    np.testing.assert_array_equal(marched[0], marched[1])
+    assert marched[0].min() < 0.5 < marched[0].max()
+
+
+@wp.kernel
+def shadow_kernel(m: Medium, points: wp.array(dtype=wp.vec3), dirs: wp.array(dtype=wp.vec3),
+                  out: wp.array(dtype=wp.float32)):
+    """``wp.tid()`` indexes rays: the transmittance to the box exit, jittered samples."""
+    i = wp.tid()
+    out[i] = shadow_transmittance(m, points[i], dirs[i], 1.0e30, 0.7, 0.3, 0.0)

@@ -39,6 +39,11 @@ class Medium:
     albedo: float
     g: float  # Henyey–Greenstein anisotropy
     majorant: float  # upper bound of sigma_t over the volume (delta tracking)
+    # Blocks of cells where sigma_t may be non-zero (1) or is exactly 0 everywhere (0), see
+    # vtkillum.core.empty_space; block extent and its inverse (world units).
+    occupied: wp.array3d(dtype=wp.int32)
+    block: wp.vec3
+    inv_block: wp.vec3
 
 
 @wp.struct
@@ -255,6 +260,30 @@ def view_normal(m: Medium, p: wp.vec3, d: wp.vec3, grad_eps: float):
 
 
 @wp.func
+def block_run(m: Medium, o: wp.vec3, d: wp.vec3, h: float, k: int, frac: float):
+    """Whether sample ``k`` of a march, ``o + (k + frac) h d``, lies in an exactly empty
+    block of ``m`` (1 or 0), and the last step ``>= k`` whose sample is in the same block.
+
+    Returns ``(empty, last)``. A march skips the samples of an empty block: they would add
+    exactly 0 to its optical depth (:mod:`vtkillum.core.empty_space`).
+    """
+    p = o + ((float(k) + frac) * h) * d
+    bi = wp.clamp(int(wp.floor(p[0] * m.inv_block[0])), 0, m.occupied.shape[0] - 1)
+    bj = wp.clamp(int(wp.floor(p[1] * m.inv_block[1])), 0, m.occupied.shape[1] - 1)
+    bk = wp.clamp(int(wp.floor(p[2] * m.inv_block[2])), 0, m.occupied.shape[2] - 1)
+    lo = wp.cw_mul(wp.vec3(float(bi), float(bj), float(bk)), m.block)
+    t_exit = ray_box(o - lo, d, m.block)[1]
+    # Last step whose sample (j + frac) h is before the exit (at least k: p is inside),
+    # clamped in floating point first: a huge block (no skipping) or step ratio must not
+    # overflow the integer.
+    last_f = wp.ceil(t_exit / h - frac) - 1.0
+    last = k
+    if last_f > float(k):
+        last = int(wp.min(last_f, 1.0e9))
+    return 1 - wp.min(m.occupied[bi, bj, bk], 1), last
+
+
+@wp.func
 def shadow_transmittance(m: Medium, p: wp.vec3, w: wp.vec3, dist: float, step: float,
                          xi: float, stop_t: float):
     """Transmittance from ``p`` along unit ``w`` to the box exit or ``dist``, whichever is nearer.
@@ -262,7 +291,8 @@ def shadow_transmittance(m: Medium, p: wp.vec3, w: wp.vec3, dist: float, step: f
     The length is split into equal segments no longer than ``step`` (world units), each
     sampled at fraction ``xi`` of its length (the midpoint rule for ``xi = 0.5``, exact in
     homogeneous media). The march stops early once the transmittance drops below
-    ``stop_t`` (0: never).
+    ``stop_t`` (0: never). Samples in exactly empty blocks of the volume are skipped
+    (:func:`block_run`): they add 0, so the result is the same.
     """
     tt = ray_box(p, w, m.extent)
     length = wp.min(tt[1], dist)
@@ -271,12 +301,19 @@ def shadow_transmittance(m: Medium, p: wp.vec3, w: wp.vec3, dist: float, step: f
     n = int(wp.ceil(length / step))
     h = length / float(n)
     tau = float(0.0)
-    for k in range(n):
-        q = p + ((float(k) + xi) * h) * w
-        tau += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, q))
-        if stop_t > 0.0:
-            if wp.exp(-tau * h) < stop_t:
-                break
+    k = int(0)
+    while k < n:
+        empty, last = block_run(m, p, w, h, k, xi)
+        if empty != 0:
+            k = last + 1
+        else:
+            while k <= last and k < n:
+                q = p + ((float(k) + xi) * h) * w
+                tau += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, q))
+                k += 1
+                if stop_t > 0.0:
+                    if wp.exp(-tau * h) < stop_t:
+                        return wp.exp(-tau * h)
     return wp.exp(-tau * h)
 
 
@@ -382,7 +419,7 @@ def camera_ray(cam: CameraParams, x: float, y: float):
 # --- host side -----------------------------------------------------------------------------------
 def make_medium(volume, transfer_function, unit_distance: float, albedo: float = 0.9,
                 anisotropy: float = 0.0, device: str | None = None,
-                scalars: wp.array3d | None = None) -> Medium:
+                scalars: wp.array3d | None = None, skip_empty: bool = True) -> Medium:
     """Upload a volume and its optical model.
 
     Parameters
@@ -399,6 +436,9 @@ def make_medium(volume, transfer_function, unit_distance: float, albedo: float =
         ``volume.scalars`` already on ``device``: only the transfer-function tables are
         uploaded, so a cache can follow a transfer-function edit without copying the volume
         again.
+    skip_empty : bool
+        Classify the volume's blocks (:func:`attach_occupancy`) so that marches skip the
+        exactly transparent ones; False marks every block occupied (for comparisons).
     """
     device = resolve_device(device)
     sig, col, lo, hi = transfer_function.lookup_tables(unit_distance, volume.value_range)
@@ -424,7 +464,30 @@ def make_medium(volume, transfer_function, unit_distance: float, albedo: float =
     x = np.linspace(lo, hi, len(sig))
     in_range = (x >= vlo - (hi - lo) / len(sig)) & (x <= vhi + (hi - lo) / len(sig))
     m.majorant = float(sig[in_range].max() if in_range.any() else sig.max()) * 1.0001 + 1e-12
+    attach_occupancy(m, volume, sig, device, skip_empty)
     return m
+
+
+def attach_occupancy(m: Medium, volume, sigma_table: np.ndarray, device: str,
+                     skip_empty: bool = True) -> None:
+    """Fill ``m.occupied``, ``m.block`` and ``m.inv_block`` for ``m``'s scalars and tables.
+
+    The data range per block is computed once per volume and device; the classification
+    per transfer function is one small launch (:mod:`vtkillum.core.empty_space`).
+    """
+    from vtkillum.core.empty_space import BLOCK, block_ranges, occupancy
+
+    if not skip_empty:
+        m.occupied = wp.ones((1, 1, 1), dtype=wp.int32, device=device)
+        m.block = wp.vec3(1.0e30)
+        m.inv_block = wp.vec3(0.0)
+        return
+    ranges = volume.derived(f"block_ranges@{device}", m.scalars.ptr,
+                            lambda: block_ranges(m.scalars, device))
+    m.occupied = occupancy(m, ranges, device, sigma_table)
+    block = BLOCK * np.asarray(volume.spacing, np.float64)
+    m.block = wp.vec3(*block.astype(np.float32))
+    m.inv_block = wp.vec3(*(1.0 / block).astype(np.float32))
 
 
 def make_rgb_grid(data: np.ndarray, extent, device: str | None = None) -> RGBGrid:

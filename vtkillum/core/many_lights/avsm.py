@@ -48,13 +48,7 @@ import math
 import numpy as np
 import warp as wp
 
-from vtkillum.core.many_lights.empty_space import (
-    EmptyBricks,
-    brick_run,
-    empty_bricks,
-    no_bricks,
-)
-from vtkillum.core.warp_common import Medium, lookup_sigma_t, ray_box, sample_scalar
+from vtkillum.core.warp_common import Medium, block_run, lookup_sigma_t, ray_box, sample_scalar
 
 #: Largest number of nodes per texel (``m``); the paper uses 8–12.
 MAX_NODES = 16
@@ -105,8 +99,6 @@ class ShadowMapPool:
         self.epoch = np.zeros(0, np.int64)  # medium version each slot was built for
         self._free: list[int] = []
         self.builds = 0  # AVSMs built so far (statistics)
-        self._brick_key = None
-        self._brick_cache = None
 
     @property
     def texels_per_map(self) -> int:
@@ -152,7 +144,7 @@ class ShadowMapPool:
         self.capacity = capacity
 
     def build(self, medium: Medium, positions, vl_indices, slots, step: float, epoch: int,
-              stop_t: float = STOP_TRANSMITTANCE, skip_empty: bool = True) -> None:
+              stop_t: float = STOP_TRANSMITTANCE) -> None:
         """Build the AVSMs of VLs ``vl_indices`` (positions on the device) into ``slots``.
 
         Parameters
@@ -169,9 +161,6 @@ class ShadowMapPool:
             Version of the medium, remembered per slot (:attr:`epoch`).
         stop_t : float
             Transmittance at which a texel's march stops.
-        skip_empty : bool
-            Skip the samples in exactly transparent bricks of the volume
-            (:mod:`~vtkillum.core.many_lights.empty_space`; the same maps, faster).
         """
         vl_indices = np.asarray(vl_indices, np.int32).reshape(-1)
         slots = np.asarray(slots, np.int32).reshape(-1)
@@ -180,24 +169,13 @@ class ShadowMapPool:
             return
         R = self.resolution
         wp.launch(build_kernel, dim=(n, 6, R, R),
-                  inputs=[medium, self._bricks(medium, epoch, skip_empty), positions,
+                  inputs=[medium, positions,
                           wp.array(vl_indices, dtype=wp.int32, device=self.device),
                           wp.array(slots, dtype=wp.int32, device=self.device), R,
                           self.node_count, float(step), float(stop_t), self.nodes],
                   device=self.device)
         self.epoch[slots] = int(epoch)
         self.builds += n
-
-    def _bricks(self, medium: Medium, epoch: int, skip_empty: bool) -> EmptyBricks:
-        """The empty bricks of ``medium``, classified once per medium version."""
-        if not skip_empty:
-            return no_bricks(self.device)
-        key = (int(epoch), medium.scalars.ptr, medium.sigma_table.ptr)
-        if self._brick_key != key:
-            spacing = [1.0 / float(x) for x in medium.inv_spacing]
-            self._brick_cache = empty_bricks(medium, spacing, self.device)
-            self._brick_key = key
-        return self._brick_cache
 
     def maps(self, lookup: str = "trilinear") -> ShadowMaps:
         """The pool as a :class:`ShadowMaps` struct for kernels."""
@@ -357,7 +335,7 @@ def insert_node(D: _NodeVec, T: _NodeVec, n: int, count: int, depth: float, tran
 
 # --- kernel -------------------------------------------------------------------------------------
 @wp.kernel
-def build_kernel(m: Medium, bricks: EmptyBricks, positions: wp.array(dtype=wp.vec3),
+def build_kernel(m: Medium, positions: wp.array(dtype=wp.vec3),
                  vl_index: wp.array(dtype=wp.int32), slots: wp.array(dtype=wp.int32), R: int,
                  count: int, step: float, stop_t: float, nodes: wp.array(dtype=wp.vec2)):
     """March one texel ray of one VL's cube map and store its compressed curve.
@@ -385,12 +363,12 @@ def build_kernel(m: Medium, bricks: EmptyBricks, positions: wp.array(dtype=wp.ve
         hi = float(1.0e30)
         prev_d = float(0.0)
         prev_t = float(1.0)
-        # Runs of steps inside one brick: an empty brick's samples add exactly 0.
+        # Runs of steps inside one block: an empty block's samples add exactly 0.
         run_empty = int(0)
         run_last = int(-1)
         for k in range(steps):
             if k > run_last:
-                run_empty, run_last = brick_run(bricks, x0, d, h, k)
+                run_empty, run_last = block_run(m, x0, d, h, k, 0.5)
             if run_empty == 0:
                 tau += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing,
                                                        x0 + ((float(k) + 0.5) * h) * d)) * h

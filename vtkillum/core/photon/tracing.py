@@ -82,6 +82,7 @@ from vtkillum.core.raymarch import MAX_STEPS_PER_RAY
 from vtkillum.core.transfer_function import TABLE_SIZE
 from vtkillum.core.warp_common import (
     Medium,
+    attach_occupancy,
     lookup_color,
     lookup_sigma_t,
     ray_box,
@@ -168,6 +169,7 @@ def photon_medium(volume, transfer_function, unit_distance: float, albedo: float
     m.table_lo = float(lo)
     m.table_scale = float((len(sigma) - 1) / (hi - lo))
     m.majorant = float(sigma.max()) * 1.0001 + 1e-12
+    attach_occupancy(m, volume, sigma, device)
     return m, (sigma, color)
 
 
