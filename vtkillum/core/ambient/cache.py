@@ -49,7 +49,6 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.ambient.device_table import DeviceTable
-from vtkillum.core.ambient.empty_space import block_ranges, occupancy
 from vtkillum.core.ambient.sat import ambient_extinction, sigma_t_grid, summed_area_table
 from vtkillum.core.ambient.table import PreintegrationTable, load_table
 from vtkillum.core.ambient.textures import (
@@ -161,7 +160,6 @@ class AmbientScatteringCache:
         self._data_sample = None
         self._data_key = None
         self._scalars = None
-        self._ranges = None
         self._occupied = None
         self._tf_key = None
         self._medium = None
@@ -289,7 +287,6 @@ class AmbientScatteringCache:
                 self._scalars = to_device(volume.scalars, wp.float32, device)
                 # hardware filtering of this data (its textures follow with σ̃t)
                 self._textured = self.hardware_filtering and fits_texture(self._scalars.shape)
-                self._ranges = block_ranges(self._scalars, device)
                 self._data_key = data_key
             self._data_identity = identity
             self._data_sample = sample
@@ -303,7 +300,7 @@ class AmbientScatteringCache:
                                        scalars=self._scalars)
             self._sigma_t = sigma_t_grid(self._medium, device)
             self._sat = summed_area_table(self._sigma_t, device)
-            self._occupied = occupancy(self._medium, self._ranges, device)
+            self._occupied = self._medium.occupied  # empty blocks (make_medium)
             if self._textured:  # the transfer function as one RGBA texture
                 self._optics_texture = optics_texture(self._medium, self._optics_texture)
             wp.synchronize_device(device)
