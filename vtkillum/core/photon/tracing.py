@@ -341,16 +341,8 @@ class PhotonMap:
             params.bin_scale = scale
             scratch = _allocate_checked(n_work * slots, device, self.memory_limit_mb,
                                         self.n_photons)
-            work_count = wp.zeros(n_work, dtype=wp.int32, device=device)
-            work_hist = wp.zeros(n_work, dtype=wp.uint64, device=device)
-            work_chist = wp.zeros(n_work, dtype=wp.uint64, device=device)
-            work_end = wp.zeros(n_work, dtype=wp.int32, device=device)
-            for w0 in range(0, n_work, chunk):
-                wp.launch(trace_kernel, dim=min(chunk, n_work - w0),
-                          inputs=[medium, emitters, params, self.surface, photons, restart,
-                                  self.interactions, w0,
-                                  scratch, work_count, work_hist, work_chist, work_end],
-                          device=device)
+            work_count, work_hist, work_chist, work_end = self._launch_trace(
+                medium, emitters, params, photons, restart, scratch, n_work, chunk, wp.zeros)
             keep = wp.clone(self.count)
             new_count = wp.clone(self.count)
             wp.launch(new_counts_kernel, dim=n_work,
@@ -384,6 +376,24 @@ class PhotonMap:
                       "ms": 1e3 * (time.perf_counter() - t0)}
         return self.stats
 
+    def _launch_trace(self, medium, emitters, params, photons, restart, scratch, n_work: int,
+                      chunk: int, allocate):
+        """Launch :func:`trace_kernel` over ``n_work`` work items in chunks; returns the
+        per-item ``(count, hist, chist, end)`` arrays, made by ``allocate`` (``wp.zeros`` or
+        ``wp.empty``)."""
+        device = self.device
+        work_count = allocate(n_work, dtype=wp.int32, device=device)
+        work_hist = allocate(n_work, dtype=wp.uint64, device=device)
+        work_chist = allocate(n_work, dtype=wp.uint64, device=device)
+        work_end = allocate(n_work, dtype=wp.int32, device=device)
+        for w0 in range(0, n_work, chunk):
+            wp.launch(trace_kernel, dim=min(chunk, n_work - w0),
+                      inputs=[medium, emitters, params, self.surface, photons, restart,
+                              self.interactions, w0,
+                              scratch, work_count, work_hist, work_chist, work_end],
+                      device=device)
+        return work_count, work_hist, work_chist, work_end
+
     def _one_round(self, medium, emitters, params, photons, restart, chunk, counters,
                    from_light: bool) -> bool:
         """The round of :meth:`retrace` when every path ends in it, queued without a wait
@@ -403,16 +413,8 @@ class PhotonMap:
         if capacity >= 2**31 - 1 or need > free_bytes(device, self.memory_limit_mb):
             return False
         scratch = allocate_scratch(n_work * slots, device)
-        work_count = wp.empty(n_work, dtype=wp.int32, device=device)
-        work_hist = wp.empty(n_work, dtype=wp.uint64, device=device)
-        work_chist = wp.empty(n_work, dtype=wp.uint64, device=device)
-        work_end = wp.empty(n_work, dtype=wp.int32, device=device)
-        for w0 in range(0, n_work, chunk):
-            wp.launch(trace_kernel, dim=min(chunk, n_work - w0),
-                      inputs=[medium, emitters, params, self.surface, photons, restart,
-                              self.interactions, w0,
-                              scratch, work_count, work_hist, work_chist, work_end],
-                      device=device)
+        work_count, work_hist, work_chist, work_end = self._launch_trace(
+            medium, emitters, params, photons, restart, scratch, n_work, chunk, wp.empty)
         new_start = wp.empty(self.n_photons, dtype=wp.int32, device=device)
         if from_light:
             work_of = wp.empty(self.n_photons, dtype=wp.int32, device=device)
