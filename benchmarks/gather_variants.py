@@ -19,12 +19,13 @@ import time
 import numpy as np
 import warp as wp
 from bench_photon import cases
+from profile_photon import visible_work
 
 from vtkillum.core.device import resolve_device
 from vtkillum.core.photon import segments as S
 from vtkillum.core.photon import tracing as T
 from vtkillum.core.photon.mapper import PhotonMapper
-from vtkillum.core.photon.storage import exclusive_scan, select
+from vtkillum.core.photon.storage import exclusive_scan
 
 
 def timed(fn, device, reps=3):
@@ -69,31 +70,10 @@ def main(argv=None):
     image = m.render(volume, camera, size, size, step)
     if args.save:
         np.savez(args.save, full_radiance=image.radiance, full_alpha=image.alpha)
-    _, vp, cam, _, _ = m._view
-    h = w_ = size
-    n_seg = h * w_ * vp.segments
-    state = wp.zeros(n_seg, dtype=wp.int32, device=device)
-    tr = wp.ones(n_seg, dtype=wp.float32, device=device)
-    flags = wp.zeros(n_seg, dtype=wp.int32, device=device)
-    seg_len = wp.zeros(n_seg, dtype=wp.int32, device=device)
-    wp.launch(S.visible_segments_kernel, dim=(h, w_),
-              inputs=[m.medium, cam, vp, tr, state, flags, seg_len], device=device)
-    tiles_x = (w_ + 7) // 8
-    tiles = tiles_x * ((h + 3) // 4)
-    n_tiled = vp.segments * tiles * 32
-    tflag = wp.empty(n_tiled, dtype=wp.int32, device=device)
-    tidx = wp.empty(n_tiled, dtype=wp.int32, device=device)
-    wp.launch(S.tiled_flags_kernel, dim=n_tiled,
-              inputs=[cam, vp, tiles_x, tiles, flags, tflag, tidx], device=device)
-    _, work = select(tflag, tidx, device)
+    vp, cam, work, lengths, max_len = visible_work(m, size, size, device)
     n_work = int(work.shape[0])
-    lengths = wp.empty(n_work, dtype=wp.int32, device=device)
-    wp.launch(S.gather_lengths_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
     offsets = wp.empty(n_work, dtype=wp.int32, device=device)
     total = exclusive_scan(lengths, offsets)
-    ext = m.medium.extent
-    diagonal = float(np.linalg.norm([ext[0], ext[1], ext[2]]))
-    max_len = (int(np.ceil(diagonal / vp.step)) + 2) // vp.segments + 2
     print(f"segments {n_work}, samples {total}, max_len {max_len}")
 
 
@@ -128,7 +108,7 @@ def main(argv=None):
             print(f"sample_light regs {regs or 'default'}, block {block}: {tk:.2f} ms "
                   f"(same {same})")
     # The shading of the segments from those lights, under register caps.
-    n_seg = h * w_ * vp.segments
+    n_seg = size * size * vp.segments
 
     def shade(kernel, regs_out):
         wp.launch(kernel, dim=n_work,

@@ -141,8 +141,12 @@ def gather_stats_kernel(m: Medium, cam: CameraParams, grid: PhotonGrid, me: Mean
         wp.atomic_add(out, 6, wp.float64(1.0))
 
 
-def gather_stats(m: PhotonMapper, width, height, device):
-    """Rows/photons per sample of the full per-sample gather of ``m``'s last view."""
+def visible_work(m: PhotonMapper, width, height, device):
+    """The visible segments of ``m``'s last view, as the full render flags them.
+
+    Returns ``(vp, cam, work, lengths, max_len)``: view parameters, camera, the segment
+    indices, their sample counts and the longest a segment can be.
+    """
     _, vp, cam, _, _ = m._view
     h, w = height, width
     n_seg = h * w * vp.segments
@@ -163,9 +167,16 @@ def gather_stats(m: PhotonMapper, width, height, device):
     n_work = int(work.shape[0])
     lengths = wp.empty(n_work, dtype=wp.int32, device=device)
     wp.launch(S.gather_lengths_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
-    m_ext = m.medium.extent
-    diagonal = float(np.linalg.norm([m_ext[0], m_ext[1], m_ext[2]]))
+    ext = m.medium.extent
+    diagonal = float(np.linalg.norm([ext[0], ext[1], ext[2]]))
     max_len = (int(np.ceil(diagonal / vp.step)) + 2) // vp.segments + 2
+    return vp, cam, work, lengths, max_len
+
+
+def gather_stats(m: PhotonMapper, width, height, device):
+    """Rows/photons per sample of the full per-sample gather of ``m``'s last view."""
+    vp, cam, work, lengths, max_len = visible_work(m, width, height, device)
+    n_work = int(work.shape[0])
     out = wp.zeros(8, dtype=wp.float64, device=device)
     hist = wp.zeros(32, dtype=wp.int64, device=device)
     warps = (n_work * max_len + 31) // 32

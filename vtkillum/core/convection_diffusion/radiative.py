@@ -369,7 +369,6 @@ class RadiativeDiffusion:
         if res <= max(tolerance, floor):
             report.converged = True
             return report
-        top = self.levels[0]
         if cold and method == "multigrid" and len(self.levels) > 1:
             for coarse in self.levels[1:]:  # allocated before a capture, kept
                 if coarse.q is None:
