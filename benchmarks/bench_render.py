@@ -3,17 +3,22 @@
 Prints a table (volume size, image size, device, method, ms per frame) for the
 ``emission``, ``single`` and ``path`` (per sample per pixel) modes on the built-in
 smoke plume. Absolute numbers mean something only on a GPU; on a CPU compare
-ratios within one run.
+ratios within one run. ``--compare-skipping`` adds the time with empty-block skipping
+off (every block of the medium marked occupied), which gives the same pixels.
 
 Examples
 --------
 python benchmarks/bench_render.py --device cuda
 python benchmarks/bench_render.py --device cpu --volumes 64 --images 128
+python benchmarks/bench_render.py --device cpu --volumes 64 --images 128 --methods single \
+    transmittance --compare-skipping
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import functools
 import time
 
 import numpy as np
@@ -28,6 +33,24 @@ def device_name(device: str) -> str:
 
     d = wp.get_device(device)
     return d.name if d.is_cuda else f"cpu ({d.name})"
+
+
+@contextlib.contextmanager
+def empty_skipping(enabled: bool):
+    """Media made inside this block skip empty blocks (the default) or not."""
+    import vtkillum.core.light_transmittance as light_transmittance
+    import vtkillum.core.raycast as raycast
+    from vtkillum.core import warp_common
+
+    modules = (raycast, light_transmittance)
+    saved = [m.make_medium for m in modules]
+    for m in modules:
+        m.make_medium = functools.partial(warp_common.make_medium, skip_empty=enabled)
+    try:
+        yield
+    finally:
+        for m, f in zip(modules, saved):
+            m.make_medium = f
 
 
 def time_render(volume, scene, method, size, device, repeats, **options):
@@ -52,11 +75,14 @@ def main(argv=None) -> None:
     ap.add_argument("--methods", nargs="+", default=["emission", "single", "path"])
     ap.add_argument("--path-spp", type=int, default=4, help="samples per pixel timed for path")
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--compare-skipping", action="store_true",
+                    help="also time each row with empty-block skipping off")
     args = ap.parse_args(argv)
     device = resolve_device(args.device)
     name = device_name(device)
-    print("| volume | image | device | method | ms per frame (total) | ms kernel |")
-    print("|---|---|---|---|---|---|")
+    extra = " ms total without skipping |" if args.compare_skipping else ""
+    print("| volume | image | device | method | ms per frame (total) | ms kernel |" + extra)
+    print("|---|---|---|---|---|---|" + ("---|" if extra else ""))
     for n in args.volumes:
         volume = smoke_plume(shape=(n, n, n))
         scene = default_scene("plume", volume)
@@ -70,8 +96,18 @@ def main(argv=None) -> None:
                 else:
                     total, kernel = time_render(volume, scene, method, size, device, args.repeats)
                     label = method
-                print(f"| {n}³ | {size}² | {name} | {label} | {total:.1f} | {kernel:.1f} |",
-                      flush=True)
+                row = f"| {n}³ | {size}² | {name} | {label} | {total:.1f} | {kernel:.1f} |"
+                if args.compare_skipping:
+                    with empty_skipping(False):
+                        volume._derived.pop("light_transmittance", None)  # made again
+                        plain, _ = time_render(volume, scene, method, size, device,
+                                               args.repeats, **({"spp": args.path_spp}
+                                                                if method == "path" else {}))
+                    volume._derived.pop("light_transmittance", None)
+                    if method == "path":
+                        plain /= args.path_spp
+                    row += f" {plain:.1f} |"
+                print(row, flush=True)
 
 
 if __name__ == "__main__":
