@@ -18,8 +18,7 @@ import time
 
 import numpy as np
 import warp as wp
-from bench_photon import cases
-from profile_photon import visible_work
+from profile_photon import cornell_case, visible_work
 
 from vtkillum.core.device import resolve_device
 from vtkillum.core.photon import segments as S
@@ -52,17 +51,8 @@ def main(argv=None):
     parser.add_argument("--save", default=None)
     args = parser.parse_args(argv)
     device = resolve_device(args.device)
-    make, photons, order, segments = cases(False)["cornell"]
-    if args.cells:
-        import vtkillum.core.photon.hashgrid as hashgrid
-
-        hashgrid.CELLS_PER_RADIUS = args.cells
-        print(f"hash cells per radius: {args.cells}")
-    volume, scene, edited = make()
-    camera = scene.resolved_camera(volume)
-    u = scene.resolved_unit_distance(volume)
-    step = scene.resolved_step_size(volume)
-    targs = (u, scene.albedo, scene.anisotropy, scene.lights)
+    (volume, scene, edited, camera, step, targs, photons, order,
+     segments) = cornell_case(args.cells)
     size = args.size
     m = PhotonMapper(device, photons, 2.0 * volume.mean_spacing(), order, segments, 0,
                      direct="photons")

@@ -29,7 +29,7 @@ from vtkillum.core.photon import segments as S
 from vtkillum.core.photon.density import MeanExtinction, mean_sigma
 from vtkillum.core.photon.hashgrid import PhotonGrid, row_photons, row_range, slab_range
 from vtkillum.core.photon.mapper import PhotonMapper
-from vtkillum.core.photon.storage import select
+from vtkillum.core.photon.storage import gather_int_kernel, select
 from vtkillum.core.warp_common import CameraParams, Medium, lookup_sigma_t, sample_scalar
 
 
@@ -141,6 +141,22 @@ def gather_stats_kernel(m: Medium, cam: CameraParams, grid: PhotonGrid, me: Mean
         wp.atomic_add(out, 6, wp.float64(1.0))
 
 
+def cornell_case(cells: int = 0):
+    """The benchmark's Cornell box: ``(volume, scene, edited scene, camera, step, update
+    arguments after the transfer function, photons, S_n, V_n)``; ``cells`` > 0 sets the hash
+    cells per radius first."""
+    if cells:
+        import vtkillum.core.photon.hashgrid as hashgrid
+
+        hashgrid.CELLS_PER_RADIUS = cells
+        print(f"hash cells per radius: {cells}")
+    make, photons, order, segments = cases(False)["cornell"]
+    volume, scene, edited = make()
+    targs = (scene.resolved_unit_distance(volume), scene.albedo, scene.anisotropy, scene.lights)
+    return (volume, scene, edited, scene.resolved_camera(volume),
+            scene.resolved_step_size(volume), targs, photons, order, segments)
+
+
 def visible_work(m: PhotonMapper, width, height, device):
     """The visible segments of ``m``'s last view, as the full render flags them.
 
@@ -166,7 +182,7 @@ def visible_work(m: PhotonMapper, width, height, device):
     _, work = select(tflag, tidx, device)
     n_work = int(work.shape[0])
     lengths = wp.empty(n_work, dtype=wp.int32, device=device)
-    wp.launch(S.gather_lengths_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
+    wp.launch(gather_int_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
     ext = m.medium.extent
     diagonal = float(np.linalg.norm([ext[0], ext[1], ext[2]]))
     max_len = (int(np.ceil(diagonal / vp.step)) + 2) // vp.segments + 2
@@ -214,17 +230,8 @@ def main(argv=None):
     args = parser.parse_args(argv)
     device = resolve_device(args.device)
     print(f"device {device} ({wp.get_device(device).name})")
-    if args.cells:
-        import vtkillum.core.photon.hashgrid as hashgrid
-
-        hashgrid.CELLS_PER_RADIUS = args.cells
-        print(f"hash cells per radius: {args.cells}")
-    make, photons, order, segments = cases(False)["cornell"]
-    volume, scene, edited = make()
-    camera = scene.resolved_camera(volume)
-    u = scene.resolved_unit_distance(volume)
-    step = scene.resolved_step_size(volume)
-    targs = (u, scene.albedo, scene.anisotropy, scene.lights)
+    (volume, scene, edited, camera, step, targs, photons, order,
+     segments) = cornell_case(args.cells)
     size = args.size
 
     def mapper(n, s_n, v_n, hg=True):

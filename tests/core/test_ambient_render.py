@@ -182,7 +182,7 @@ def test_empty_space_skipping_changes_no_pixel(device, rng):
     # Two small blobs in a mostly empty volume, with opacity only in the middle of the data
     # range: interpolation between 0 and 1 passes through it (post-classification), so a
     # block is empty only if its whole data range maps to zero extinction.
-    from vtkillum.core.ambient.empty_space import block_ranges, occupancy
+    from vtkillum.core.empty_space import block_ranges, occupancy
     from vtkillum.core.ambient.gather import gather
     from vtkillum.core.warp_common import make_camera
 

@@ -14,7 +14,7 @@ Every :class:`~vtkillum.core.warp_common.Medium` carries its blocks' occupancy
 (:func:`vtkillum.core.warp_common.attach_occupancy`): shadow rays
 (:func:`~vtkillum.core.warp_common.shadow_transmittance`) and the AVSM construction of the
 many-lights method skip the samples of empty blocks, which would add exactly 0 to their
-optical depth; the ambient gather leaps over them (:mod:`vtkillum.core.ambient.empty_space`).
+optical depth; the ambient gather leaps over them (:mod:`vtkillum.core.ambient.gather`).
 A sample that rounding puts a hair across a block face could mix in a point of the
 neighbouring block with a weight of ~1e-7; otherwise the results are bit-identical.
 """

@@ -50,7 +50,7 @@ the box with a per-pixel jitter ``ξ`` (or ``ξ = 0``), early termination once t
 opacity (``"paper"``: the shifted opacity) exceeds ``early_termination``, and empty
 samples (``σt = 0``) skip the table and cache look-ups (section 6: "the extra texture
 access can be avoided in empty regions"). Blocks of the volume that are surely empty
-(:mod:`~vtkillum.core.ambient.empty_space`) are leapt over (``"paper"``: once the shifted
+(:mod:`~vtkillum.core.empty_space`) are leapt over (``"paper"``: once the shifted
 point ``x_o`` has left all matter seen so far behind), which changes no pixel.
 
 Speed without changing the result
@@ -96,7 +96,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from vtkillum.core.ambient.empty_space import BLOCK
+from vtkillum.core.empty_space import BLOCK
 from vtkillum.core.ambient.textures import (
     AmbientTextures,
     fetch_ambient,
@@ -183,7 +183,7 @@ def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, cam
         ``progress(fraction)`` after each row band.
     occupied : wp.array3d(int32), optional
         Block occupancy for empty-space skipping
-        (:func:`~vtkillum.core.ambient.empty_space.occupancy`); none: no skipping.
+        (:func:`~vtkillum.core.empty_space.occupancy`); none: no skipping.
     spacing : (3,) float, optional
         Data spacing (world units), needed with ``occupied``.
     textures : AmbientTextures, optional
@@ -417,7 +417,7 @@ def ambient_gather_kernel(
     the image return. Row 0 is at the top. Positions in the volume's local frame,
     ``step`` and ``radius`` in world units, ``σ`` in 1/world units; ``occupied`` flags the
     blocks of size ``block`` (world units, ``inv_block`` its reciprocal) that may hold
-    matter (:mod:`~vtkillum.core.ambient.empty_space`); ``delay`` is
+    matter (:mod:`~vtkillum.core.empty_space`); ``delay`` is
     :func:`delay_samples` (-1: sample ``σt`` at ``x_o``; ``"paper"`` only); ``mode`` is
     :data:`GATHER_MODES`' value of the estimator. Writes the gathered radiance
     ``J̃`` and ``alpha = 1 - T`` at ``[row, col]``. Generic: ``scalars``, ``sigma_tilde``,

@@ -43,6 +43,7 @@ from vtkillum.core.photon.material import SurfaceParams, scattering, surface_nor
 from vtkillum.core.photon.storage import (
     capped_kernel,
     exclusive_scan,
+    gather_int_kernel,
     scan_total_kernel,
     select,
 )
@@ -419,7 +420,7 @@ def _sample_parallel(m, cam, lights, grid, me, sp, vp, seg, flags, seg_len, tile
         return
     _, work = select(tflag, tidx, device, n_work)  # flagged segments, tile by tile
     lengths = wp.empty(n_work, dtype=wp.int32, device=device)
-    wp.launch(gather_lengths_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
+    wp.launch(gather_int_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
     gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device, total)
     wp.launch(add_count_kernel, dim=1, inputs=[computed, n_work], device=device)
 
@@ -456,7 +457,7 @@ def recompute_flagged(m: Medium, cam: CameraParams, lights: Lights, grid: Photon
         return 0
     work, _ = select(flags, flags, device, n_work)
     lengths = wp.empty(n_work, dtype=wp.int32, device=device)
-    wp.launch(gather_lengths_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
+    wp.launch(gather_int_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
     gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device, total)
     return n_work
 
@@ -612,14 +613,6 @@ def tiled_flags_kernel(cam: CameraParams, vp: ViewParams, tiles_x: int, tiles: i
     idx = (row * cam.width + col) * vp.segments + i
     tflag[t] = flags[idx]
     tidx[t] = idx
-
-
-@wp.kernel
-def gather_lengths_kernel(work: wp.array(dtype=wp.int32), seg_len: wp.array(dtype=wp.int32),
-                          lengths: wp.array(dtype=wp.int32)):
-    """``wp.tid()`` indexes the work list: the samples of its segment."""
-    w = wp.tid()
-    lengths[w] = seg_len[work[w]]
 
 
 @wp.kernel

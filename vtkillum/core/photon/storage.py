@@ -210,6 +210,14 @@ def compact(old: Interactions, old_total: int, start: wp.array, keep: wp.array,
     return new
 
 
+@wp.kernel
+def gather_int_kernel(idx: wp.array(dtype=wp.int32), src: wp.array(dtype=wp.int32),
+                      out: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` indexes ``idx``: ``out[i] = src[idx[i]]``."""
+    i = wp.tid()
+    out[i] = src[idx[i]]
+
+
 def select(flags: wp.array, values: wp.array, device: str,
            total: int | None = None) -> tuple[wp.array, wp.array]:
     """Indices ``p`` with ``flags[p] != 0`` and their ``values[p]``, in order (on the device).

@@ -73,6 +73,7 @@ from vtkillum.core.photon.storage import (
     allocate_scratch,
     capped_kernel,
     check_fits,
+    gather_int_kernel,
     compact,
     exclusive_scan,
     free_bytes,
@@ -743,9 +744,3 @@ def iota_kernel(out: wp.array(dtype=wp.int32)):
     out[i] = i
 
 
-@wp.kernel
-def gather_int_kernel(idx: wp.array(dtype=wp.int32), src: wp.array(dtype=wp.int32),
-                      out: wp.array(dtype=wp.int32)):
-    """``wp.tid()`` indexes ``idx``: ``out[i] = src[idx[i]]``."""
-    i = wp.tid()
-    out[i] = src[idx[i]]
