@@ -101,11 +101,14 @@ def test_emission_order_gives_the_same_photon_map(monkeypatch, lights, max_order
         assert np.all(maps[0]["count"] <= max_order)
 
 
+@pytest.mark.parametrize("order", ["across", "ray"])
 @pytest.mark.parametrize("batch", [1 << 27, 700])
-def test_per_sample_gather_gives_the_same_segments(monkeypatch, batch):
-    """Photon-only segments gathered one thread per sample (the GPU's path, in batches)
-    equal the per-segment computation bit for bit, and an incremental update through it
-    still equals a full recompute."""
+def test_per_sample_gather_gives_the_same_segments(monkeypatch, batch, order):
+    """Photon-only segments gathered one thread per sample (the GPU's path, in batches, the
+    samples of a warp along a ray or across neighbouring rays) equal the per-segment
+    computation bit for bit, and an incremental update through it still equals a full
+    recompute."""
+    monkeypatch.setattr(segments, "SAMPLE_ORDER", order)
     images = []
     for devices in ((), ("cpu",)):
         monkeypatch.setattr(segments, "SAMPLE_PARALLEL_DEVICES", devices)

@@ -245,3 +245,31 @@ def test_colour_edit_keeps_photons_that_never_scattered_there():
                              max_order=1, segments=6, seed=5, direct="photons")
     _, expected = run(reference, volume, EDITS["colour"])
     np.testing.assert_array_equal(image.radiance, expected.radiance)
+
+
+@pytest.mark.parametrize("max_order", [1, 0])
+def test_path_masks_are_the_or_of_every_path(max_order):
+    """``PhotonMap.path_masks`` is the OR of the stored paths' Historygrams after a trace and
+    after a retrace; a query that misses it needs no look at the paths (no query launch),
+    one that meets it does."""
+    volume = scene_volume()
+    m = PhotonMapper("cpu", photons=3000, radius=2.0 * volume.mean_spacing(),
+                     max_order=max_order, segments=4, seed=3, direct="photons")
+
+    def expected():
+        paths = m.map.numpy()
+        return (int(np.bitwise_or.reduce(paths["path_hist"])),
+                int(np.bitwise_or.reduce(paths["path_chist"])))
+
+    run(m, volume, tf())
+    assert m.map.path_masks == expected()
+    assert m.map.path_masks[0] != 0
+    # S_n = 1: no path scattered, so its colour mask is empty and a colour edit is answered
+    # without a query; with multiple scattering the colour edit must query the paths.
+    assert (m.map.path_masks[1] == 0) == (max_order == 1)
+    stats, _ = run(m, volume, EDITS["colour"])
+    assert stats["mode"] == "incremental"
+    assert (m._query_buffers is None) == (max_order == 1)
+    stats, _ = run(m, volume, EDITS["opacity"])  # retraces photons
+    assert stats["photons_retraced"] > 0
+    assert m.map.path_masks == expected()

@@ -91,8 +91,15 @@ class TransferFunction:
     def sigma_t(self, values, unit_distance: float) -> np.ndarray:
         """Extinction coefficient ``-ln(1 - alpha) / u`` in 1/world units."""
         check_unit_distance(unit_distance)
-        a = np.minimum(self.alpha(values), MAX_ALPHA)
-        return -np.log1p(-a) / unit_distance
+        return _sigma_from_alpha(self.alpha(values), unit_distance)
+
+    def sigma_t_and_color(self, values, unit_distance: float):
+        """``(sigma_t(values), color(values))`` with one search of the control points (the
+        same bits as the two calls: the interpolation is column by column)."""
+        check_unit_distance(unit_distance)
+        v = np.asarray(values, dtype=np.float64)
+        both = _interp(v, self.scalars, np.column_stack([self.opacity, self.colors]))
+        return _sigma_from_alpha(both[..., 0], unit_distance), both[..., 1:]
 
     def domain(self) -> tuple[float, float]:
         """Range of the control points (a single point gives a zero-width range)."""
@@ -174,6 +181,11 @@ class TransferFunction:
         return cls([lo, hi], [0.0, max_opacity], [color, color])
 
 
+def _sigma_from_alpha(a, unit_distance: float) -> np.ndarray:
+    """``-ln(1 - min(a, MAX_ALPHA)) / u``."""
+    return -np.log1p(-np.minimum(a, MAX_ALPHA)) / unit_distance
+
+
 def _interp(x, xp, fp):
     """Piecewise-linear interpolation, constant outside ``xp`` (as ``np.interp``), robust at
     the float64 limits.
@@ -191,12 +203,24 @@ def _interp(x, xp, fp):
     fp = np.asarray(fp, dtype=np.float64)
     if xp.size == 1:
         return np.full(x.shape + fp.shape[1:], fp[0])
-    j = np.clip(np.searchsorted(xp, x, side="right") - 1, 0, xp.size - 2)
-    lo, hi = 0.5 * xp[j], 0.5 * xp[j + 1]
-    t = np.clip((0.5 * x - lo) / (hi - lo), 0.0, 1.0)
+    shape = x.shape
+    x = x.reshape(-1)  # (0-d input: in-place operations need arrays)
+    j = np.searchsorted(xp, x, side="right")
+    j -= 1
+    np.clip(j, 0, xp.size - 2, out=j)
+    # In place where it saves temporaries (tables of thousands of entries per edit); the
+    # same operations, so the same bits, as the plain expressions.
+    half = 0.5 * xp
+    lo = half[j]
+    t = 0.5 * x
+    t -= lo
+    t /= half[1:][j] - lo
+    np.clip(t, 0.0, 1.0, out=t)
     if fp.ndim > 1:  # several functions (columns of fp) at once: one search
         t = t[..., None]
-    return np.clip((1.0 - t) * fp[j] + t * fp[j + 1], fp.min(axis=0), fp.max(axis=0))
+    out = (1.0 - t) * np.take(fp, j, axis=0)
+    out += t * np.take(fp[1:], j, axis=0)
+    return np.clip(out, fp.min(axis=0), fp.max(axis=0), out=out).reshape(shape + fp.shape[1:])
 
 
 def _check_numeric(values, name: str) -> None:

@@ -143,9 +143,8 @@ def intervals_mask(a: np.ndarray, b: np.ndarray, value_range) -> int:
     keep = ~((b + eps < lo) | (a - eps > hi))
     i0 = np.clip(np.floor((a[keep] - eps - lo) / width), 0, BITS - 1).astype(np.int64)
     i1 = np.clip(np.floor((b[keep] + eps - lo) / width), 0, BITS - 1).astype(np.int64)
-    edges = np.zeros(BITS + 1, np.int64)
-    np.add.at(edges, i0, 1)
-    np.add.at(edges, i1 + 1, -1)
+    edges = (np.bincount(i0, minlength=BITS + 1)[:BITS + 1]
+             - np.bincount(i1 + 1, minlength=BITS + 1)[:BITS + 1])
     covered = np.flatnonzero(np.cumsum(edges[:BITS]) > 0)
     return sum(1 << int(k) for k in covered)
 

@@ -60,6 +60,7 @@ from vtkillum.core.photon.material import make_surface
 from vtkillum.core.photon.segments import (
     ViewParams,
     composite_segments,
+    per_sample,
     recompute_flagged,
     segment_query_kernel,
 )
@@ -158,6 +159,7 @@ class PhotonMapper:
         self._full_pending = True
         self._accum = None  # (radiance sum, alpha sum, passes)
         self._pinned = None  # sets of page-locked host buffers of the image (CUDA)
+        self._query_buffers = None  # the photon query's flags and restarts (kept: 2 × 4 N bytes)
         self.last_update: dict = {}
         self.last_render: dict = {}
 
@@ -176,13 +178,13 @@ class PhotonMapper:
         light_key = (volume.content_key, tuple(volume.dims), tuple(volume.spacing),
                      tuple(volume.origin), volume.direction.tobytes(), float(albedo), float(g),
                      repr([l.to_dict() for l in lights]))
+        full = (self.map is None or light_key != self._light_key or not self.historygrams)
         medium, tables = photon_medium(volume, transfer_function, unit_distance, albedo, g,
-                                       device)
+                                       device, None if full else (self.medium, self.tables))
         step = self.photon_step or 0.5 * float(np.min(volume.spacing))
         stats = {"mode": "unchanged", "photons_retraced": 0, "photon_fraction": 0.0,
                  "interactions_removed": 0, "interactions_added": 0, "query_bins": 0,
                  "ms": {"query": 0.0, "trace": 0.0, "hash": 0.0}}
-        full = (self.map is None or light_key != self._light_key or not self.historygrams)
         pending = None
         if full:
             self._volume = volume
@@ -251,8 +253,21 @@ class PhotonMapper:
         pm = self.map
         t0 = time.perf_counter()
         n = pm.n_photons
-        flags = wp.empty(n, dtype=wp.int32, device=device)
-        restart = wp.empty(n, dtype=wp.int32, device=device)
+        self._pending_query = (self._pending_query[0] | int(hq[0]),
+                               self._pending_query[1] | int(hq[1]))
+        stats = {"mode": "incremental", "photons_retraced": 0, "sigma_changed": bool(hq[0]),
+                 "photon_fraction": 0.0, "query_bins": (int(hq[0]) | int(hq[1])).bit_count(),
+                 "interactions_removed": 0, "ms": {"query": 0.0, "trace": 0.0, "hash": 0.0}}
+        hist_or, chist_or = pm.path_masks
+        if not ((int(hq[0]) & hist_or) | (int(hq[1]) & chist_or)):
+            # No path used a changed bin (the OR of all their Historygrams): every photon is
+            # valid, with no launch and no wait.
+            stats["ms"]["query"] = 1e3 * (time.perf_counter() - t0)
+            return stats, None
+        if self._query_buffers is None or self._query_buffers[0].shape[0] != n:
+            self._query_buffers = (wp.empty(n, dtype=wp.int32, device=device),
+                                   wp.empty(n, dtype=wp.int32, device=device))
+        flags, restart = self._query_buffers
         # Spatial Historygram (3 axes), interactions removed, photons flagged.
         spatial = wp.zeros(5, dtype=wp.uint64, device=device)
         scale = wp.vec3(*(BITS / np.asarray(volume.extent, np.float64)).astype(np.float32))
@@ -263,10 +278,10 @@ class PhotonMapper:
                   device=device)
         queried = spatial.numpy()  # the one wait
         n_removed, n_flagged = int(queried[3]), int(queried[4])
-        photons, restarts = select(flags, restart, device, n_flagged)
-        n_work = int(photons.shape[0])
+        n_work = n_flagged
         t_trace = time.perf_counter()
         if n_work:
+            photons, restarts = select(flags, restart, device, n_flagged)
             kept = wp.empty(n_work, dtype=wp.int32, device=device)
             wp.launch(kept_count_kernel, dim=n_work, inputs=[photons, restarts, pm.start, kept],
                       device=device)
@@ -276,17 +291,13 @@ class PhotonMapper:
                       inputs=[photons, kept, pm.start, pm.count, pm.interactions,
                               self.min_order, scale, spatial], device=device)
         t_end = time.perf_counter()
-        self._pending_query = (self._pending_query[0] | int(hq[0]),
-                               self._pending_query[1] | int(hq[1]))
         if not n_work:  # the spatial Historygram is complete: no photon was added
             self._pending_spatial |= queried[:3]
             spatial = None
-        return ({"mode": "incremental", "photons_retraced": n_work,
-                 "sigma_changed": bool(hq[0]), "photon_fraction": n_work / n,
-                 "query_bins": (int(hq[0]) | int(hq[1])).bit_count(),
-                 "interactions_removed": n_removed,
-                 "ms": {"query": 1e3 * (t_trace - t0), "trace": 1e3 * (t_end - t_trace),
-                        "hash": 0.0}}, spatial)
+        stats.update(photons_retraced=n_work, photon_fraction=n_work / n,
+                     interactions_removed=n_removed)
+        stats["ms"].update(query=1e3 * (t_trace - t0), trace=1e3 * (t_end - t_trace))
+        return stats, spatial
 
     # --- images ----------------------------------------------------------------------------------
     def render(self, volume, camera, width: int, height: int, step: float, jitter: bool = True,
@@ -320,17 +331,22 @@ class PhotonMapper:
             _, vp, cam, _, _ = self._view
             queried = True
             flags = wp.empty(n_seg, dtype=wp.int32, device=device)
+            # The samples of the flagged segments are counted in the same pass where the
+            # recompute goes sample by sample.
+            lengths = per_sample(vp, device)
+            seg_len = wp.empty(n_seg if lengths else 1, dtype=wp.int32, device=device)
             scale = wp.vec3(*(BITS / np.asarray(volume.extent, np.float64)).astype(np.float32))
-            spatial = wp.array(self._pending_spatial, dtype=wp.uint64, device=device)
+            sx, sy, sz = (wp.uint64(int(v)) for v in self._pending_spatial)
             wp.launch(segment_query_kernel, dim=n_seg,
                       inputs=[self.medium, cam, vp, self._seg["hist"], self._seg["chist"],
                               self._seg["state"], wp.uint64(self._pending_query[0]),
-                              wp.uint64(self._pending_query[1]), spatial,
-                              int(self.spatial_historygram), scale, self.radius, flags],
+                              wp.uint64(self._pending_query[1]), sx, sy, sz,
+                              int(self.spatial_historygram), scale, self.radius, int(lengths),
+                              flags, seg_len],
                       device=device)
             recomputed = recompute_flagged(self.medium, cam, self.lights, self.grid,
                                            self.extinction, self.surface, vp, self._seg, flags,
-                                           device)
+                                           device, seg_len if lengths else None)
             mode = "incremental"
         else:
             _, vp, cam, _, _ = self._view

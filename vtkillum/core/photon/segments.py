@@ -76,6 +76,11 @@ SAMPLES_PER_BATCH = 1 << 27
 #: alike).
 SAMPLE_REGISTERS = 40
 SAMPLE_BLOCK = 256
+#: Which samples a warp of the per-sample gather takes: ``"ray"``, 32 consecutive samples of
+#: one segment; ``"across"``, sample ``k`` of 32 consecutive work items (neighbouring
+#: pixels of a tile: their spheres meet the same hash rows), warps padded to the longest
+#: of the 32.
+SAMPLE_ORDER = "across"
 #: Register cap of :func:`shade_segment_kernel` on CUDA (0: none).
 SHADE_REGISTERS = 0
 
@@ -425,37 +430,43 @@ def _sample_parallel(m, cam, lights, grid, me, sp, vp, seg, flags, seg_len, tile
     wp.launch(add_count_kernel, dim=1, inputs=[computed, n_work], device=device)
 
 
-def sums(a: wp.array, b: wp.array, device: str) -> tuple[int, int]:
-    """The sums of two int32 arrays, read with one wait."""
+def sums(a: wp.array, b: wp.array, device: str,
+         a_scan: wp.array | None = None) -> tuple[int, int]:
+    """The sums of two int32 arrays, read with one wait (``a_scan``: where to keep the
+    exclusive scan of ``a``, else scratch)."""
     scratch = wp.empty(max(a.shape[0], b.shape[0], 1), dtype=wp.int32, device=device)
     counts = wp.zeros(2, dtype=wp.int64, device=device)
     for i, x in enumerate((a, b)):
         if x.shape[0] > 0:
-            wp.utils.array_scan(x, scratch[:x.shape[0]], inclusive=False)
-            wp.launch(scan_total_kernel, dim=1, inputs=[x, scratch[:x.shape[0]],
-                                                        counts[i:i + 1]], device=device)
+            out = a_scan if (i == 0 and a_scan is not None) else scratch[:x.shape[0]]
+            wp.utils.array_scan(x, out, inclusive=False)
+            wp.launch(scan_total_kernel, dim=1, inputs=[x, out, counts[i:i + 1]],
+                      device=device)
     s0, s1 = (int(c) for c in counts.numpy())
     return s0, s1
 
 
 def recompute_flagged(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
                       me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, seg: dict,
-                      flags: wp.array, device: str) -> int:
+                      flags: wp.array, device: str, seg_len: wp.array | None = None) -> int:
     """Recompute the stored segments flagged in ``flags`` (indexed like the segments) with
     :func:`recompute_segments`; returns how many. Where :func:`per_sample`, the samples
-    of each flagged segment are counted beside the flags (one wait for both)."""
+    of each flagged segment (``seg_len``, or counted here) are summed beside the flags
+    (one wait for both)."""
     if not per_sample(vp, device):
         work, _ = select(flags, flags, device)
         recompute_segments(m, cam, lights, grid, me, sp, vp, seg, work, device)
         return int(work.shape[0])
     n_seg = flags.shape[0]
-    seg_len = wp.empty(n_seg, dtype=wp.int32, device=device)
-    wp.launch(flagged_lengths_kernel, dim=n_seg, inputs=[m, cam, vp, flags, seg_len],
-              device=device)
-    n_work, total = sums(flags, seg_len, device)
+    if seg_len is None:
+        seg_len = wp.empty(n_seg, dtype=wp.int32, device=device)
+        wp.launch(flagged_lengths_kernel, dim=n_seg, inputs=[m, cam, vp, flags, seg_len],
+                  device=device)
+    offsets = wp.empty(n_seg, dtype=wp.int32, device=device)
+    n_work, total = sums(flags, seg_len, device, offsets)
     if n_work == 0:
         return 0
-    work, _ = select(flags, flags, device, n_work)
+    work, _ = select(flags, flags, device, n_work, offsets)
     lengths = wp.empty(n_work, dtype=wp.int32, device=device)
     wp.launch(gather_int_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
     gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device, total)
@@ -544,19 +555,26 @@ def gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device,
     size = max(b[3] for b in batches)
     rays = wp.empty(n_work, dtype=SegmentRay, device=device)
     wp.launch(segment_rays_kernel, dim=n_work, inputs=[m, cam, vp, work, rays], device=device)
-    light = wp.empty(max(size, 1), dtype=wp.vec3, device=device)
-    sample_work = wp.empty(max(size, 1), dtype=wp.int32, device=device)
+    across = SAMPLE_ORDER == "across"
+    if not across:
+        light = wp.empty(max(size, 1), dtype=wp.vec3, device=device)
+        sample_work = wp.empty(max(size, 1), dtype=wp.int32, device=device)
+    first, stride = offsets, 1  # (``first`` is read only with stride 32)
     for w0, w1, base, count in batches:
-        if count > 0:
+        if across:
+            light, first = _sample_light_across(m, grid, me, sp, vp, rays, lengths, w0, w1,
+                                                device)
+            stride = 32
+        elif count > 0:
             wp.launch(sample_segments_kernel, dim=(w1 - w0) * 32,
                       inputs=[offsets, lengths, w0, base, sample_work], device=device)
             wp.launch(sample_light_kernel, dim=count,
                       inputs=[m, grid, me, sp, vp, rays, offsets, sample_work, base, light],
                       device=device, block_dim=SAMPLE_BLOCK)
         wp.launch(shade_segment_kernel, dim=w1 - w0,
-                  inputs=[m, cam, me, grid, vp, work, offsets, lengths, w0, base, light,
-                          seg["rad"],
-                          seg["t"], seg["hist"], seg["chist"], seg["state"]], device=device)
+                  inputs=[m, cam, me, grid, vp, work, offsets, lengths, w0, base, first,
+                          stride, light, seg["rad"], seg["t"], seg["hist"], seg["chist"],
+                          seg["state"]], device=device)
 
 
 @wp.kernel
@@ -574,6 +592,76 @@ def segment_rays_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
     r.xi = xi
     r.k0 = k0
     rays[w] = r
+
+
+def _sample_light_across(m, grid, me, sp, vp, rays, lengths, w0, w1, device):
+    """:func:`sample_light_across_kernel` over work items ``[w0, w1)`` (one wait: for the
+    number of warps); returns the light (32 entries a warp) and each group's first warp."""
+    groups = -(-(w1 - w0) // 32)
+    spans = wp.empty(groups, dtype=wp.int32, device=device)
+    wp.launch(group_span_kernel, dim=groups, inputs=[lengths, w0, w1, spans], device=device)
+    first = wp.empty(groups, dtype=wp.int32, device=device)
+    warps = exclusive_scan(spans, first)
+    light = wp.empty(max(32 * warps, 1), dtype=wp.vec3, device=device)
+    if warps > 0:
+        warp_group = wp.empty(warps, dtype=wp.int32, device=device)
+        wp.launch(warp_groups_kernel, dim=groups, inputs=[spans, first, warp_group],
+                  device=device)
+        wp.launch(sample_light_across_kernel, dim=warps * 32,
+                  inputs=[m, grid, me, sp, vp, rays, lengths, warp_group, first, w0, w1,
+                          light], device=device, block_dim=SAMPLE_BLOCK)
+    return light, first
+
+
+@wp.kernel
+def group_span_kernel(lengths: wp.array(dtype=wp.int32), w0: int, w1: int,
+                      spans: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` = group ``g`` of work items ``w0 + 32 g ...`` (32, fewer at the end):
+    the most samples one of them has."""
+    g = wp.tid()
+    a = w0 + 32 * g
+    longest = int(0)
+    for w in range(a, wp.min(a + 32, w1)):
+        longest = wp.max(longest, lengths[w])
+    spans[g] = longest
+
+
+@wp.kernel
+def warp_groups_kernel(spans: wp.array(dtype=wp.int32), first: wp.array(dtype=wp.int32),
+                       warp_group: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` = group ``g``: ``warp_group[first[g] + j] = g`` for its ``spans[g]`` warps."""
+    g = wp.tid()
+    for j in range(spans[g]):
+        warp_group[first[g] + j] = g
+
+
+@capped_kernel(SAMPLE_REGISTERS)
+def sample_light_across_kernel(m: Medium, grid: PhotonGrid, me: MeanExtinction,
+                               sp: SurfaceParams, vp: ViewParams,
+                               rays: wp.array(dtype=SegmentRay),
+                               lengths: wp.array(dtype=wp.int32),
+                               warp_group: wp.array(dtype=wp.int32),
+                               first: wp.array(dtype=wp.int32), w0: int, w1: int,
+                               light: wp.array(dtype=wp.vec3)):
+    """:func:`sample_light_kernel` with the samples taken across work items: warp ``v`` of
+    group ``g = warp_group[v]`` holds sample ``k = v - first[g]`` of work items ``w0 + 32 g +
+    lane`` (lanes past a work item's samples idle); the light into ``light[wp.tid()]``."""
+    t = wp.tid()
+    v = t // 32
+    g = warp_group[v]
+    w = w0 + 32 * g + (t - 32 * v)
+    if w >= w1:
+        return
+    kl = v - first[g]
+    if kl >= lengths[w]:
+        return
+    r = rays[w]
+    p = r.o + (r.t0 + (float(r.k0 + kl) + r.xi) * vp.step) * r.d
+    s = sample_scalar(m.scalars, m.inv_spacing, p)
+    sig = lookup_sigma_t(m, s)
+    if sig > 0.0:
+        surf, normal = surface_normal(m, sp, p, s)
+        light[t] = photon_radiance(grid, me, p, -r.d, m.g, surf, normal, sp)
 
 
 @wp.kernel
@@ -657,18 +745,25 @@ def sample_light_kernel(m: Medium, grid: PhotonGrid, me: MeanExtinction, sp: Sur
 def shade_segment_kernel(m: Medium, cam: CameraParams, me: MeanExtinction, grid: PhotonGrid,
                          vp: ViewParams, work: wp.array(dtype=wp.int32),
                          offsets: wp.array(dtype=wp.int32), lengths: wp.array(dtype=wp.int32),
-                         w0: int, base: int, light: wp.array(dtype=wp.vec3), seg_rad: wp.array(dtype=wp.vec3),
+                         w0: int, base: int, first: wp.array(dtype=wp.int32), stride: int,
+                         light: wp.array(dtype=wp.vec3), seg_rad: wp.array(dtype=wp.vec3),
                          seg_t: wp.array(dtype=wp.float32), seg_hist: wp.array(dtype=wp.uint64),
                          seg_chist: wp.array(dtype=wp.uint64),
                          seg_state: wp.array(dtype=wp.int32)):
     """``wp.tid()`` = ``w - w0``: :func:`compute_segment` of work item ``w`` (photons only)
-    with the light of each sample read from ``light`` (:func:`sample_light_kernel`)."""
+    with the light of each sample read from ``light``: laid out sample after sample of each
+    work item (``stride`` 1, :func:`sample_light_kernel`) or across the 32 work items of a
+    group (``stride`` 32, :func:`sample_light_across_kernel`: neighbouring threads here read
+    neighbouring entries)."""
     w = w0 + wp.tid()
     idx = work[w]
     row, col, i = segment_of(cam, vp, idx)
     o, d, t0, xi, n = ray_setup(m, cam, vp, row, col)
     k0, k1 = segment_samples(n, vp.segments, i)
     at = offsets[w] - base - k0
+    if stride != 1:
+        g = (w - w0) // 32
+        at = 32 * first[g] + (w - w0 - 32 * g) - 32 * k0
     k_end = k0 + lengths[w]  # where the same products stop (a guard: never reached before)
     rad = wp.vec3(0.0)
     trans = float(1.0)
@@ -684,7 +779,7 @@ def shade_segment_kernel(m: Medium, cam: CameraParams, me: MeanExtinction, grid:
         if sig > 0.0:
             chist = chist | data_bin(s, vp.bin_lo, vp.bin_scale)
             a = 1.0 - wp.exp(-sig * vp.step)
-            lt = light[at + k]
+            lt = light[at + stride * k]
             if grid.count > 0:
                 hist = hist | kernel_bins(me, p)
             rad += (trans * a * m.albedo) * wp.cw_mul(lookup_color(m, s), lt)
@@ -739,44 +834,52 @@ def composite_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonG
 def segment_query_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
                          seg_hist: wp.array(dtype=wp.uint64), seg_chist: wp.array(dtype=wp.uint64),
                          seg_state: wp.array(dtype=wp.int32), query: wp.uint64,
-                         cquery: wp.uint64, spatial: wp.array(dtype=wp.uint64),
+                         cquery: wp.uint64, sx: wp.uint64, sy: wp.uint64, sz: wp.uint64,
                          use_spatial: int, spatial_scale: wp.vec3, radius: float,
-                         flags: wp.array(dtype=wp.int32)):
+                         lengths: int, flags: wp.array(dtype=wp.int32),
+                         seg_len: wp.array(dtype=wp.int32)):
     """Flag the stored segments an edit invalidates.
 
     ``wp.tid()`` indexes segments (``pixel * V_n + i``). A computed segment is invalid when
-    its Historygrams meet the query masks (extinction ``query``, colour ``cquery``), or (``use_spatial``) when its bounding box grown
-    by the photon ``radius`` meets set bits of the spatial Historygram on all three axes
-    (``spatial[a]``: 64 bins over ``[0, extent_a]``, ``spatial_scale = 64 / extent``).
+    its Historygrams meet the query masks (extinction ``query``, colour ``cquery``), or
+    (``use_spatial``) when its bounding box grown by the photon ``radius`` meets set bits of
+    the spatial Historygram on all three axes (``sx``, ``sy``, ``sz``: 64 bins over
+    ``[0, extent_a]``, ``spatial_scale = 64 / extent``). With ``lengths`` != 0, also the
+    samples each flagged segment marches (:func:`segment_transmittance`; 0 for the others)
+    into ``seg_len``, as :func:`recompute_flagged` needs them.
     """
     idx = wp.tid()
     flags[idx] = 0
+    if lengths != 0:
+        seg_len[idx] = 0
     if seg_state[idx] != COMPUTED:
         return
+    hit = int(0)
     if ((seg_hist[idx] & query) | (seg_chist[idx] & cquery)) != wp.uint64(0):
-        flags[idx] = 1
-        return
-    if use_spatial == 0:
-        return
-    pix = idx // vp.segments
-    i = idx - pix * vp.segments
-    row = pix // cam.width
-    col = pix - row * cam.width
-    o, d, t0, xi, n = ray_setup(m, cam, vp, row, col)
-    k0, k1 = segment_samples(n, vp.segments, i)
-    if k1 <= k0:
-        return
-    pa = o + (t0 + (float(k0) + xi) * vp.step) * d
-    pb = o + (t0 + (float(k1 - 1) + xi) * vp.step) * d
-    lo = wp.min(pa, pb) - wp.vec3(radius)
-    hi = wp.max(pa, pb) + wp.vec3(radius)
-    if (axis_bits(lo[0], hi[0], 0.0, spatial_scale[0]) & spatial[0]) == wp.uint64(0):
-        return
-    if (axis_bits(lo[1], hi[1], 0.0, spatial_scale[1]) & spatial[1]) == wp.uint64(0):
-        return
-    if (axis_bits(lo[2], hi[2], 0.0, spatial_scale[2]) & spatial[2]) == wp.uint64(0):
+        hit = 1
+    elif use_spatial != 0:
+        pix = idx // vp.segments
+        i = idx - pix * vp.segments
+        row = pix // cam.width
+        col = pix - row * cam.width
+        o, d, t0, xi, n = ray_setup(m, cam, vp, row, col)
+        k0, k1 = segment_samples(n, vp.segments, i)
+        if k1 > k0:
+            pa = o + (t0 + (float(k0) + xi) * vp.step) * d
+            pb = o + (t0 + (float(k1 - 1) + xi) * vp.step) * d
+            lo = wp.min(pa, pb) - wp.vec3(radius)
+            hi = wp.max(pa, pb) + wp.vec3(radius)
+            if ((axis_bits(lo[0], hi[0], 0.0, spatial_scale[0]) & sx) != wp.uint64(0)
+                    and (axis_bits(lo[1], hi[1], 0.0, spatial_scale[1]) & sy) != wp.uint64(0)
+                    and (axis_bits(lo[2], hi[2], 0.0, spatial_scale[2]) & sz) != wp.uint64(0)):
+                hit = 1
+    if hit == 0:
         return
     flags[idx] = 1
+    if lengths != 0:
+        srow, scol, si = segment_of(cam, vp, idx)
+        _t, count = segment_transmittance(m, cam, vp, srow, scol, si)
+        seg_len[idx] = count
 
 
 @wp.kernel

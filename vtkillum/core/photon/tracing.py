@@ -110,6 +110,10 @@ TRACE_REGISTERS = 64
 #: Devices (name prefixes) on which photons are traced in the order of where they leave
 #: the lights (:func:`emission_order`; the CPU has no warps to keep together).
 COHERENT_DEVICES = ("cuda",)
+#: Threads of :func:`path_masks_kernel` (each ORs every ``MASK_THREADS``-th path).
+MASK_THREADS = 1 << 16
+#: :attr:`PhotonMap.path_masks` before a trace is resolved: every bin.
+PATH_MASK_ALL = (1 << 64) - 1
 
 
 @wp.struct
@@ -149,13 +153,18 @@ def photon_tables(transfer_function, unit_distance: float, value_range, size: in
     if not hi - lo > 0:  # constant data; lo + 1 == lo for |lo| > 2**53
         hi = lo + max(1.0, abs(lo) * 1e-6)
     v = np.linspace(lo, hi, size)
-    return (transfer_function.sigma_t(v, unit_distance).astype(np.float32),
-            transfer_function.color(v).astype(np.float32), lo, hi)
+    sigma, color = transfer_function.sigma_t_and_color(v, unit_distance)
+    return sigma.astype(np.float32), color.astype(np.float32), lo, hi
 
 
 def photon_medium(volume, transfer_function, unit_distance: float, albedo: float, g: float,
-                  device: str):
-    """A :class:`Medium` whose tables are :func:`photon_tables` (returned as well)."""
+                  device: str, previous: tuple | None = None):
+    """A :class:`Medium` whose tables are :func:`photon_tables` (returned as well).
+
+    ``previous``: ``(medium, tables)`` of the same volume, albedo and g (an earlier call);
+    where the σt table did not change, its device table and block occupancy are reused
+    (a colour edit uploads the colour table alone).
+    """
     sigma, color, lo, hi = photon_tables(transfer_function, unit_distance, volume.value_range)
     device = resolve_device(device)
     m = Medium()  # make_medium's fields, with these tables (not make_medium's own)
@@ -165,12 +174,18 @@ def photon_medium(volume, transfer_function, unit_distance: float, albedo: float
     m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
     m.albedo = float(albedo)
     m.g = float(g)
-    m.sigma_table = wp.array(sigma, dtype=wp.float32, device=device)
     m.color_table = wp.array(color, dtype=wp.vec3, device=device)
     m.table_lo = float(lo)
     m.table_scale = float((len(sigma) - 1) / (hi - lo))
     m.majorant = float(sigma.max()) * 1.0001 + 1e-12
-    attach_occupancy(m, volume, sigma, device)
+    old = previous[0] if previous is not None else None
+    if (old is not None and np.array_equal(previous[1][0], sigma) and old.scalars is m.scalars
+            and old.table_lo == m.table_lo and old.table_scale == m.table_scale):
+        m.sigma_table, m.occupied, m.block, m.inv_block = (old.sigma_table, old.occupied,
+                                                           old.block, old.inv_block)
+    else:
+        m.sigma_table = wp.array(sigma, dtype=wp.float32, device=device)
+        attach_occupancy(m, volume, sigma, device)
     return m, (sigma, color)
 
 
@@ -236,6 +251,11 @@ class PhotonMap:
         self.interactions: Interactions = allocate(1, device)
         self._total = 0
         self._counters = None  # device (added, capped, total) of a trace not yet resolved
+        self._masks = None  # device OR of every path's (hist, chist), not yet read
+        #: The OR of every path's Historygrams ``(path_hist, path_chist)`` as Python ints
+        #: (every bit until a trace is resolved): a query that misses both invalidates no
+        #: photon, and needs no look at the paths.
+        self.path_masks = (PATH_MASK_ALL, PATH_MASK_ALL)
         self.stats: dict = {}
 
     @property
@@ -263,6 +283,9 @@ class PhotonMap:
             if self._total is None:
                 self._total = total
             self.stats.update(interactions_added=added, capped=capped)
+        if self._masks is not None:
+            self.path_masks = tuple(int(v) for v in self._masks.numpy())
+            self._masks = None
         self.stats["total"] = self._total
         return self.stats
 
@@ -326,6 +349,7 @@ class PhotonMap:
                 self.stats = {"photons": traced, "rounds": 1,
                               "ms": 1e3 * (time.perf_counter() - t0)}
                 self._counters = counters
+                self._queue_path_masks()
                 return self.resolve() if resolve else self.stats
         while photons.shape[0] > 0:
             n_work = int(photons.shape[0])
@@ -371,11 +395,21 @@ class PhotonMap:
                 wp.launch(gather_int_kernel, dim=work_idx.shape[0],
                           inputs=[work_idx, finished, photons], device=device)
             rounds += 1
+        self._queue_path_masks()
+        self.resolve()
         added, capped, _ = (int(c) for c in counters.numpy())
         self.stats = {"photons": traced, "interactions_added": added, "rounds": rounds,
                       "capped": capped, "total": self.total,
                       "ms": 1e3 * (time.perf_counter() - t0)}
         return self.stats
+
+    def _queue_path_masks(self) -> None:
+        """Queue the OR of every path's Historygrams (read by :meth:`resolve`)."""
+        self._masks = wp.zeros(2, dtype=wp.uint64, device=self.device)
+        threads = min(self.n_photons, MASK_THREADS)
+        wp.launch(path_masks_kernel, dim=threads,
+                  inputs=[self.path_hist, self.path_chist, threads, self._masks],
+                  device=self.device)
 
     def _launch_trace(self, medium, emitters, params, photons, restart, scratch, n_work: int,
                       chunk: int, allocate):
@@ -505,6 +539,23 @@ def _check_total(new_total: int, old_total: int, n_photons: int, device: str, li
 
 
 # --- kernels -------------------------------------------------------------------------------------
+@wp.kernel
+def path_masks_kernel(path_hist: wp.array(dtype=wp.uint64), path_chist: wp.array(dtype=wp.uint64),
+                      threads: int, out: wp.array(dtype=wp.uint64)):
+    """``out[0] |= OR of path_hist``, ``out[1] |= OR of path_chist``; ``wp.tid()`` takes every
+    ``threads``-th path (one atomic per thread, not per path)."""
+    t = wp.tid()
+    h = wp.uint64(0)
+    c = wp.uint64(0)
+    for p in range(t, path_hist.shape[0], threads):
+        h = h | path_hist[p]
+        c = c | path_chist[p]
+    if h != wp.uint64(0):
+        wp.atomic_or(out, 0, h)
+    if c != wp.uint64(0):
+        wp.atomic_or(out, 1, c)
+
+
 @capped_kernel(TRACE_REGISTERS)
 def trace_kernel(m: Medium, em: Emitters, tp: TraceParams, sp: SurfaceParams,
                  work_photon: wp.array(dtype=wp.int32),
