@@ -492,6 +492,11 @@ def refraction_xml() -> str:
         _number("double", "CameraParallelScale", "SetCameraParallelScale", 1.0,
                 "Half the view height in world units (parallel projection).", lo=0.0,
                 advanced=True),
+        _boolean("PlaceFacingCamera", "SetPlaceFacingCamera", 1,
+                 "Place the picture where the camera sees it: on the plane through the focal "
+                 "point, facing the camera, at the data's size (on: shown beside the data in "
+                 "a 3D view it faces the camera it was rendered from). Off: in pixel units "
+                 "(spacing 1, origin 0) in the xy plane."),
         _number("double", "Exposure", "SetExposure", 0.0,
                 "Factor on the radiance in the displayed colours; 0: automatic (the 99.5th "
                 "percentile of the brightest channel shows as full brightness).", lo=0.0,
@@ -524,7 +529,8 @@ def refraction_xml() -> str:
         _group("Light", "LightDirection", "LightIrradiance", "Softness", "Anisotropy"),
         _group("Image", "SampleDistance", "ImageSize", "Exposure", "Gamma", "Background"),
         _group("Camera", "CameraPosition", "CameraFocalPoint", "CameraViewUp",
-               "CameraViewAngle", "CameraParallelProjection", "CameraParallelScale"),
+               "CameraViewAngle", "CameraParallelProjection", "CameraParallelScale",
+               "PlaceFacingCamera"),
     ])
 
 
@@ -640,24 +646,66 @@ def CopyViewCamera(source, view=None, image_size: bool = False) -> None:
 
 
 def ShowRendered(source, view=None):
-    """Show a vtkIllum Refraction Render's image as a picture: in ``view`` (default: a new
-    render view placed in the active layout) as a slice coloured directly by its RGB
-    (Map Scalars off), 2D interaction, camera fitted. Returns the representation."""
+    """Show a vtkIllum Refraction Render's image as the picture it is, seen head-on.
+
+    In ``view``; default: the active render view, or, only where no render view is
+    active, a new one placed in the layout (``GetActiveViewOrCreate``). An existing view
+    is reused as it is: no new view, no layout change (``AssignViewToLayout`` after a
+    ``SaveScreenshot`` once hung ParaView's GUI). The picture is a slice coloured
+    directly by its RGB (Map Scalars off, no scalar bar); the view looks at it head-on
+    (parallel projection, fitted, 2D interaction, no orientation axes); the filter's
+    input is hidden in that view (it cuts through the picture's plane: Show it again to
+    compare). Returns the representation.
+    """
     from paraview import simple
 
     if view is None:
-        view = simple.CreateRenderView()
-        if hasattr(simple, "AssignViewToLayout"):  # (5.7 and later) the active layout
-            simple.AssignViewToLayout(view)
+        active = simple.GetActiveView()
+        view = active if active is not None and active.GetXMLName() == "RenderView" else \
+            simple.GetActiveViewOrCreate("RenderView")
+    source.UpdatePipeline(float(view.ViewTime))
     display = simple.Show(source, view)
     display.SetRepresentationType("Slice")
     simple.ColorBy(display, ("POINTS", REFRACTION_RGB))
     display.MapScalars = 0
     simple.HideScalarBarIfNotNeeded(simple.GetColorTransferFunction(REFRACTION_RGB), view)
+    upstream = source.GetProperty("Input").GetProxy(0) if source.GetProperty("Input") else None
+    if upstream is not None:
+        from paraview import servermanager
+
+        shown = servermanager.GetRepresentation(servermanager._getPyProxy(upstream), view)
+        if shown is not None:
+            shown.Visibility = 0
     view.InteractionMode = "2D"
     view.OrientationAxesVisibility = 0
-    simple.ResetCamera(view)
+    face_picture(source, view)
     return display
+
+
+def face_picture(source, view) -> None:
+    """Point ``view``'s camera at the picture of ``source`` head-on (parallel projection,
+    picture up as view up) and fit it. The picture's axes come from its direction matrix
+    (``PlaceFacingCamera``), read from the client-side output where there is one (a
+    builtin session); elsewhere the picture is taken to lie in the xy plane."""
+    import numpy as np
+    from paraview import simple
+
+    bounds = np.asarray(source.GetDataInformation().GetBounds(), dtype=np.float64)
+    centre = bounds.reshape(3, 2).mean(axis=1)
+    right, up, back = np.eye(3)
+    try:
+        image = source.GetClientSideObject().GetOutputDataObject(0)
+        matrix = image.GetDirectionMatrix()
+        axes = np.array([[matrix.GetElement(i, j) for j in range(3)] for i in range(3)])
+        right, up, back = axes.T
+    except AttributeError:  # no client-side object (a remote server): the xy plane
+        pass
+    size = max(float(np.linalg.norm(bounds[1::2] - bounds[0::2])), 1.0)
+    view.CameraFocalPoint = [float(v) for v in centre]
+    view.CameraPosition = [float(v) for v in centre + 2.0 * size * back]
+    view.CameraViewUp = [float(v) for v in up]
+    view.CameraParallelProjection = 1
+    simple.ResetCamera(view)
 
 
 def CacheStatistics(source) -> dict:
@@ -674,6 +722,11 @@ except ImportError:  # no server manager here (a pvserver): nothing to link
     _links = None
 if _links is not None:
     _links.install()
+# A table property (Lights, RefractiveIndex, MediumColor) set from Python to a list that is
+# not a whole number of rows is refused with an error, not cut short (tables.py).
+from vtkillum_paraview import tables as _tables  # noqa: E402
+
+_tables.install()
 
 
 __all__ = [
@@ -689,6 +742,7 @@ __all__ = [
     "SetLights",
     "ShowIlluminated",
     "ShowRendered",
+    "face_picture",
     "rgba_opacity_points",
     "unit_distance",
 ]

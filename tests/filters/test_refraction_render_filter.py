@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from vtkmodules.vtkCommonDataModel import vtkDataObject
 from vtkmodules.vtkRenderingCore import vtkCamera
 
 from vtkillum.core.camera import Camera
@@ -164,3 +165,50 @@ def test_bad_input_is_an_error_naming_the_property(make_image, setup, message):
 def test_bad_settings_are_refused_by_name(call, message):
     with pytest.raises(ValueError, match=message):
         call(RefractionRenderFilter())
+
+
+@pytest.mark.parametrize("camera", [
+    CAMERA, Camera((3.0, -4.0, 2.0), (0.1, 0.2, -0.1), (0.0, 0.0, 1.0), 40.0),
+    Camera((3.0, -4.0, 2.0), (0.1, 0.2, -0.1), (0.0, 0.0, 1.0), parallel_projection=True,
+           parallel_scale=1.3)])
+def test_image_plane_puts_each_pixel_on_its_ray(camera):
+    """Camera.image_plane: pixel (i, j) (j = 0 at the bottom) lies on the ray of column i,
+    row H - 1 - j, in the plane through the focal point facing the camera."""
+    origin, spacing, direction = camera.image_plane(W, H)
+    assert spacing[0] == pytest.approx(spacing[1])
+    assert np.allclose(direction.T @ direction, np.eye(3))
+    assert np.allclose(direction[:, 2], -camera.forward)
+    assert np.linalg.det(direction) == pytest.approx(1.0)  # right-handed
+    starts, rays = camera.ray_directions(W, H)
+    for i, j in ((0, 0), (W - 1, 0), (5, H - 1), (W // 2, H // 3)):
+        point = origin + i * spacing[0] * direction[:, 0] + j * spacing[1] * direction[:, 1]
+        assert np.dot(point - camera.focal_point, camera.forward) == pytest.approx(0, abs=1e-9)
+        start, ray = starts[H - 1 - j, i], rays[H - 1 - j, i]
+        offset = point - start
+        assert np.linalg.norm(np.cross(offset, ray)) == pytest.approx(0, abs=1e-9)
+
+
+def test_place_facing_camera_puts_the_output_on_the_image_plane(make_image):
+    img = blob(make_image)
+    f = make_filter()
+    assert not f.GetPlaceFacingCamera()  # the default: pixel units
+    out = f.execute(img)
+    assert out.GetOrigin() == (0.0, 0.0, 0.0) and out.GetSpacing() == (1.0, 1.0, 1.0)
+    pixels = point_array(out, RGB_ARRAY).copy()
+    mtime = f.GetMTime()
+    f.SetPlaceFacingCamera(True)
+    assert f.GetMTime() > mtime
+    out = f.execute(img)
+    origin, spacing, direction = CAMERA.image_plane(W, H)
+    assert np.allclose(out.GetOrigin(), origin) and np.allclose(out.GetSpacing(), spacing)
+    matrix = out.GetDirectionMatrix()
+    assert np.allclose([[matrix.GetElement(r, c) for c in range(3)] for r in range(3)],
+                       direction)
+    assert np.array_equal(point_array(out, RGB_ARRAY), pixels)  # the same picture
+    info = f.GetOutputInformation(0)  # the pipeline information says the same
+    assert np.allclose(info.Get(vtkDataObject.ORIGIN()), origin)
+    f.SetCamera(None)  # the automatic camera frames the data: the plane through its centre
+    out = f.execute(img)
+    bounds = np.asarray(out.GetBounds()).reshape(3, 2).mean(axis=1)
+    data = np.asarray(img.GetBounds()).reshape(3, 2).mean(axis=1)
+    assert np.allclose(bounds, data, atol=1e-9)

@@ -35,16 +35,18 @@ LABELS = ["vtkIllum Optical Properties", "vtkIllum Light Transmittance",
           "vtkIllum Photon Density", "vtkIllum Many Lights"]
 
 
-def run_gui(out: Path, shim: Path, timeout: float = 420.0):
-    """Run the GUI session; returns (exit status, stdout + stderr). On a timeout the whole
-    process group (xvfb-run, Xvfb, paraview) is killed and the status is None."""
+def run_gui(out: Path, shim: Path, timeout: float = 420.0, script: Path = SCRIPT,
+            test_script: Path | None = MENU_CLICKS):
+    """Run a GUI session (``script``, and ParaView's test player on ``test_script``);
+    returns (exit status, stdout + stderr). On a timeout the whole process group
+    (xvfb-run, Xvfb, paraview) is killed and the status is None."""
     env = pvbatch_env.pvbatch_environment(pvbatch_env.make_shim_dir(shim))
     env["VTKILLUM_GUI_OUT"] = str(out)
     env["VTKILLUM_ROOT"] = str(ROOT)
     env["XDG_CONFIG_HOME"] = str(out / "config")  # a fresh ParaView configuration
     env.setdefault("QT_QPA_PLATFORM", "xcb")
     command = ["xvfb-run", "-a", "-s", "-screen 0 1600x1000x24", "paraview", "--dr",
-               f"--script={SCRIPT}", f"--test-script={MENU_CLICKS}"]
+               f"--script={script}"] + ([f"--test-script={test_script}"] if test_script else [])
     proc = subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
                             text=True, start_new_session=True)
     try:

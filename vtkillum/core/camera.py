@@ -88,6 +88,29 @@ class Camera:
             origins = np.broadcast_to(self.position, dirs.shape).copy()
         return origins, dirs
 
+    def image_plane(self, width: int, height: int):
+        """Where the picture of ``width`` x ``height`` pixels lies in the world, facing the camera.
+
+        The plane through the focal point perpendicular to the view direction, cut to the
+        view frustum (height ``2 d tan(view_angle / 2)`` at focal distance ``d``, or ``2
+        parallel_scale``), holds the pixels' centres exactly where
+        :meth:`ray_directions` sends their rays through it. Returns ``(origin, spacing,
+        direction)`` of a VTK image of the picture (pixel ``(0, 0)`` at the bottom left,
+        as VTK shows images): origin (3,) the centre of that pixel, spacing (3,) (square
+        pixels; the third entry 1), direction (3, 3) whose columns are the camera's
+        right, up and backward (towards the camera) unit vectors.
+        """
+        r, u, f = self.basis()
+        if self.parallel_projection:
+            half_height = self.parallel_scale
+        else:
+            distance = np.linalg.norm(self.focal_point - self.position)
+            half_height = distance * np.tan(np.radians(self.view_angle) / 2)
+        pixel = 2.0 * half_height / height
+        origin = (self.focal_point + (-0.5 * width + 0.5) * pixel * r
+                  + (-0.5 * height + 0.5) * pixel * u)
+        return origin, np.array([pixel, pixel, 1.0]), np.stack([r, u, -f], axis=1)
+
     def to_dict(self) -> dict:
         d = {"position": self.position.tolist(), "focal_point": self.focal_point.tolist(),
              "view_up": self.view_up.tolist()}

@@ -48,8 +48,10 @@ class RefractionRenderFilter(IlluminationFilterBase):
     Runs the ``"refraction"`` render method of :mod:`vtkillum.core.refraction`
     (light and view rays bent by a refractive-index field, propagated plane by plane;
     caustics from the intensity law) and returns the image as a 2D ``vtkImageData``
-    of ``ImageSize`` points (spacing 1, origin 0; row ``j = 0`` is the bottom of the
-    picture, as VTK shows images). Point arrays:
+    of ``ImageSize`` points (row ``j = 0`` is the bottom of the picture, as VTK shows
+    images): in pixel units (spacing 1, origin 0) by default, or with
+    ``PlaceFacingCamera`` on the camera's image plane in the world (see there). Point
+    arrays:
 
     ``refraction_rgb`` (uint8 RGB, active scalars)
         The picture for display: ``tonemap(radiance, Exposure, Gamma)``
@@ -95,6 +97,14 @@ class RefractionRenderFilter(IlluminationFilterBase):
         Vertical view angle in degrees (perspective); default 30.
     CameraParallelProjection : bool
         Orthographic projection of half-height ``CameraParallelScale`` (world units).
+    PlaceFacingCamera : bool
+        Off (default): the image in pixel units (spacing 1, origin 0, axis-aligned). On:
+        the image lies where the camera sees the picture, on the plane through the focal
+        point facing the camera, cut to the view frustum (``Camera.image_plane``:
+        origin, square spacing and a direction matrix whose axes are the camera's right,
+        up and backward). Shown in a 3D view beside the data it faces the camera it was
+        rendered from, at the data's size; seen from that camera it covers the data's
+        picture exactly.
     Background : (3,) float
         Linear RGB radiance seen where the rays leave the volume (along the bent rays).
     Exposure : float
@@ -127,6 +137,7 @@ class RefractionRenderFilter(IlluminationFilterBase):
         self._camera_view_angle = 30.0
         self._camera_parallel_projection = False
         self._camera_parallel_scale = 1.0
+        self._place_facing_camera = False
         self._sample_distance = 1.0
         self._softness = 0.0
         self._direction_blur = 1.0
@@ -297,6 +308,21 @@ class RefractionRenderFilter(IlluminationFilterBase):
     def GetCameraParallelScale(self) -> float:
         return self._camera_parallel_scale
 
+    def SetPlaceFacingCamera(self, on) -> None:
+        self.set_parameter("_place_facing_camera", bool(on))
+
+    def GetPlaceFacingCamera(self) -> bool:
+        return self._place_facing_camera
+
+    def picture_geometry(self, bounds) -> tuple:
+        """``(origin, spacing, direction)`` of the output image for an input of world
+        ``bounds`` (``PlaceFacingCamera``; pixel units when off)."""
+        if not self._place_facing_camera:
+            return (0.0, 0.0, 0.0), (1.0, 1.0, 1.0), np.eye(3)
+        camera = Scene(camera=self.GetCamera()).resolved_camera(_Bounds(bounds))
+        origin, spacing, direction = camera.image_plane(*self._image_size)
+        return tuple(map(float, origin)), tuple(map(float, spacing)), direction
+
     def SetCamera(self, camera) -> None:
         """Copy a core :class:`~vtkillum.core.camera.Camera` or a ``vtkCamera``; ``None``:
         the automatic camera (position = focal point = 0 0 0)."""
@@ -414,10 +440,12 @@ class RefractionRenderFilter(IlluminationFilterBase):
             self._last_error = None
             check_image_data(in_info.Get(vtkDataObject.DATA_OBJECT()))
             width, height = self._image_size
+            origin, spacing, direction = self.picture_geometry(_input_bounds(in_info))
             out_info.Set(SDDP.WHOLE_EXTENT(), (0, width - 1, 0, height - 1, 0, 0), 6)
-            out_info.Set(vtkDataObject.ORIGIN(), (0.0, 0.0, 0.0), 3)
-            out_info.Set(vtkDataObject.SPACING(), (1.0, 1.0, 1.0), 3)
-            out_info.Set(vtkDataObject.DIRECTION(), tuple(np.eye(3).reshape(-1)), 9)
+            out_info.Set(vtkDataObject.ORIGIN(), origin, 3)
+            out_info.Set(vtkDataObject.SPACING(), spacing, 3)
+            out_info.Set(vtkDataObject.DIRECTION(),
+                         tuple(float(v) for v in np.asarray(direction).reshape(-1)), 9)
             for key in (SDDP.TIME_STEPS(), SDDP.TIME_RANGE()):
                 if in_info.Has(key):
                     out_info.CopyEntry(in_info, key)
@@ -463,6 +491,10 @@ class RefractionRenderFilter(IlluminationFilterBase):
 
         output = vtkImageData()
         output.SetExtent(0, width - 1, 0, height - 1, 0, 0)
+        origin, spacing, direction = self.picture_geometry(volume.bounds)
+        output.SetOrigin(origin)
+        output.SetSpacing(spacing)
+        output.SetDirectionMatrix(*(float(v) for v in np.asarray(direction).reshape(-1)))
 
         def image_order(a):  # (H, W[, c]), row 0 at the top -> [i, j, 0(, c)], j = 0 at the bottom
             a = np.asarray(a)[::-1]
@@ -475,6 +507,28 @@ class RefractionRenderFilter(IlluminationFilterBase):
         if time is not None:
             output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), time)
         return output
+
+
+class _Bounds:
+    """What ``Scene.resolved_camera`` reads of a volume: its world bounds."""
+
+    def __init__(self, bounds) -> None:
+        self.bounds = np.asarray(bounds, dtype=np.float64)
+
+
+def _input_bounds(in_info) -> np.ndarray:
+    """World bounds of the input image from its pipeline information (as ``Volume.bounds``)."""
+    whole = in_info.Get(SDDP.WHOLE_EXTENT())
+    spacing = np.asarray(in_info.Get(vtkDataObject.SPACING()) or (1.0, 1.0, 1.0))
+    origin = np.asarray(in_info.Get(vtkDataObject.ORIGIN()) or (0.0, 0.0, 0.0))
+    direction = (np.asarray(in_info.Get(vtkDataObject.DIRECTION())).reshape(3, 3)
+                 if in_info.Has(vtkDataObject.DIRECTION()) else np.eye(3))
+    lo = np.asarray(whole[0::2], dtype=np.float64)
+    hi = np.asarray(whole[1::2], dtype=np.float64)
+    corners = np.array([[(lo, hi)[i][0], (lo, hi)[j][1], (lo, hi)[k][2]]
+                        for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    world = (corners * spacing) @ direction.T + origin
+    return np.stack([world.min(0), world.max(0)], 1).reshape(-1)
 
 
 def _vector(x, y, z, name: str) -> tuple:
