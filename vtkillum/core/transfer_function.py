@@ -207,7 +207,8 @@ def _interp(x, xp, fp):
     x = x.reshape(-1)  # (0-d input: in-place operations need arrays)
     j = np.searchsorted(xp, x, side="right")
     j -= 1
-    np.clip(j, 0, xp.size - 2, out=j)
+    np.maximum(j, 0, out=j)  # (np.clip is several times slower on small arrays)
+    np.minimum(j, xp.size - 2, out=j)
     # In place where it saves temporaries (tables of thousands of entries per edit); the
     # same operations, so the same bits, as the plain expressions.
     half = 0.5 * xp
@@ -215,12 +216,15 @@ def _interp(x, xp, fp):
     t = 0.5 * x
     t -= lo
     t /= half[1:][j] - lo
-    np.clip(t, 0.0, 1.0, out=t)
+    np.maximum(t, 0.0, out=t)
+    np.minimum(t, 1.0, out=t)
     if fp.ndim > 1:  # several functions (columns of fp) at once: one search
         t = t[..., None]
     out = (1.0 - t) * np.take(fp, j, axis=0)
     out += t * np.take(fp[1:], j, axis=0)
-    return np.clip(out, fp.min(axis=0), fp.max(axis=0), out=out).reshape(shape + fp.shape[1:])
+    np.maximum(out, fp.min(axis=0), out=out)
+    np.minimum(out, fp.max(axis=0), out=out)
+    return out.reshape(shape + fp.shape[1:])
 
 
 def _check_numeric(values, name: str) -> None:
