@@ -103,7 +103,7 @@ def main(argv=None):
     def shade(kernel, regs_out):
         wp.launch(kernel, dim=n_work,
                   inputs=[m.medium, cam, m.extinction, m.grid, vp, work, offsets, lengths, 0, 0,
-                          ref] + regs_out, device=device)
+                          offsets, 1, ref] + regs_out, device=device)
 
     def seg_arrays():
         return [wp.zeros(n_seg, dtype=wp.vec3, device=device),

@@ -251,7 +251,8 @@ class PhotonMap:
         self.interactions: Interactions = allocate(1, device)
         self._total = 0
         self._counters = None  # device (added, capped, total) of a trace not yet resolved
-        self._masks = None  # device OR of every path's (hist, chist), not yet read
+        self._masks = None  # (device, host) OR of every path's (hist, chist), not yet read
+        self._mask_buffers = None  # kept: a trace queues no allocation for them
         #: The OR of every path's Historygrams ``(path_hist, path_chist)`` as Python ints
         #: (every bit until a trace is resolved): a query that misses both invalidates no
         #: photon, and needs no look at the paths.
@@ -277,6 +278,7 @@ class PhotonMap:
     def resolve(self) -> dict:
         """Read the counts of the last trace from the device (one wait) into :attr:`stats`
         (``interactions_added``, ``capped``, ``total``) and :attr:`total`."""
+        synced = self._counters is not None  # (its copy waits for everything queued)
         if self._counters is not None:
             added, capped, total = (int(c) for c in self._counters.numpy())
             self._counters = None
@@ -284,7 +286,12 @@ class PhotonMap:
                 self._total = total
             self.stats.update(interactions_added=added, capped=capped)
         if self._masks is not None:
-            self.path_masks = tuple(int(v) for v in self._masks.numpy())
+            dev, host = self._masks
+            if host is None:
+                host = dev.numpy()
+            elif not synced:
+                wp.synchronize_device(self.device)
+            self.path_masks = tuple(int(v) for v in host)
             self._masks = None
         self.stats["total"] = self._total
         return self.stats
@@ -404,12 +411,22 @@ class PhotonMap:
         return self.stats
 
     def _queue_path_masks(self) -> None:
-        """Queue the OR of every path's Historygrams (read by :meth:`resolve`)."""
-        self._masks = wp.zeros(2, dtype=wp.uint64, device=self.device)
+        """Queue the OR of every path's Historygrams (read by :meth:`resolve`; on CUDA copied
+        to page-locked memory in the same queue, so that the wait for the counts covers it)."""
+        device = self.device
+        if self._mask_buffers is None:
+            cuda = wp.get_device(device).is_cuda
+            self._mask_buffers = (
+                wp.zeros(2, dtype=wp.uint64, device=device),
+                wp.zeros(2, dtype=wp.uint64, device="cpu", pinned=True) if cuda else None)
+        dev, host = self._mask_buffers
+        dev.zero_()
         threads = min(self.n_photons, MASK_THREADS)
         wp.launch(path_masks_kernel, dim=threads,
-                  inputs=[self.path_hist, self.path_chist, threads, self._masks],
-                  device=self.device)
+                  inputs=[self.path_hist, self.path_chist, threads, dev], device=device)
+        if host is not None:
+            wp.copy(host, dev)
+        self._masks = (dev, None if host is None else host.numpy())
 
     def _launch_trace(self, medium, emitters, params, photons, restart, scratch, n_work: int,
                       chunk: int, allocate):
