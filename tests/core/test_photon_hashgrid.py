@@ -101,15 +101,20 @@ def test_emission_order_gives_the_same_photon_map(monkeypatch, lights, max_order
         assert np.all(maps[0]["count"] <= max_order)
 
 
-@pytest.mark.parametrize("order", ["across", "ray"])
+@pytest.mark.parametrize("order, padding", [("across", 2.0), ("across", 1.1), ("ray", 2.0)])
 @pytest.mark.parametrize("batch", [1 << 27, 700])
-def test_per_sample_gather_gives_the_same_segments(monkeypatch, batch, order):
+def test_per_sample_gather_gives_the_same_segments(monkeypatch, batch, order, padding):
     """Photon-only segments gathered one thread per sample (the GPU's path, in batches, the
-    samples of a warp along a ray or across neighbouring rays) equal the per-segment
-    computation bit for bit, and an incremental update through it still equals a full
-    recompute."""
+    samples of a warp along a ray or across neighbouring rays, the latter falling back to
+    the former in batches padded too much) equal the per-segment computation bit for bit,
+    and an incremental update through it still equals a full recompute."""
     monkeypatch.setattr(segments, "SAMPLE_ORDER", order)
     monkeypatch.setattr(segments, "ACROSS_MIN_SAMPLES", 0)
+    monkeypatch.setattr(segments, "ACROSS_MAX_PADDING", padding)
+    calls = []
+    across = segments._sample_light_across
+    monkeypatch.setattr(segments, "_sample_light_across",
+                        lambda *a: calls.append(across(*a)) or calls[-1])
     images = []
     for devices in ((), ("cpu",)):
         monkeypatch.setattr(segments, "SAMPLE_PARALLEL_DEVICES", devices)
@@ -130,3 +135,10 @@ def test_per_sample_gather_gives_the_same_segments(monkeypatch, batch, order):
     volume, ref = mapper("photons")
     full_image = run(ref, volume, EDITS["shadow"])[1]
     np.testing.assert_array_equal(img_b.radiance, full_image.radiance)
+    # The orders really ran: across batches, and with little padding allowed some fell back.
+    if order == "ray":
+        assert not calls
+    elif padding >= 2.0:
+        assert any(c is not None for c in calls)
+    else:
+        assert any(c is None for c in calls)

@@ -84,6 +84,9 @@ SAMPLE_BLOCK = 256
 #: fewer than :data:`ACROSS_MIN_SAMPLES` samples (the few segments of an edit) go "ray".
 SAMPLE_ORDER = "across"
 ACROSS_MIN_SAMPLES = 1 << 23
+#: A batch whose padded warps would hold more than this many times its samples (work items
+#: of very different lengths side by side) goes "ray" (bounds the light buffer).
+ACROSS_MAX_PADDING = 2.0
 #: Register cap of :func:`shade_segment_kernel` on CUDA (0: none).
 SHADE_REGISTERS = 0
 
@@ -569,16 +572,22 @@ def gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device,
     rays = wp.empty(n_work, dtype=SegmentRay, device=device)
     wp.launch(segment_rays_kernel, dim=n_work, inputs=[m, cam, vp, work, rays], device=device)
     across = SAMPLE_ORDER == "across" and total >= ACROSS_MIN_SAMPLES
-    if not across:
-        light = wp.empty(max(size, 1), dtype=wp.vec3, device=device)
-        sample_work = wp.empty(max(size, 1), dtype=wp.int32, device=device)
-    first, stride = offsets, 1  # (``first`` is read only with stride 32)
+    flat = None  # the ray order's buffers (light, sample_work), made when first needed
     for w0, w1, base, count in batches:
+        done = None
         if across:
-            light, first = _sample_light_across(m, grid, me, sp, vp, rays, lengths, w0, w1,
-                                                device)
+            done = _sample_light_across(m, grid, me, sp, vp, rays, lengths, w0, w1, count,
+                                        device)
+        if done is not None:
+            light, first = done
             stride = 32
-        elif count > 0:
+        else:
+            if flat is None:
+                flat = (wp.empty(max(size, 1), dtype=wp.vec3, device=device),
+                        wp.empty(max(size, 1), dtype=wp.int32, device=device))
+            light, sample_work = flat
+            first, stride = offsets, 1  # (``first`` is read only with stride 32)
+        if done is None and count > 0:
             wp.launch(sample_segments_kernel, dim=(w1 - w0) * 32,
                       inputs=[offsets, lengths, w0, base, sample_work], device=device)
             wp.launch(sample_light_kernel, dim=count,
@@ -607,14 +616,18 @@ def segment_rays_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
     rays[w] = r
 
 
-def _sample_light_across(m, grid, me, sp, vp, rays, lengths, w0, w1, device):
-    """:func:`sample_light_across_kernel` over work items ``[w0, w1)`` (one wait: for the
-    number of warps); returns the light (32 entries a warp) and each group's first warp."""
+def _sample_light_across(m, grid, me, sp, vp, rays, lengths, w0, w1, count, device):
+    """:func:`sample_light_across_kernel` over work items ``[w0, w1)`` (``count`` samples;
+    one wait: for the number of warps); returns the light (32 entries a warp) and each
+    group's first warp, or None (nothing done) where the warps would be padded more than
+    :data:`ACROSS_MAX_PADDING` times."""
     groups = -(-(w1 - w0) // 32)
     spans = wp.empty(groups, dtype=wp.int32, device=device)
     wp.launch(group_span_kernel, dim=groups, inputs=[lengths, w0, w1, spans], device=device)
     first = wp.empty(groups, dtype=wp.int32, device=device)
     warps = exclusive_scan(spans, first)
+    if 32 * warps > ACROSS_MAX_PADDING * max(count, 1):
+        return None
     light = wp.empty(max(32 * warps, 1), dtype=wp.vec3, device=device)
     if warps > 0:
         warp_group = wp.empty(warps, dtype=wp.int32, device=device)
