@@ -128,6 +128,20 @@ def run_pvbatch(script, *args, shim_dir=None, timeout=None, **kwargs) -> subproc
                           timeout=timeout, **kwargs)
 
 
+def run_pvbatch_logged(script, *args, shim_dir=None, timeout=None,
+                       attempts: int = 2) -> tuple[subprocess.CompletedProcess, str]:
+    """:func:`run_pvbatch` with its output captured, tried again (up to ``attempts`` runs)
+    when ``xvfb-run -a`` lost the race for a display number; returns the process and its
+    stdout + stderr."""
+    for _ in range(max(1, attempts)):
+        proc = run_pvbatch(script, *args, shim_dir=shim_dir, timeout=timeout,
+                           capture_output=True, text=True)
+        log = proc.stdout + proc.stderr
+        if proc.returncode == 0 or "bad X server connection" not in log:
+            break
+    return proc, log
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--shim-dir", help="where to build the shim directory")

@@ -77,13 +77,18 @@ def image(path: Path) -> np.ndarray:
     return np.asarray(Image.open(path).convert("RGB")).astype(np.float64)
 
 
-def test_gui_exits_cleanly_after_the_whole_session(gui):
-    out, status, log = gui
+def finished_summary(out: Path, status: int, log: str) -> dict:
+    """The summary of a GUI session that ran to its end and exited cleanly (asserted)."""
     progress = (out / "progress.txt").read_text() if (out / "progress.txt").exists() else ""
     assert status == 0, f"ParaView exited with {status}\n{progress}\n{log[-3000:]}"
     assert (out / "done").exists(), f"the GUI script did not reach its end:\n{progress}"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["errors"] == [], summary["errors"]
+    return summary
+
+
+def test_gui_exits_cleanly_after_the_whole_session(gui):
+    finished_summary(*gui)
 
 
 def test_every_filter_is_created_selected_edited_and_shown_as_a_volume(gui):

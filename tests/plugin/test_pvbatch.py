@@ -33,13 +33,7 @@ def run(tmp_path_factory):
     """Run the pvbatch script once; returns (output directory, summary)."""
     out = tmp_path_factory.mktemp("pvbatch")
     shim = tmp_path_factory.mktemp("pvshim")
-    for attempt in range(2):
-        proc = pvbatch_env.run_pvbatch(SCRIPT, out, shim_dir=shim, timeout=300,
-                                       capture_output=True, text=True)
-        log = proc.stdout + proc.stderr
-        # xvfb-run -a occasionally loses the race for a display number: try once more.
-        if proc.returncode == 0 or "bad X server connection" not in log:
-            break
+    proc, log = pvbatch_env.run_pvbatch_logged(SCRIPT, out, shim_dir=shim, timeout=300)
     assert proc.returncode == 0 and (out / "summary.json").exists(), log[-4000:]
     return out, json.loads((out / "summary.json").read_text())
 

@@ -28,13 +28,8 @@ SCRIPT = Path(__file__).with_name("pvbatch_render.py")
 def run(tmp_path_factory):
     out = tmp_path_factory.mktemp("pvrender")
     shim = tmp_path_factory.mktemp("pvshim")
-    for attempt in range(3):
-        proc = pvbatch_env.run_pvbatch(SCRIPT, out, shim_dir=shim, timeout=400,
-                                       capture_output=True, text=True)
-        log = proc.stdout + proc.stderr
-        # xvfb-run -a occasionally loses the race for a display number: try again.
-        if proc.returncode == 0 or "bad X server connection" not in log:
-            break
+    proc, log = pvbatch_env.run_pvbatch_logged(SCRIPT, out, shim_dir=shim, timeout=400,
+                                               attempts=3)
     assert proc.returncode == 0 and (out / "render.json").exists(), log[-4000:]
     (out / "pvbatch.log").write_text(log)
     return out, json.loads((out / "render.json").read_text()), log
