@@ -458,18 +458,14 @@ def recompute_flagged(m: Medium, cam: CameraParams, lights: Lights, grid: Photon
                       me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, seg: dict,
                       flags: wp.array, device: str, seg_len: wp.array | None = None) -> int:
     """Recompute the stored segments flagged in ``flags`` (indexed like the segments) with
-    :func:`recompute_segments`; returns how many. Where :func:`per_sample`, the samples
-    of each flagged segment (``seg_len``, or counted here) are summed beside the flags
-    (one wait for both)."""
+    :func:`recompute_segments`; returns how many. Where :func:`per_sample`, ``seg_len``
+    holds the samples of each flagged segment (0 for the others; from
+    :func:`segment_query_kernel`), summed beside the flags (one wait for both)."""
     if not per_sample(vp, device):
         work, _ = select(flags, flags, device)
         recompute_segments(m, cam, lights, grid, me, sp, vp, seg, work, device)
         return int(work.shape[0])
     n_seg = flags.shape[0]
-    if seg_len is None:
-        seg_len = wp.empty(n_seg, dtype=wp.int32, device=device)
-        wp.launch(flagged_lengths_kernel, dim=n_seg, inputs=[m, cam, vp, flags, seg_len],
-                  device=device)
     flag_scan = wp.empty(n_seg, dtype=wp.int32, device=device)
     len_scan = wp.empty(n_seg, dtype=wp.int32, device=device)
     n_work, total = sums(flags, seg_len, device, flag_scan, len_scan)
@@ -482,19 +478,6 @@ def recompute_flagged(m: Medium, cam: CameraParams, lights: Lights, grid: Photon
     wp.launch(gather_int_kernel, dim=n_work, inputs=[work, len_scan, offsets], device=device)
     gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device, total, offsets)
     return n_work
-
-
-@wp.kernel
-def flagged_lengths_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
-                           flags: wp.array(dtype=wp.int32), seg_len: wp.array(dtype=wp.int32)):
-    """``wp.tid()`` = segment entry: the samples a flagged segment marches
-    (:func:`segment_transmittance`), 0 for the others."""
-    idx = wp.tid()
-    seg_len[idx] = 0
-    if flags[idx] != 0:
-        row, col, i = segment_of(cam, vp, idx)
-        _t, n = segment_transmittance(m, cam, vp, row, col, i)
-        seg_len[idx] = n
 
 
 def per_sample(vp: ViewParams, device: str) -> bool:
@@ -549,14 +532,12 @@ def gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device,
     when made already (with ``total``).
     """
     n_work = int(work.shape[0])
-    if offsets is not None and total is not None:  # (the exclusive scan of ``lengths``)
-        pass
-    elif total is None:  # (``total``: the sum of ``lengths`` when known)
+    if offsets is None or total is None:  # (``total``: the sum of ``lengths`` when known)
         offsets = wp.empty(n_work, dtype=wp.int32, device=device)
-        total = exclusive_scan(lengths, offsets)
-    else:
-        offsets = wp.empty(n_work, dtype=wp.int32, device=device)
-        wp.utils.array_scan(lengths, offsets, inclusive=False)
+        if total is None:
+            total = exclusive_scan(lengths, offsets)
+        else:
+            wp.utils.array_scan(lengths, offsets, inclusive=False)
     if total <= SAMPLES_PER_BATCH:
         batches = [(0, n_work, 0, total)]
     else:  # split the work list where the sample count crosses the budget
@@ -681,13 +662,7 @@ def sample_light_across_kernel(m: Medium, grid: PhotonGrid, me: MeanExtinction,
     kl = v - first[g]
     if kl >= lengths[w]:
         return
-    r = rays[w]
-    p = r.o + (r.t0 + (float(r.k0 + kl) + r.xi) * vp.step) * r.d
-    s = sample_scalar(m.scalars, m.inv_spacing, p)
-    sig = lookup_sigma_t(m, s)
-    if sig > 0.0:
-        surf, normal = surface_normal(m, sp, p, s)
-        light[t] = photon_radiance(grid, me, p, -r.d, m.g, surf, normal, sp)
+    sample_light(m, grid, me, sp, vp, rays[w], kl, light, t)
 
 
 @wp.kernel
@@ -757,9 +732,16 @@ def sample_light_kernel(m: Medium, grid: PhotonGrid, me: MeanExtinction, sp: Sur
     ``light[s - base]``."""
     t = wp.tid()
     w = sample_work[t]
-    r = rays[w]
-    k = r.k0 + (base + t - offsets[w])
-    p = r.o + (r.t0 + (float(k) + r.xi) * vp.step) * r.d
+    sample_light(m, grid, me, sp, vp, rays[w], base + t - offsets[w], light, t)
+
+
+@wp.func
+def sample_light(m: Medium, grid: PhotonGrid, me: MeanExtinction, sp: SurfaceParams,
+                 vp: ViewParams, r: SegmentRay, kl: int, light: wp.array(dtype=wp.vec3),
+                 t: int):
+    """The photon radiance at sample ``kl`` of ray ``r``'s segment into ``light[t]`` (not
+    written where σt = 0: the shading does not read it there)."""
+    p = r.o + (r.t0 + (float(r.k0 + kl) + r.xi) * vp.step) * r.d
     s = sample_scalar(m.scalars, m.inv_spacing, p)
     sig = lookup_sigma_t(m, s)
     if sig > 0.0:

@@ -225,14 +225,11 @@ def select(flags: wp.array, values: wp.array, device: str,
     ``total``: the number of flags set, when known (no wait for the device then);
     ``offsets``: the exclusive scan of ``flags``, when made already (with ``total``)."""
     n = flags.shape[0]
-    if offsets is not None and total is not None:
-        pass
-    elif total is None:
+    if offsets is None or total is None:
         offsets = wp.empty(n, dtype=wp.int32, device=device)
-        total = exclusive_scan(flags, offsets)
-    else:
-        offsets = wp.empty(n, dtype=wp.int32, device=device)
-        if total > 0:
+        if total is None:
+            total = exclusive_scan(flags, offsets)
+        elif total > 0:
             wp.utils.array_scan(flags, offsets, inclusive=False)
     idx = wp.empty(max(total, 0), dtype=wp.int32, device=device)
     val = wp.empty(max(total, 0), dtype=wp.int32, device=device)
