@@ -22,7 +22,8 @@ interaction, a view-ray segment) has used, stored as a 64-bit mask:
   whose optical properties changed (:func:`query_masks`: σt and colour apart): :func:`query_mask` compares the σt and colour
   tables the kernels interpolate before and after the edit and sets the bins of
   every data interval that an entry which changed influences (an entry at ``v_i``
-  is interpolated for ``s`` in ``(v_{i-1}, v_{i+1})``). An object is invalid iff
+  is interpolated for ``s`` in ``(v_{i-1}, v_{i+1})``; the mapper makes the same masks on
+  the device, with the tables: :mod:`vtkillum.core.photon.tables`). An object is invalid iff
   ``(hist & Q_σ) | (chist & Q_c) != 0``: the test is exact for the kernels' own lookups, never missing a
   change, so an incremental update equals a full recompute.
 * **Spatial Historygram** (section 4.3.2). One 64-bit mask per axis over the volume's

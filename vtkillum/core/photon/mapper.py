@@ -54,7 +54,6 @@ from vtkillum.core.photon.historygram import (
     kept_count_kernel,
     mark_added_kernel,
     photon_query_kernel,
-    query_masks,
 )
 from vtkillum.core.photon.material import make_surface
 from vtkillum.core.photon.segments import (
@@ -208,7 +207,7 @@ class PhotonMapper:
             self._full_pending = True
             self._pending_query = (ALL_BITS, ALL_BITS)
         else:
-            hq = query_masks(self.tables, tables, volume.value_range)
+            hq = (tables.sigma_bins, tables.color_bins)
             self.medium, self.tables = medium, tables
             if hq[0] or hq[1]:
                 inc, pending = self._incremental(volume, hq)
@@ -337,11 +336,14 @@ class PhotonMapper:
             seg_len = wp.empty(n_seg if lengths else 1, dtype=wp.int32, device=device)
             scale = wp.vec3(*(BITS / np.asarray(volume.extent, np.float64)).astype(np.float32))
             sx, sy, sz = (wp.uint64(int(v)) for v in self._pending_spatial)
+            # A segment meets the spatial Historygram only where all three axes have bits:
+            # with an empty axis (no photon moved) no segment sets up its ray for it.
+            use_spatial = self.spatial_historygram and bool(self._pending_spatial.all())
             wp.launch(segment_query_kernel, dim=n_seg,
                       inputs=[self.medium, cam, vp, self._seg["hist"], self._seg["chist"],
                               self._seg["state"], wp.uint64(self._pending_query[0]),
                               wp.uint64(self._pending_query[1]), sx, sy, sz,
-                              int(self.spatial_historygram), scale, self.radius, int(lengths),
+                              int(use_spatial), scale, self.radius, int(lengths),
                               flags, seg_len],
                       device=device)
             recomputed = recompute_flagged(self.medium, cam, self.lights, self.grid,

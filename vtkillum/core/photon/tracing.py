@@ -59,6 +59,7 @@ from vtkillum.core.photon.material import (
     sample_scattering,
     surface_normal,
 )
+from vtkillum.core.photon.tables import DeviceTables
 from vtkillum.core.photon.storage import (
     ABSORBED,
     CAPPED,
@@ -159,14 +160,17 @@ def photon_tables(transfer_function, unit_distance: float, value_range, size: in
 
 def photon_medium(volume, transfer_function, unit_distance: float, albedo: float, g: float,
                   device: str, previous: tuple | None = None):
-    """A :class:`Medium` whose tables are :func:`photon_tables` (returned as well).
+    """A :class:`Medium` whose tables are :class:`~vtkillum.core.photon.tables.DeviceTables`
+    (returned as well: they hold the query Historygrams of the edit from ``previous``).
 
     ``previous``: ``(medium, tables)`` of the same volume, albedo and g (an earlier call);
-    where the σt table did not change, its device table and block occupancy are reused
-    (a colour edit uploads the colour table alone).
+    the tables say which bins the edit changed, and where no σt entry changed, the
+    block occupancy is reused (a colour edit touches the colour table alone). The tables
+    equal :func:`photon_tables` to float32 rounding.
     """
-    sigma, color, lo, hi = photon_tables(transfer_function, unit_distance, volume.value_range)
     device = resolve_device(device)
+    tables = DeviceTables(transfer_function, unit_distance, volume.value_range, device,
+                          None if previous is None else previous[1])
     m = Medium()  # make_medium's fields, with these tables (not make_medium's own)
     m.scalars = volume.derived(f"scalars@{device}", None,
                                lambda: to_device(volume.scalars, wp.float32, device))
@@ -174,19 +178,17 @@ def photon_medium(volume, transfer_function, unit_distance: float, albedo: float
     m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
     m.albedo = float(albedo)
     m.g = float(g)
-    m.color_table = wp.array(color, dtype=wp.vec3, device=device)
-    m.table_lo = float(lo)
-    m.table_scale = float((len(sigma) - 1) / (hi - lo))
-    m.majorant = float(sigma.max()) * 1.0001 + 1e-12
+    m.sigma_table = tables.sigma
+    m.color_table = tables.color
+    m.table_lo = float(tables.lo)
+    m.table_scale = float(tables.scale)
+    m.majorant = tables.peak * 1.0001 + 1e-12
     old = previous[0] if previous is not None else None
-    if (old is not None and np.array_equal(previous[1][0], sigma) and old.scalars is m.scalars
-            and old.table_lo == m.table_lo and old.table_scale == m.table_scale):
-        m.sigma_table, m.occupied, m.block, m.inv_block = (old.sigma_table, old.occupied,
-                                                           old.block, old.inv_block)
+    if old is not None and not tables.sigma_changed and old.scalars is m.scalars:
+        m.occupied, m.block, m.inv_block = old.occupied, old.block, old.inv_block
     else:
-        m.sigma_table = wp.array(sigma, dtype=wp.float32, device=device)
-        attach_occupancy(m, volume, sigma, device)
-    return m, (sigma, color)
+        attach_occupancy(m, volume, None, device)
+    return m, tables
 
 
 class PhotonMap:
