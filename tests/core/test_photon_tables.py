@@ -81,3 +81,21 @@ def test_an_incomparable_previous_changes_everything(device):
     other = DeviceTables(tf(), U, (0.0, 999.0), device, previous=before)
     assert (other.sigma_bins, other.color_bins) == (ALL_BITS, ALL_BITS)
     assert other.sigma_changed and other.color_changed
+
+
+def test_a_chain_of_edits_with_more_points_than_the_buffers_held(device):
+    """Each edit reuses the buffers of the one before, or makes larger ones."""
+    x = np.linspace(0.0, 1000.0, 40)
+    many = TransferFunction(x, 0.5 + 0.4 * np.sin(x / 90.0),
+                            np.stack([np.full(40, 0.2), x / 1000.0, 1.0 - x / 1000.0], 1))
+    chain = [tf(), many, EDITS["a point moved"], tf()]
+    tables = None
+    for before, after in zip(chain, chain[1:]):
+        tables = DeviceTables(before, U, RANGE, device, previous=tables)
+        edited = DeviceTables(after, U, RANGE, device, previous=tables)
+        host = query_masks(photon_tables(before, U, RANGE)[:2],
+                           photon_tables(after, U, RANGE)[:2], RANGE)
+        assert (edited.sigma_bins, edited.color_bins) == host != (0, 0)
+        same_as_host(tables, before, RANGE)  # read after the next launch: still its own
+        same_as_host(edited, after, RANGE)
+        tables = edited

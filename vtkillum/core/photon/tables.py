@@ -29,9 +29,10 @@ from vtkillum.core.transfer_function import MAX_ALPHA, TABLE_SIZE
 
 init_warp()
 
-#: Slots of the result array: the σt bins and colour bins of the changed entries, and
-#: whether any σt / colour entry changed at all.
-SIGMA_BINS, COLOR_BINS, SIGMA_CHANGED, COLOR_CHANGED = range(4)
+#: Slots of the result array: the σt bins and colour bins of the changed entries,
+#: whether any σt / colour entry changed at all, and the largest σt (a float32 in the
+#: slot's first four bytes).
+SIGMA_BINS, COLOR_BINS, SIGMA_CHANGED, COLOR_CHANGED, PEAK = range(5)
 
 
 @wp.func
@@ -69,38 +70,38 @@ def bins_between(a: wp.float64, b: wp.float64, lo: wp.float64, hi: wp.float64):
 
 
 @wp.func
-def interp_column(points: wp.array2d(dtype=wp.float64), c: int, j: int, j1: int, t: wp.float64):
-    """Column ``c`` of the control points interpolated between rows ``j`` and ``j1``, kept
-    within the column's range (as ``_interp``)."""
-    f = (wp.float64(1.0) - t) * points[j, c] + t * points[j1, c]
-    fmin = points[0, c]
-    fmax = points[0, c]
-    for q in range(1, points.shape[0]):
-        fmin = wp.min(fmin, points[q, c])
-        fmax = wp.max(fmax, points[q, c])
+def interp_column(points: wp.array(dtype=wp.float64), k: int, c: int, j: int, j1: int,
+                  t: wp.float64):
+    """Column ``c`` of the ``k`` control points (rows of 5) interpolated between rows ``j``
+    and ``j1``, kept within the column's range (as ``_interp``)."""
+    f = (wp.float64(1.0) - t) * points[j * 5 + c] + t * points[j1 * 5 + c]
+    fmin = points[c]
+    fmax = points[c]
+    for q in range(1, k):
+        fmin = wp.min(fmin, points[q * 5 + c])
+        fmax = wp.max(fmax, points[q * 5 + c])
     return wp.clamp(f, fmin, fmax)
 
 
 @wp.kernel
-def tf_tables_kernel(points: wp.array2d(dtype=wp.float64), lo: wp.float64, step: wp.float64,
+def tf_tables_kernel(points: wp.array(dtype=wp.float64), k: int, lo: wp.float64, step: wp.float64,
                      hi: wp.float64, unit_distance: wp.float64, max_alpha: wp.float64,
                      sigma: wp.array(dtype=wp.float32), color: wp.array(dtype=wp.vec3),
                      old_sigma: wp.array(dtype=wp.float32), old_color: wp.array(dtype=wp.vec3),
                      compare: int, bin_lo: wp.float64, bin_hi: wp.float64,
                      result: wp.array(dtype=wp.uint64), peak: wp.array(dtype=wp.float32)):
-    """``wp.tid()`` = table entry ``i``: σt and colour at its data value from the control
-    points ``points`` (rows: value, opacity, r, g, b); with ``compare``, ORs the bins the
-    entry influences into ``result`` where it differs from the old table."""
+    """``wp.tid()`` = table entry ``i``: σt and colour at its data value from the ``k``
+    control points ``points`` (rows of 5: value, opacity, r, g, b); with ``compare``, ORs
+    the bins the entry influences into ``result`` where it differs from the old table."""
     i = wp.tid()
     n = sigma.shape[0]
-    k = points.shape[0]
     v = table_value(i, n, lo, step, hi)
     # The control point left of v: the first with value > v, minus one, kept in [0, k-2].
     a = int(0)
     b = k
     while a < b:
         mid = (a + b) // 2
-        if points[mid, 0] <= v:
+        if points[mid * 5] <= v:
             a = mid + 1
         else:
             b = mid
@@ -109,14 +110,14 @@ def tf_tables_kernel(points: wp.array2d(dtype=wp.float64), lo: wp.float64, step:
     j1 = j
     if k > 1:
         j1 = j + 1
-        h0 = wp.float64(0.5) * points[j, 0]
-        t = (wp.float64(0.5) * v - h0) / (wp.float64(0.5) * points[j1, 0] - h0)
+        h0 = wp.float64(0.5) * points[j * 5]
+        t = (wp.float64(0.5) * v - h0) / (wp.float64(0.5) * points[j1 * 5] - h0)
         t = wp.clamp(t, wp.float64(0.0), wp.float64(1.0))
-    alpha = interp_column(points, 1, j, j1, t)
+    alpha = interp_column(points, k, 1, j, j1, t)
     s = wp.float32(-log1p64(-wp.min(alpha, max_alpha)) / unit_distance)
-    col = wp.vec3(wp.float32(interp_column(points, 2, j, j1, t)),
-                  wp.float32(interp_column(points, 3, j, j1, t)),
-                  wp.float32(interp_column(points, 4, j, j1, t)))
+    col = wp.vec3(wp.float32(interp_column(points, k, 2, j, j1, t)),
+                  wp.float32(interp_column(points, k, 3, j, j1, t)),
+                  wp.float32(interp_column(points, k, 4, j, j1, t)))
     sigma[i] = s
     color[i] = col
     wp.atomic_max(peak, 0, s)
@@ -184,34 +185,53 @@ class DeviceTables:
         self.lo, self.hi = table_range(value_range)
         self.device = device
         tf = transfer_function
-        points = np.empty((tf.scalars.size, 5), np.float64)
-        points[:, 0] = tf.scalars
-        points[:, 1] = tf.opacity
-        points[:, 2:] = tf.colors
+        k = int(tf.scalars.size)
         comparable = (previous is not None and previous.sigma.shape[0] == size
                       and (previous.lo, previous.hi) == (self.lo, self.hi)
                       and previous.device == device)
+        reuse = previous is not None and previous.device == device
+        if reuse:
+            previous._results()  # (its results live in the buffers used again here)
+        self._io = previous._io if reuse and previous._io.capacity >= k else _TableIO(k, device)
+        io = self._io
+        points = io.stage[:k]
+        points[:, 0] = tf.scalars
+        points[:, 1] = tf.opacity
+        points[:, 2:] = tf.colors
+        io.upload(k)
         self.sigma = wp.empty(size, dtype=wp.float32, device=device)
         self.color = wp.empty(size, dtype=wp.vec3, device=device)
-        result = wp.zeros(4, dtype=wp.uint64, device=device)
-        peak = wp.zeros(1, dtype=wp.float32, device=device)
+        io.result.zero_()
         old = previous if comparable else self
         bin_lo, bin_hi = (float(v) for v in value_range)
         wp.launch(tf_tables_kernel, dim=size,
-                  inputs=[wp.array(points, dtype=wp.float64, device=device), self.lo,
-                          (self.hi - self.lo) / max(size - 1, 1), self.hi, float(unit_distance),
-                          MAX_ALPHA, self.sigma, self.color, old.sigma, old.color,
-                          int(comparable), bin_lo, bin_hi, result, peak],
+                  inputs=[io.points, k, self.lo, (self.hi - self.lo) / max(size - 1, 1),
+                          self.hi, float(unit_distance), MAX_ALPHA, self.sigma, self.color,
+                          old.sigma, old.color, int(comparable), bin_lo, bin_hi, io.result,
+                          io.peak],
                   device=device)
-        got = result.numpy()  # the one wait
-        self.peak = float(peak.numpy()[0])
-        if comparable:
-            self.sigma_bins, self.color_bins = int(got[SIGMA_BINS]), int(got[COLOR_BINS])
-            self.sigma_changed = bool(got[SIGMA_CHANGED])
-            self.color_changed = bool(got[COLOR_CHANGED])
-        else:
-            self.sigma_bins = self.color_bins = ALL_BITS
-            self.sigma_changed = self.color_changed = True
+        io.download()
+        self._comparable = comparable
+        self._read = None
+
+    def _results(self):
+        """``(sigma_bins, color_bins, sigma_changed, color_changed, peak)``, read from the
+        device at the first use (the one wait; host work may go on until then)."""
+        if self._read is None:
+            got = self._io.host_result()
+            peak = float(got.view(np.float32)[2 * PEAK])  # (little-endian: the low half)
+            if self._comparable:
+                self._read = (int(got[SIGMA_BINS]), int(got[COLOR_BINS]),
+                              bool(got[SIGMA_CHANGED]), bool(got[COLOR_CHANGED]), peak)
+            else:
+                self._read = (ALL_BITS, ALL_BITS, True, True, peak)
+        return self._read
+
+    sigma_bins = property(lambda self: self._results()[0])
+    color_bins = property(lambda self: self._results()[1])
+    sigma_changed = property(lambda self: self._results()[2])
+    color_changed = property(lambda self: self._results()[3])
+    peak = property(lambda self: self._results()[4])
 
     @property
     def scale(self) -> float:
@@ -221,6 +241,42 @@ class DeviceTables:
     def numpy(self) -> tuple[np.ndarray, np.ndarray]:
         """Host copies ``(sigma (n,), color (n, 3))``."""
         return self.sigma.numpy().copy(), self.color.numpy().copy()
+
+
+class _TableIO:
+    """Buffers a sequence of :class:`DeviceTables` passes on to the next: the control points
+    (page-locked staging on CUDA) and the result slots with their host copy, so that an
+    edit allocates and waits for nothing but its tables and the one read."""
+
+    def __init__(self, capacity: int, device: str) -> None:
+        self.capacity = max(int(capacity), 16)
+        self.cuda = wp.get_device(device).is_cuda
+        self.points = wp.empty(self.capacity * 5, dtype=wp.float64, device=device)
+        self.result = wp.zeros(5, dtype=wp.uint64, device=device)
+        # The peak slot seen as a float32 (the kernel's atomic max); kept alive by result.
+        self.peak = wp.array(ptr=self.result.ptr + 8 * PEAK, dtype=wp.float32, shape=(1,),
+                             device=device)
+        if self.cuda:
+            self._stage = wp.empty(self.capacity * 5, dtype=wp.float64, device="cpu",
+                                   pinned=True)
+            self._host = wp.empty(5, dtype=wp.uint64, device="cpu", pinned=True)
+            self.stage = self._stage.numpy().reshape(-1, 5)
+        else:  # the CPU device reads the host arrays themselves
+            self.stage = self.points.numpy().reshape(-1, 5)
+
+    def upload(self, k: int) -> None:
+        if self.cuda:
+            wp.copy(self.points, self._stage, count=5 * k)
+
+    def download(self) -> None:
+        if self.cuda:
+            wp.copy(self._host, self.result)
+
+    def host_result(self) -> np.ndarray:
+        if self.cuda:
+            wp.synchronize_device(self.result.device)
+            return self._host.numpy()
+        return self.result.numpy()
 
 
 assert BITS == 64  # bins_between is written for 64-bit masks
