@@ -189,10 +189,7 @@ class DeviceTables:
         comparable = (previous is not None and previous.sigma.shape[0] == size
                       and (previous.lo, previous.hi) == (self.lo, self.hi)
                       and previous.device == device)
-        reuse = previous is not None and previous.device == device
-        if reuse:
-            previous._results()  # (its results live in the buffers used again here)
-        self._io = previous._io if reuse and previous._io.capacity >= k else _TableIO(k, device)
+        self._io = _TableIO.take(k, device)
         io = self._io
         points = io.stage[:k]
         points[:, 0] = tf.scalars
@@ -219,6 +216,8 @@ class DeviceTables:
         device at the first use (the one wait; host work may go on until then)."""
         if self._read is None:
             got = self._io.host_result()
+            _TableIO.give_back(self._io)  # (read, and the upload done: free for another)
+            self._io = None
             peak = float(got.view(np.float32)[2 * PEAK])  # (little-endian: the low half)
             if self._comparable:
                 self._read = (int(got[SIGMA_BINS]), int(got[COLOR_BINS]),
@@ -244,12 +243,31 @@ class DeviceTables:
 
 
 class _TableIO:
-    """Buffers a sequence of :class:`DeviceTables` passes on to the next: the control points
-    (page-locked staging on CUDA) and the result slots with their host copy, so that an
-    edit allocates and waits for nothing but its tables and the one read."""
+    """The buffers of one :class:`DeviceTables` launch: the control points (page-locked
+    staging on CUDA) and the result slots with their host copy. Page-locked allocations
+    cost about a millisecond each, so the buffers are kept in a pool per device and handed
+    from one set of tables to the next once its results are read."""
+
+    #: Free buffers per device.
+    _pool: dict = {}
+
+    @classmethod
+    def take(cls, k: int, device: str) -> "_TableIO":
+        free = cls._pool.setdefault(str(device), [])
+        for i, io in enumerate(free):
+            if io.capacity >= k:
+                return free.pop(i)
+        return cls(k, device)
+
+    @classmethod
+    def give_back(cls, io: "_TableIO") -> None:
+        free = cls._pool.setdefault(io.device, [])
+        if len(free) < 4:
+            free.append(io)
 
     def __init__(self, capacity: int, device: str) -> None:
-        self.capacity = max(int(capacity), 16)
+        self.capacity = max(int(capacity), 64)
+        self.device = str(device)
         self.cuda = wp.get_device(device).is_cuda
         self.points = wp.empty(self.capacity * 5, dtype=wp.float64, device=device)
         self.result = wp.zeros(5, dtype=wp.uint64, device=device)
