@@ -557,13 +557,40 @@ def make_lights(lights, volume, device: str | None = None) -> Lights:
     device = resolve_device(device)
     kinds, vecs, rgb = pack_lights(lights, volume.direction, volume.origin)
     out = Lights()
-    out.kind = wp.array(kinds, dtype=wp.int32, device=device)
-    out.vec = wp.array(vecs, dtype=wp.vec3, device=device)
-    out.rgb = wp.array(rgb, dtype=wp.vec3, device=device)
-    out.radius = wp.array(np.array([resolved_radius(light, volume) for light in lights],
-                                   np.float32), dtype=wp.float32, device=device)
+    radius = [resolved_radius(light, volume) for light in lights]
+    out.kind, out.vec, out.rgb, out.radius = upload_packed(
+        [(kinds, wp.int32), (vecs, wp.vec3), (rgb, wp.vec3), (radius, wp.float32)], device)
     out.count = len(kinds)
     return out
+
+
+_NP_SCALARS = {wp.int32: np.int32, wp.uint32: np.uint32, wp.float32: np.float32,
+               wp.int64: np.int64, wp.uint64: np.uint64, wp.float64: np.float64}
+
+
+def upload_packed(arrays, device: str) -> list:
+    """Small host arrays on ``device`` with one copy: ``arrays`` is a list of
+    ``(values, dtype)``; returns a warp array per entry, each a view into one device buffer
+    (which the views keep alive). A copy from pageable memory costs tens of microseconds of
+    host time however small, and setting up a trace uploads about a dozen of them."""
+    host = []
+    offset = 0
+    for values, dtype in arrays:
+        a = np.ascontiguousarray(values, dtype=_NP_SCALARS[getattr(dtype, "_wp_scalar_type_",
+                                                                    dtype)])
+        n = a.size // getattr(dtype, "_length_", 1)
+        host.append((a, dtype, n, offset))
+        offset += -(-a.nbytes // 16) * 16  # 16-byte aligned parts
+    buffer = np.zeros(max(offset, 16), np.uint8)
+    for a, _, _, at in host:
+        buffer[at:at + a.nbytes] = a.view(np.uint8).reshape(-1)
+    base = wp.array(buffer, dtype=wp.uint8, device=device)
+    views = []
+    for _, dtype, n, at in host:
+        v = wp.array(ptr=base.ptr + at, dtype=dtype, shape=(n,), device=device)
+        v._ref = base  # (the view owns no memory)
+        views.append(v)
+    return views
 
 
 def stream_seed(seed: int, index: int, salt: int) -> int:

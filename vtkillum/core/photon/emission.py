@@ -30,7 +30,7 @@ import warp as wp
 
 from vtkillum.core.device import init_warp
 from vtkillum.core.lights import DIRECTIONAL, pack_lights
-from vtkillum.core.warp_common import orthonormal_basis, uniform
+from vtkillum.core.warp_common import orthonormal_basis, uniform, upload_packed
 
 init_warp()
 
@@ -123,14 +123,10 @@ def make_emitters(lights, volume, n_photons: int, device: str) -> tuple[Emitters
     cdf = np.cumsum(prob)
     cdf[-1] = 1.0
     em = Emitters()
-    em.kind = wp.array(kinds.astype(np.int32), dtype=wp.int32, device=device)
-    em.origin = wp.array(origin.astype(np.float32), dtype=wp.vec3, device=device)
-    em.edge_u = wp.array(edge_u.astype(np.float32), dtype=wp.vec3, device=device)
-    em.edge_v = wp.array(edge_v.astype(np.float32), dtype=wp.vec3, device=device)
-    em.direction = wp.array(direction.astype(np.float32), dtype=wp.vec3, device=device)
-    em.cos_max = wp.array(cos_max.astype(np.float32), dtype=wp.float32, device=device)
-    em.flux = wp.array(flux.astype(np.float32), dtype=wp.vec3, device=device)
-    em.cdf = wp.array(cdf.astype(np.float32), dtype=wp.float32, device=device)
+    (em.kind, em.origin, em.edge_u, em.edge_v, em.direction, em.cos_max, em.flux,
+     em.cdf) = upload_packed([(kinds, wp.int32), (origin, wp.vec3), (edge_u, wp.vec3),
+                              (edge_v, wp.vec3), (direction, wp.vec3), (cos_max, wp.float32),
+                              (flux, wp.vec3), (cdf, wp.float32)], device)
     em.count = n
     return em, {"power": power, "probability": prob}
 
