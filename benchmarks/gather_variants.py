@@ -110,7 +110,8 @@ def main(argv=None):
                 wp.ones(n_seg, dtype=wp.float32, device=device),
                 wp.zeros(n_seg, dtype=wp.uint64, device=device),
                 wp.zeros(n_seg, dtype=wp.uint64, device=device),
-                wp.zeros(n_seg, dtype=wp.int32, device=device)]
+                wp.zeros(n_seg, dtype=wp.int32, device=device),
+                wp.full(n_seg, -1, dtype=wp.int32, device=device)]
 
     lib = seg_arrays()
     t_lib = timed(lambda: shade(S.shade_segment_kernel, lib), device)

@@ -13,6 +13,7 @@ import vtkillum.core.photon.tracing as tracing
 from vtkillum.core.lights import DirectionalLight, PointLight
 from vtkillum.core.photon.emission import make_emitters
 from vtkillum.core.photon.hashgrid import PhotonGrid, build_photon_grid, gather_flux
+from vtkillum.core.photon.historygram import ALL_BITS
 from vtkillum.core.photon.storage import allocate
 from vtkillum.core.photon.tracing import PhotonMap, photon_medium
 
@@ -142,3 +143,38 @@ def test_per_sample_gather_gives_the_same_segments(monkeypatch, batch, order, pa
         assert any(c is not None for c in calls)
     else:
         assert any(c is None for c in calls)
+
+
+def test_colour_edits_read_the_kept_sample_counts(monkeypatch):
+    """Per-sample path: a σt edit, then colour edits (whose query reads each segment's
+    sample count kept at its computation instead of marching it again) give what a full
+    recompute gives, bit for bit; the kept counts are the marched ones."""
+    monkeypatch.setattr(segments, "SAMPLE_PARALLEL_DEVICES", ("cpu",))
+    volume, m = mapper("photons")
+    run(m, volume, tf())
+    chain = [EDITS["shadow"], tf(occluder=0.0, other_color=(0.2, 0.4, 1.0)),
+             tf(occluder=0.0, other_color=(0.9, 0.1, 0.1), other=0.5)]
+    for edit in chain:
+        stats, image = run(m, volume, edit)
+        assert m.last_render["mode"] == "incremental"
+        reference = run(mapper("photons")[1], volume, edit)[1]
+        np.testing.assert_array_equal(image.radiance, reference.radiance)
+        np.testing.assert_array_equal(image.alpha, reference.alpha)
+    assert m.last_render["segments_recomputed"] > 0
+    kept = m._seg["samples"].numpy()
+    state = m._seg["state"].numpy()
+    assert np.all(kept[state == segments.COMPUTED] >= 0)
+    # The kept counts equal a fresh march of the same segments.
+    n = kept.size
+    flags = wp.zeros(n, dtype=wp.int32, device="cpu")
+    fresh = wp.zeros(n, dtype=wp.int32, device="cpu")
+    _, vp, cam, _, _ = m._view
+    wp.launch(segments.segment_query_kernel, dim=n,
+              inputs=[m.medium, cam, vp, m._seg["hist"], m._seg["chist"], m._seg["state"],
+                      wp.full(n, -1, dtype=wp.int32, device="cpu"), wp.uint64(ALL_BITS),
+                      wp.uint64(ALL_BITS), wp.uint64(0), wp.uint64(0), wp.uint64(0), 0,
+                      wp.vec3(1.0), m.radius, 1, flags, fresh], device="cpu")
+    marched = fresh.numpy()
+    hit = flags.numpy() == 1
+    assert hit.sum() > 0
+    np.testing.assert_array_equal(kept[hit], marched[hit])

@@ -323,7 +323,8 @@ class PhotonMapper:
                          "t": wp.ones(n_seg, dtype=wp.float32, device=device),
                          "hist": wp.zeros(n_seg, dtype=wp.uint64, device=device),
                          "chist": wp.zeros(n_seg, dtype=wp.uint64, device=device),
-                         "state": wp.zeros(n_seg, dtype=wp.int32, device=device)}
+                         "state": wp.zeros(n_seg, dtype=wp.int32, device=device),
+                         "samples": wp.full(n_seg, -1, dtype=wp.int32, device=device)}
             self._accum = None
             mode = "full"
         elif any(self._pending_query) or self._pending_spatial.any():
@@ -341,7 +342,8 @@ class PhotonMapper:
             use_spatial = self.spatial_historygram and bool(self._pending_spatial.all())
             wp.launch(segment_query_kernel, dim=n_seg,
                       inputs=[self.medium, cam, vp, self._seg["hist"], self._seg["chist"],
-                              self._seg["state"], wp.uint64(self._pending_query[0]),
+                              self._seg["state"], self._seg["samples"],
+                              wp.uint64(self._pending_query[0]),
                               wp.uint64(self._pending_query[1]), sx, sy, sz,
                               int(use_spatial), scale, self.radius, int(lengths),
                               flags, seg_len],
@@ -522,7 +524,7 @@ class PhotonMapper:
         indexed ``pixel * V_n + i`` with ``pixel = row * width + col``."""
         if self._seg is None:
             return {}
-        return {name: a.numpy().copy() for name, a in self._seg.items()}
+        return {name: a.numpy().copy() for name, a in self._seg.items() if name != "samples"}
 
     @property
     def passes(self) -> int:

@@ -410,7 +410,8 @@ def composite_segments(m: Medium, cam: CameraParams, lights: Lights, grid: Photo
     alpha = wp.empty((h, w), dtype=wp.float32, device=device)
     wp.launch(composite_kernel, dim=(h, w),
               inputs=[m, cam, lights, grid, me, sp, vp, seg["rad"], seg["t"], seg["hist"],
-                      seg["chist"], seg["state"], radiance, alpha, computed], device=device)
+                      seg["chist"], seg["state"], seg["samples"], radiance, alpha, computed],
+              device=device)
     return radiance, alpha, computed
 
 
@@ -577,7 +578,7 @@ def gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device,
         wp.launch(shade_segment_kernel, dim=w1 - w0,
                   inputs=[m, cam, me, grid, vp, work, offsets, lengths, w0, base, first,
                           stride, light, seg["rad"], seg["t"], seg["hist"], seg["chist"],
-                          seg["state"]], device=device)
+                          seg["state"], seg["samples"]], device=device)
 
 
 @wp.kernel
@@ -757,12 +758,14 @@ def shade_segment_kernel(m: Medium, cam: CameraParams, me: MeanExtinction, grid:
                          light: wp.array(dtype=wp.vec3), seg_rad: wp.array(dtype=wp.vec3),
                          seg_t: wp.array(dtype=wp.float32), seg_hist: wp.array(dtype=wp.uint64),
                          seg_chist: wp.array(dtype=wp.uint64),
-                         seg_state: wp.array(dtype=wp.int32)):
+                         seg_state: wp.array(dtype=wp.int32),
+                         seg_samples: wp.array(dtype=wp.int32)):
     """``wp.tid()`` = ``w - w0``: :func:`compute_segment` of work item ``w`` (photons only)
     with the light of each sample read from ``light``: laid out sample after sample of each
     work item (``stride`` 1, :func:`sample_light_kernel`) or across the 32 work items of a
     group (``stride`` 32, :func:`sample_light_across_kernel`: neighbouring threads here read
-    neighbouring entries)."""
+    neighbouring entries). Keeps the samples it marched in ``seg_samples`` (a later query
+    without a σt change reads them instead of marching again)."""
     w = w0 + wp.tid()
     idx = work[w]
     row, col, i = segment_of(cam, vp, idx)
@@ -799,6 +802,7 @@ def shade_segment_kernel(m: Medium, cam: CameraParams, me: MeanExtinction, grid:
     seg_hist[idx] = hist
     seg_chist[idx] = chist
     seg_state[idx] = COMPUTED
+    seg_samples[idx] = lengths[w]
 
 
 @wp.kernel
@@ -806,7 +810,7 @@ def composite_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonG
                      me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, seg_rad: wp.array(dtype=wp.vec3),
                      seg_t: wp.array(dtype=wp.float32), seg_hist: wp.array(dtype=wp.uint64),
                      seg_chist: wp.array(dtype=wp.uint64), seg_state: wp.array(dtype=wp.int32),
-                     radiance: wp.array2d(dtype=wp.vec3),
+                     seg_samples: wp.array(dtype=wp.int32), radiance: wp.array2d(dtype=wp.vec3),
                      alpha: wp.array2d(dtype=wp.float32), computed: wp.array(dtype=wp.int32)):
     """Composite a pixel's segments front to back (eq. 4), computing the visible ones that
     are not stored yet and marking occluded ones as not computed.
@@ -831,6 +835,7 @@ def composite_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonG
             seg_hist[idx] = h
             seg_chist[idx] = c
             seg_state[idx] = COMPUTED
+            seg_samples[idx] = -1  # (not counted here)
             wp.atomic_add(computed, 0, 1)
         total += prefix * seg_rad[idx]
         prefix *= seg_t[idx]
@@ -841,7 +846,8 @@ def composite_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonG
 @wp.kernel
 def segment_query_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
                          seg_hist: wp.array(dtype=wp.uint64), seg_chist: wp.array(dtype=wp.uint64),
-                         seg_state: wp.array(dtype=wp.int32), query: wp.uint64,
+                         seg_state: wp.array(dtype=wp.int32),
+                         seg_samples: wp.array(dtype=wp.int32), query: wp.uint64,
                          cquery: wp.uint64, sx: wp.uint64, sy: wp.uint64, sz: wp.uint64,
                          use_spatial: int, spatial_scale: wp.vec3, radius: float,
                          lengths: int, flags: wp.array(dtype=wp.int32),
@@ -854,7 +860,9 @@ def segment_query_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
     the spatial Historygram on all three axes (``sx``, ``sy``, ``sz``: 64 bins over
     ``[0, extent_a]``, ``spatial_scale = 64 / extent``). With ``lengths`` != 0, also the
     samples each flagged segment marches (:func:`segment_transmittance`; 0 for the others)
-    into ``seg_len``, as :func:`recompute_flagged` needs them.
+    into ``seg_len``, as :func:`recompute_flagged` needs them: without a σt change
+    (``query`` 0) the march stops where it stopped when the segment was computed, so the
+    count kept then (``seg_samples``, -1 where none was kept) is read instead.
     """
     idx = wp.tid()
     flags[idx] = 0
@@ -885,6 +893,10 @@ def segment_query_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
         return
     flags[idx] = 1
     if lengths != 0:
+        kept = seg_samples[idx]
+        if query == wp.uint64(0) and kept >= 0:
+            seg_len[idx] = kept
+            return
         srow, scol, si = segment_of(cam, vp, idx)
         _t, count = segment_transmittance(m, cam, vp, srow, scol, si)
         seg_len[idx] = count
