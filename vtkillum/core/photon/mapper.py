@@ -59,6 +59,7 @@ from vtkillum.core.photon.material import make_surface
 from vtkillum.core.photon.segments import (
     ViewParams,
     composite_segments,
+    new_segments,
     per_sample,
     recompute_flagged,
     segment_query_kernel,
@@ -319,12 +320,7 @@ class PhotonMapper:
             vp = self._view_params(volume, step, jitter, seed, early_termination)
             cam = make_camera(camera, volume, int(width), int(height))
             self._view = (view_key, vp, cam, int(width), int(height))
-            self._seg = {"rad": wp.zeros(n_seg, dtype=wp.vec3, device=device),
-                         "t": wp.ones(n_seg, dtype=wp.float32, device=device),
-                         "hist": wp.zeros(n_seg, dtype=wp.uint64, device=device),
-                         "chist": wp.zeros(n_seg, dtype=wp.uint64, device=device),
-                         "state": wp.zeros(n_seg, dtype=wp.int32, device=device),
-                         "samples": wp.full(n_seg, -1, dtype=wp.int32, device=device)}
+            self._seg = new_segments(n_seg, device)
             self._accum = None
             mode = "full"
         elif any(self._pending_query) or self._pending_spatial.any():
@@ -467,11 +463,7 @@ class PhotonMapper:
             vp.segments = 1
             cam = self._view[2]
             h, w = int(height), int(width)
-            seg = {"rad": wp.zeros(h * w, dtype=wp.vec3, device=self.device),
-                   "t": wp.ones(h * w, dtype=wp.float32, device=self.device),
-                   "hist": wp.zeros(h * w, dtype=wp.uint64, device=self.device),
-                   "chist": wp.zeros(h * w, dtype=wp.uint64, device=self.device),
-                   "state": wp.zeros(h * w, dtype=wp.int32, device=self.device)}
+            seg = new_segments(h * w, self.device)
             radiance, alpha, _ = composite_segments(self.medium, cam, self.lights, grid, me,
                                                     self.surface, vp, seg, w, h, self.device)
             rad_sum = rad_sum + radiance.numpy()

@@ -336,6 +336,18 @@ def compute_flagged_kernel(m: Medium, cam: CameraParams, lights: Lights, grid: P
     wp.atomic_add(computed, 0, 1)
 
 
+def new_segments(n: int, device: str) -> dict:
+    """Storage of ``n`` segments, none computed: radiance ``rad``, transmittance ``t``,
+    Historygrams ``hist`` and ``chist``, ``state`` and the ``samples`` their march took
+    (-1: not kept)."""
+    return {"rad": wp.zeros(n, dtype=wp.vec3, device=device),
+            "t": wp.ones(n, dtype=wp.float32, device=device),
+            "hist": wp.zeros(n, dtype=wp.uint64, device=device),
+            "chist": wp.zeros(n, dtype=wp.uint64, device=device),
+            "state": wp.zeros(n, dtype=wp.int32, device=device),
+            "samples": wp.full(n, -1, dtype=wp.int32, device=device)}
+
+
 def composite_segments(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
                        me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, seg: dict,
                        width: int, height: int, device: str, progress=None,
@@ -359,7 +371,7 @@ def composite_segments(m: Medium, cam: CameraParams, lights: Lights, grid: Photo
 
     On the CPU the per-segment launch runs in :data:`CPU_PROGRESS_STEPS` parts, with
     ``progress(fraction)`` after each (a long gather reports, and Ctrl-C stops it between
-    parts). ``seg``: the segment arrays (``rad``, ``t``, ``hist``, ``chist``, ``state``). Returns
+    parts). ``seg``: the segment arrays (:func:`new_segments`). Returns
     ``(radiance (height, width) vec3, alpha (height, width) float32, computed (1,) int32)``
     on the device.
 
