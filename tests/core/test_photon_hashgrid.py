@@ -173,7 +173,8 @@ def test_colour_edits_read_the_kept_sample_counts(monkeypatch):
               inputs=[m.medium, cam, vp, m._seg["hist"], m._seg["chist"], m._seg["state"],
                       wp.full(n, -1, dtype=wp.int32, device="cpu"), wp.uint64(ALL_BITS),
                       wp.uint64(ALL_BITS), wp.uint64(0), wp.uint64(0), wp.uint64(0), 0,
-                      wp.vec3(1.0), m.radius, 1, flags, fresh], device="cpu")
+                      wp.vec3(1.0), m.radius, 1, flags, fresh,
+                      wp.zeros(2, dtype=wp.int32, device="cpu")], device="cpu")
     marched = fresh.numpy()
     hit = flags.numpy() == 1
     assert hit.sum() > 0

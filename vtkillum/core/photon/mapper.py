@@ -331,6 +331,7 @@ class PhotonMapper:
             # recompute goes sample by sample.
             lengths = per_sample(vp, device)
             seg_len = wp.empty(n_seg if lengths else 1, dtype=wp.int32, device=device)
+            counts = wp.zeros(2, dtype=wp.int32, device=device)  # flagged, their samples
             scale = wp.vec3(*(BITS / np.asarray(volume.extent, np.float64)).astype(np.float32))
             sx, sy, sz = (wp.uint64(int(v)) for v in self._pending_spatial)
             # A segment meets the spatial Historygram only where all three axes have bits:
@@ -342,11 +343,11 @@ class PhotonMapper:
                               wp.uint64(self._pending_query[0]),
                               wp.uint64(self._pending_query[1]), sx, sy, sz,
                               int(use_spatial), scale, self.radius, int(lengths),
-                              flags, seg_len],
+                              flags, seg_len, counts],
                       device=device)
             recomputed = recompute_flagged(self.medium, cam, self.lights, self.grid,
                                            self.extinction, self.surface, vp, self._seg, flags,
-                                           device, seg_len if lengths else None)
+                                           device, seg_len if lengths else None, counts)
             mode = "incremental"
         else:
             _, vp, cam, _, _ = self._view

@@ -469,11 +469,13 @@ def sums(a: wp.array, b: wp.array, device: str, a_scan: wp.array | None = None,
 
 def recompute_flagged(m: Medium, cam: CameraParams, lights: Lights, grid: PhotonGrid,
                       me: MeanExtinction, sp: SurfaceParams, vp: ViewParams, seg: dict,
-                      flags: wp.array, device: str, seg_len: wp.array | None = None) -> int:
+                      flags: wp.array, device: str, seg_len: wp.array | None = None,
+                      counts: wp.array | None = None) -> int:
     """Recompute the stored segments flagged in ``flags`` (indexed like the segments) with
     :func:`recompute_segments`; returns how many. Where :func:`per_sample`, ``seg_len``
-    holds the samples of each flagged segment (0 for the others; from
-    :func:`segment_query_kernel`), summed beside the flags (one wait for both)."""
+    holds the samples of each flagged segment (0 for the others) and ``counts`` the
+    number of flagged segments and their samples (from :func:`segment_query_kernel`),
+    read with one wait."""
     if not per_sample(vp, device):
         work, _ = select(flags, flags, device)
         recompute_segments(m, cam, lights, grid, me, sp, vp, seg, work, device)
@@ -481,16 +483,37 @@ def recompute_flagged(m: Medium, cam: CameraParams, lights: Lights, grid: Photon
     n_seg = flags.shape[0]
     flag_scan = wp.empty(n_seg, dtype=wp.int32, device=device)
     len_scan = wp.empty(n_seg, dtype=wp.int32, device=device)
-    n_work, total = sums(flags, seg_len, device, flag_scan, len_scan)
+    # Both scans queued before the wait: the device makes them while the counts come back.
+    wp.utils.array_scan(flags, flag_scan, inclusive=False)
+    wp.utils.array_scan(seg_len, len_scan, inclusive=False)
+    n_work, total = (int(c) for c in counts.numpy())
     if n_work == 0:
         return 0
-    # The work list with its lengths, and its sample offsets from the scan over all
-    # segments (the others have no samples): no scan of the list itself.
-    work, lengths = select(flags, seg_len, device, n_work, flag_scan)
+    # The work list, its lengths and its sample offsets in one pass, from the scans over
+    # all segments (the others have no samples): no scan of the list itself.
+    work = wp.empty(n_work, dtype=wp.int32, device=device)
+    lengths = wp.empty(n_work, dtype=wp.int32, device=device)
     offsets = wp.empty(n_work, dtype=wp.int32, device=device)
-    wp.launch(gather_int_kernel, dim=n_work, inputs=[work, len_scan, offsets], device=device)
+    wp.launch(work_list_kernel, dim=n_seg,
+              inputs=[flags, flag_scan, seg_len, len_scan, work, lengths, offsets],
+              device=device)
     gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device, total, offsets)
     return n_work
+
+
+@wp.kernel
+def work_list_kernel(flags: wp.array(dtype=wp.int32), flag_scan: wp.array(dtype=wp.int32),
+                     seg_len: wp.array(dtype=wp.int32), len_scan: wp.array(dtype=wp.int32),
+                     work: wp.array(dtype=wp.int32), lengths: wp.array(dtype=wp.int32),
+                     offsets: wp.array(dtype=wp.int32)):
+    """``wp.tid()`` = segment: a flagged one goes to the work list in order, with its
+    samples and their offset."""
+    idx = wp.tid()
+    if flags[idx] != 0:
+        w = flag_scan[idx]
+        work[w] = idx
+        lengths[w] = seg_len[idx]
+        offsets[w] = len_scan[idx]
 
 
 def per_sample(vp: ViewParams, device: str) -> bool:
@@ -863,7 +886,7 @@ def segment_query_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
                          cquery: wp.uint64, sx: wp.uint64, sy: wp.uint64, sz: wp.uint64,
                          use_spatial: int, spatial_scale: wp.vec3, radius: float,
                          lengths: int, flags: wp.array(dtype=wp.int32),
-                         seg_len: wp.array(dtype=wp.int32)):
+                         seg_len: wp.array(dtype=wp.int32), counts: wp.array(dtype=wp.int32)):
     """Flag the stored segments an edit invalidates.
 
     ``wp.tid()`` indexes segments (``pixel * V_n + i``). A computed segment is invalid when
@@ -874,7 +897,9 @@ def segment_query_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
     samples each flagged segment marches (:func:`segment_transmittance`; 0 for the others)
     into ``seg_len``, as :func:`recompute_flagged` needs them: without a σt change
     (``query`` 0) the march stops where it stopped when the segment was computed, so the
-    count kept then (``seg_samples``, -1 where none was kept) is read instead.
+    count kept then (``seg_samples``, -1 where none was kept) is read instead. Adds the
+    flagged segments and their samples to ``counts[0]`` and ``counts[1]`` (zeroed by the
+    caller), so that :func:`recompute_flagged` needs no sums of its own.
     """
     idx = wp.tid()
     flags[idx] = 0
@@ -904,14 +929,14 @@ def segment_query_kernel(m: Medium, cam: CameraParams, vp: ViewParams,
     if hit == 0:
         return
     flags[idx] = 1
+    wp.atomic_add(counts, 0, 1)
     if lengths != 0:
-        kept = seg_samples[idx]
-        if query == wp.uint64(0) and kept >= 0:
-            seg_len[idx] = kept
-            return
-        srow, scol, si = segment_of(cam, vp, idx)
-        _t, count = segment_transmittance(m, cam, vp, srow, scol, si)
+        count = seg_samples[idx]
+        if query != wp.uint64(0) or count < 0:
+            srow, scol, si = segment_of(cam, vp, idx)
+            _t, count = segment_transmittance(m, cam, vp, srow, scol, si)
         seg_len[idx] = count
+        wp.atomic_add(counts, 1, count)
 
 
 @wp.kernel
