@@ -432,21 +432,37 @@ def _sample_parallel(m, cam, lights, grid, me, sp, vp, seg, flags, seg_len, tile
     """The flagged segments by :func:`sample_light_kernel` and :func:`shade_segment_kernel`
     (see :func:`composite_segments`), in batches of at most :data:`SAMPLES_PER_BATCH`
     samples."""
-    n_tiled = vp.segments * tiles * 32
-    tflag = wp.empty(n_tiled, dtype=wp.int32, device=device)
-    tidx = wp.empty(n_tiled, dtype=wp.int32, device=device)
-    wp.launch(tiled_flags_kernel, dim=n_tiled,
-              inputs=[cam, vp, tiles_x, tiles, flags, tflag, tidx], device=device)
+    tflag, tidx = tiled_flags(cam, vp, tiles_x, tiles, flags, device)
     # One wait for both counts: the flagged segments and their samples (seg_len is zero
     # for the others).
     n_work, total = sums(tflag, seg_len, device)
     if n_work == 0:
         return
-    _, work = select(tflag, tidx, device, n_work)  # flagged segments, tile by tile
-    lengths = wp.empty(n_work, dtype=wp.int32, device=device)
-    wp.launch(gather_int_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
+    work, lengths = tiled_work(tflag, tidx, seg_len, n_work, device)
     gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device, total)
     wp.launch(add_count_kernel, dim=1, inputs=[computed, n_work], device=device)
+
+
+def tiled_flags(cam, vp, tiles_x: int, tiles: int, flags: wp.array, device: str):
+    """``flags`` (indexed like the segments) in the tile order of
+    :func:`compute_flagged_kernel` -- a warp's 32 entries are one segment of the 8×4 pixels
+    of a tile, whose rays sample neighbouring places -- with each entry's segment:
+    ``(tflag, tidx)``."""
+    n_tiled = vp.segments * tiles * 32
+    tflag = wp.empty(n_tiled, dtype=wp.int32, device=device)
+    tidx = wp.empty(n_tiled, dtype=wp.int32, device=device)
+    wp.launch(tiled_flags_kernel, dim=n_tiled,
+              inputs=[cam, vp, tiles_x, tiles, flags, tflag, tidx], device=device)
+    return tflag, tidx
+
+
+def tiled_work(tflag, tidx, seg_len, n_work: int, device: str):
+    """The ``n_work`` flagged segments of :func:`tiled_flags`, tile by tile, and their samples
+    (``seg_len`` is indexed like the segments): ``(work, lengths)``."""
+    _, work = select(tflag, tidx, device, n_work)
+    lengths = wp.empty(n_work, dtype=wp.int32, device=device)
+    wp.launch(gather_int_kernel, dim=n_work, inputs=[work, seg_len, lengths], device=device)
+    return work, lengths
 
 
 def sums(a: wp.array, b: wp.array, device: str, a_scan: wp.array | None = None,
@@ -480,40 +496,17 @@ def recompute_flagged(m: Medium, cam: CameraParams, lights: Lights, grid: Photon
         work, _ = select(flags, flags, device)
         recompute_segments(m, cam, lights, grid, me, sp, vp, seg, work, device)
         return int(work.shape[0])
-    n_seg = flags.shape[0]
-    flag_scan = wp.empty(n_seg, dtype=wp.int32, device=device)
-    len_scan = wp.empty(n_seg, dtype=wp.int32, device=device)
-    # Both scans queued before the wait: the device makes them while the counts come back.
-    wp.utils.array_scan(flags, flag_scan, inclusive=False)
-    wp.utils.array_scan(seg_len, len_scan, inclusive=False)
-    n_work, total = (int(c) for c in counts.numpy())
+    # The work list tile by tile (as the full render's): a warp of the gather then holds
+    # neighbouring rays, not the segments of a few rays at different depths.
+    tiles_x = (cam.width + 7) // 8
+    tiles = tiles_x * ((cam.height + 3) // 4)
+    tflag, tidx = tiled_flags(cam, vp, tiles_x, tiles, flags, device)
+    n_work, total = (int(c) for c in counts.numpy())  # (the one wait)
     if n_work == 0:
         return 0
-    # The work list, its lengths and its sample offsets in one pass, from the scans over
-    # all segments (the others have no samples): no scan of the list itself.
-    work = wp.empty(n_work, dtype=wp.int32, device=device)
-    lengths = wp.empty(n_work, dtype=wp.int32, device=device)
-    offsets = wp.empty(n_work, dtype=wp.int32, device=device)
-    wp.launch(work_list_kernel, dim=n_seg,
-              inputs=[flags, flag_scan, seg_len, len_scan, work, lengths, offsets],
-              device=device)
-    gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device, total, offsets)
+    work, lengths = tiled_work(tflag, tidx, seg_len, n_work, device)
+    gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device, total)
     return n_work
-
-
-@wp.kernel
-def work_list_kernel(flags: wp.array(dtype=wp.int32), flag_scan: wp.array(dtype=wp.int32),
-                     seg_len: wp.array(dtype=wp.int32), len_scan: wp.array(dtype=wp.int32),
-                     work: wp.array(dtype=wp.int32), lengths: wp.array(dtype=wp.int32),
-                     offsets: wp.array(dtype=wp.int32)):
-    """``wp.tid()`` = segment: a flagged one goes to the work list in order, with its
-    samples and their offset."""
-    idx = wp.tid()
-    if flags[idx] != 0:
-        w = flag_scan[idx]
-        work[w] = idx
-        lengths[w] = seg_len[idx]
-        offsets[w] = len_scan[idx]
 
 
 def per_sample(vp: ViewParams, device: str) -> bool:
