@@ -465,17 +465,13 @@ def tiled_work(tflag, tidx, seg_len, n_work: int, device: str):
     return work, lengths
 
 
-def sums(a: wp.array, b: wp.array, device: str, a_scan: wp.array | None = None,
-         b_scan: wp.array | None = None) -> tuple[int, int]:
-    """The sums of two int32 arrays, read with one wait (``a_scan``, ``b_scan``: where to
-    keep their exclusive scans, else scratch)."""
-    scratch = None
-    if a_scan is None or b_scan is None:
-        scratch = wp.empty(max(a.shape[0], b.shape[0], 1), dtype=wp.int32, device=device)
+def sums(a: wp.array, b: wp.array, device: str) -> tuple[int, int]:
+    """The sums of two int32 arrays, read with one wait."""
+    scratch = wp.empty(max(a.shape[0], b.shape[0], 1), dtype=wp.int32, device=device)
     counts = wp.zeros(2, dtype=wp.int64, device=device)
-    for i, (x, keep) in enumerate(((a, a_scan), (b, b_scan))):
+    for i, x in enumerate((a, b)):
         if x.shape[0] > 0:
-            out = keep if keep is not None else scratch[:x.shape[0]]
+            out = scratch[:x.shape[0]]
             wp.utils.array_scan(x, out, inclusive=False)
             wp.launch(scan_total_kernel, dim=1, inputs=[x, out, counts[i:i + 1]],
                       device=device)
@@ -548,7 +544,7 @@ class SegmentRay:
 
 
 def gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device,
-                total: int | None = None, offsets: wp.array | None = None) -> None:
+                total: int | None = None) -> None:
     """Compute the segments of ``work`` (``lengths``: the samples each marches) by
     :func:`sample_light_kernel` and :func:`shade_segment_kernel`, in batches of at most
     :data:`SAMPLES_PER_BATCH` samples.
@@ -557,16 +553,15 @@ def gather_work(m, cam, grid, me, sp, vp, seg, work, lengths, device,
     either the samples of a batch are one flat list (work item after work item), a thread
     each (:func:`sample_segments_kernel` writes each sample's work item): warps hold 32
     consecutive samples of a ray; or a warp holds sample ``k`` of 32 consecutive work items
-    (:func:`sample_light_across_kernel`). ``offsets``: the exclusive scan of ``lengths``
-    when made already (with ``total``).
+    (:func:`sample_light_across_kernel`). ``total``: the sum of ``lengths`` when known (no
+    wait for it then).
     """
     n_work = int(work.shape[0])
-    if offsets is None or total is None:  # (``total``: the sum of ``lengths`` when known)
-        offsets = wp.empty(n_work, dtype=wp.int32, device=device)
-        if total is None:
-            total = exclusive_scan(lengths, offsets)
-        else:
-            wp.utils.array_scan(lengths, offsets, inclusive=False)
+    offsets = wp.empty(n_work, dtype=wp.int32, device=device)
+    if total is None:
+        total = exclusive_scan(lengths, offsets)
+    else:
+        wp.utils.array_scan(lengths, offsets, inclusive=False)
     if total <= SAMPLES_PER_BATCH:
         batches = [(0, n_work, 0, total)]
     else:  # split the work list where the sample count crosses the budget

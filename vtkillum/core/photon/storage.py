@@ -219,18 +219,16 @@ def gather_int_kernel(idx: wp.array(dtype=wp.int32), src: wp.array(dtype=wp.int3
 
 
 def select(flags: wp.array, values: wp.array, device: str,
-           total: int | None = None, offsets: wp.array | None = None) -> tuple[wp.array, wp.array]:
+           total: int | None = None) -> tuple[wp.array, wp.array]:
     """Indices ``p`` with ``flags[p] != 0`` and their ``values[p]``, in order (on the device).
 
-    ``total``: the number of flags set, when known (no wait for the device then);
-    ``offsets``: the exclusive scan of ``flags``, when made already (with ``total``)."""
+    ``total``: the number of flags set, when known (no wait for the device then)."""
     n = flags.shape[0]
-    if offsets is None or total is None:
-        offsets = wp.empty(n, dtype=wp.int32, device=device)
-        if total is None:
-            total = exclusive_scan(flags, offsets)
-        elif total > 0:
-            wp.utils.array_scan(flags, offsets, inclusive=False)
+    offsets = wp.empty(n, dtype=wp.int32, device=device)
+    if total is None:
+        total = exclusive_scan(flags, offsets)
+    elif total > 0:
+        wp.utils.array_scan(flags, offsets, inclusive=False)
     idx = wp.empty(max(total, 0), dtype=wp.int32, device=device)
     val = wp.empty(max(total, 0), dtype=wp.int32, device=device)
     if total > 0:
