@@ -139,8 +139,9 @@ def tf_tables_kernel(points: wp.array(dtype=wp.float64), k: int, lo: wp.float64,
 
 
 def table_range(value_range) -> tuple[float, float]:
-    """``(lo, hi)`` of the tables: the data range (widened for constant data, as
-    :func:`~vtkillum.core.photon.tracing.photon_tables`)."""
+    """``(lo, hi)`` of the tables (here and in the host's
+    :func:`~vtkillum.core.photon.tracing.photon_tables`): the data range, widened for
+    constant data."""
     lo, hi = (float(v) for v in value_range)
     if not hi - lo > 0:  # constant data; lo + 1 == lo for |lo| > 2**53
         hi = lo + max(1.0, abs(lo) * 1e-6)

@@ -59,7 +59,7 @@ from vtkillum.core.photon.material import (
     sample_scattering,
     surface_normal,
 )
-from vtkillum.core.photon.tables import DeviceTables
+from vtkillum.core.photon.tables import DeviceTables, table_range
 from vtkillum.core.photon.storage import (
     ABSORBED,
     CAPPED,
@@ -150,9 +150,7 @@ def photon_tables(transfer_function, unit_distance: float, value_range, size: in
     color : ndarray (size, 3) float32
     lo, hi : float
     """
-    lo, hi = (float(v) for v in value_range)
-    if not hi - lo > 0:  # constant data; lo + 1 == lo for |lo| > 2**53
-        hi = lo + max(1.0, abs(lo) * 1e-6)
+    lo, hi = table_range(value_range)
     v = np.linspace(lo, hi, size)
     sigma, color = transfer_function.sigma_t_and_color(v, unit_distance)
     return sigma.astype(np.float32), color.astype(np.float32), lo, hi
