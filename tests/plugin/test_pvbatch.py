@@ -7,7 +7,6 @@ tests here judge them. Skipped, with the reason, where pvbatch or xvfb-run is
 missing.
 """
 
-import json
 import subprocess
 import sys
 from pathlib import Path
@@ -29,13 +28,9 @@ LIGHT_CHANGE = {"vtkIllum Ambient Extinction": 0.3}
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory):
+def run(pvbatch_summary):
     """Run the pvbatch script once; returns (output directory, summary)."""
-    out = tmp_path_factory.mktemp("pvbatch")
-    shim = tmp_path_factory.mktemp("pvshim")
-    proc, log = pvbatch_env.run_pvbatch_logged(SCRIPT, out, shim_dir=shim, timeout=300)
-    assert proc.returncode == 0 and (out / "summary.json").exists(), log[-4000:]
-    return out, json.loads((out / "summary.json").read_text())
+    return pvbatch_summary(SCRIPT, "pvbatch", timeout=300)[:2]
 
 
 def image(out, name) -> np.ndarray:

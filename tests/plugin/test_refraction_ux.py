@@ -1,7 +1,6 @@
 """vtkIllum Refraction Render as a new user meets it in pvpython (``pvbatch_refraction_ux.py``
 under Debian's ParaView 5.11) and in the GUI (``gui_show_rendered.py``)."""
 
-import json
 import sys
 from pathlib import Path
 
@@ -11,19 +10,14 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "paraview_plugin"))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import pvbatch_env
 
 SCRIPT = Path(__file__).with_name("pvbatch_refraction_ux.py")
 GUI_SCRIPT = Path(__file__).with_name("gui_show_rendered.py")
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("ux")
-    shim = tmp_path_factory.mktemp("pvshim")
-    proc, log = pvbatch_env.run_pvbatch_logged(SCRIPT, out, shim_dir=shim, timeout=300)
-    assert proc.returncode == 0 and (out / "summary.json").exists(), log[-4000:]
-    return out, json.loads((out / "summary.json").read_text()), log
+def run(pvbatch_summary):
+    return pvbatch_summary(SCRIPT, "ux", timeout=300)
 
 
 @pytest.mark.parametrize("case, message", [

@@ -18,21 +18,17 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "paraview_plugin"))
 sys.path.insert(0, str(ROOT / "tests"))
-import pvbatch_env
 
 
 SCRIPT = Path(__file__).with_name("pvbatch_render.py")
 
 
 @pytest.fixture(scope="module")
-def run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("pvrender")
-    shim = tmp_path_factory.mktemp("pvshim")
-    proc, log = pvbatch_env.run_pvbatch_logged(SCRIPT, out, shim_dir=shim, timeout=400,
-                                               attempts=3)
-    assert proc.returncode == 0 and (out / "render.json").exists(), log[-4000:]
+def run(pvbatch_summary):
+    out, record, log = pvbatch_summary(SCRIPT, "pvrender", "render.json", timeout=400,
+                                       attempts=3)
     (out / "pvbatch.log").write_text(log)
-    return out, json.loads((out / "render.json").read_text()), log
+    return out, record, log
 
 
 def image(out, name) -> np.ndarray:
