@@ -142,7 +142,9 @@ def photon_tables(transfer_function, unit_distance: float, value_range, size: in
     The kernels only ever look up values inside the data range (trilinear interpolation
     stays within it), so tables over that range alone keep the same entries through any
     transfer-function edit, and :func:`~vtkillum.core.photon.historygram.query_mask` can
-    compare them entry by entry.
+    compare them entry by entry. The mapper makes the same tables on the device
+    (:class:`~vtkillum.core.photon.tables.DeviceTables`); this host version is their
+    reference (the tests hold the two within one float32 step).
 
     Returns
     -------
