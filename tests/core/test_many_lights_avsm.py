@@ -11,6 +11,8 @@
 * the pool keeps maps when it grows and hands freed slots out again.
 """
 
+import functools
+
 import numpy as np
 import pytest
 import warp as wp
@@ -19,7 +21,10 @@ from vtkillum.core.device import init_warp
 from vtkillum.core.many_lights.avsm import (
     ShadowMapPool,
     ShadowMaps,
+    avsm_lookup,
     avsm_transmittance,
+    lookup_function,
+    node_insertion,
     texel_direction_host,
 )
 from vtkillum.core.many_lights.render import ManyLightsRenderer
@@ -264,3 +269,121 @@ def shadow_kernel(m: Medium, points: wp.array(dtype=wp.vec3), dirs: wp.array(dty
     """``wp.tid()`` indexes rays: the transmittance to the box exit, jittered samples."""
     i = wp.tid()
     out[i] = shadow_transmittance(m, points[i], dirs[i], 1.0e30, 0.7, 0.3, 0.0)
+
+
+@functools.cache
+def insertion_kernel(count):
+    """Feeds each row of candidate nodes through ``node_insertion(count)``."""
+    insert = node_insertion(count)
+    Vec = wp.types.vector(length=count + 1, dtype=wp.float32)
+
+    @wp.kernel(module="unique")
+    def feed(depths: wp.array2d(dtype=wp.float32), trans: wp.array2d(dtype=wp.float32),
+             out: wp.array3d(dtype=wp.float32), kept: wp.array(dtype=wp.int32)):
+        i = wp.tid()
+        D = Vec()
+        T = Vec()
+        n = int(0)
+        for s in range(depths.shape[1]):
+            D, T, n = insert(D, T, n, depths[i, s], trans[i, s])
+        for j in range(wp.static(count)):
+            out[i, j, 0] = D[j]
+            out[i, j, 1] = T[j]
+        kept[i] = n
+
+    return feed
+
+
+def salvi_reference(depths, trans, count):
+    """Salvi et al.'s insertion and removal, written plainly (float32 arithmetic)."""
+    D, T = [], []
+    for d, t in zip(depths, trans):
+        D.append(d)
+        T.append(t)
+        if len(D) > count:
+            areas = []
+            for j in range(len(D) - 1):
+                dl, tl = (np.float32(0), np.float32(1)) if j == 0 else (D[j - 1], T[j - 1])
+                areas.append(abs((D[j] - dl) * (T[j + 1] - tl) - (D[j + 1] - dl) * (T[j] - tl)))
+            best = int(np.argmin(areas))  # the first of equal areas
+            del D[best], T[best]
+    return np.array(D, np.float32), np.array(T, np.float32)
+
+
+@pytest.mark.parametrize("count", [2, 3, 8, 16])
+def test_node_insertion_is_salvis_compression(device, count):
+    """The unrolled insertion of the construction kernels keeps the nodes that the plain
+    algorithm keeps, for sequences shorter and longer than ``count``."""
+    rng = np.random.default_rng(count)
+    rows, length = 64, 3 * count
+    depths = np.cumsum(rng.random((rows, length), np.float32) + 0.01, axis=1, dtype=np.float32)
+    trans = np.exp(-np.cumsum(rng.random((rows, length)) * rng.random((rows, 1)) * 3, axis=1))
+    trans = trans.astype(np.float32)
+    lengths = rng.integers(1, length + 1, rows)
+    for n in np.unique(lengths):  # one launch per distinct sequence length
+        which = np.flatnonzero(lengths == n)
+        part = wp.zeros((len(which), count, 2), dtype=wp.float32, device=device)
+        part_kept = wp.zeros(len(which), dtype=wp.int32, device=device)
+        wp.launch(insertion_kernel(count), dim=len(which),
+                  inputs=[wp.array(np.ascontiguousarray(depths[which, :n]), dtype=wp.float32,
+                                   device=device),
+                          wp.array(np.ascontiguousarray(trans[which, :n]), dtype=wp.float32,
+                                   device=device), part, part_kept], device=device)
+        got, got_kept = part.numpy(), part_kept.numpy()
+        for row, i in enumerate(which):
+            D, T = salvi_reference(depths[i, :n], trans[i, :n], count)
+            assert got_kept[row] == len(D) == min(n, count)
+            np.testing.assert_array_equal(got[row, :len(D), 0], D)
+            np.testing.assert_array_equal(got[row, :len(D), 1], T)
+    assert (lengths > count).sum() > 10  # removal was exercised
+
+
+@functools.cache
+def lookup_pair_kernel(count):
+    """The scanning :func:`avsm_lookup` and the counting ``lookup_function(count)``."""
+    counted = lookup_function(count)
+
+    @wp.kernel(module="unique")
+    def both(sm: ShadowMaps, origins: wp.array(dtype=wp.vec3), slots: wp.array(dtype=wp.int32),
+             points: wp.array(dtype=wp.vec3), out: wp.array2d(dtype=wp.float32)):
+        i = wp.tid()
+        v = points[i] - origins[i]
+        d = wp.length(v)
+        out[i, 0] = avsm_lookup(sm, slots[i], v, d)
+        out[i, 1] = counted(sm, slots[i], v, d)
+
+    return both
+
+
+@pytest.mark.parametrize("count", [3, 8])
+def test_counting_lookup_equals_the_scan(device, count):
+    """At random points, at the stored depths of texel centres, at the VL itself and far
+    behind the last node, for point and trilinear filtering."""
+    volume = random_volume(1)
+    lo, hi = volume.value_range
+    tf = TransferFunction([lo, (lo + hi) / 2, hi], [0.0, 0.1, 0.6])
+    medium = make_medium(volume, tf, volume.mean_spacing(), device=device)
+    pool = ShadowMapPool(6, count, device)
+    rng = np.random.default_rng(count)
+    origins = rng.random((4, 3)).astype(np.float32)
+    slots = pool.allocate(4)
+    pool.build(medium, wp.array(origins, dtype=wp.vec3, device=device), np.arange(4), slots,
+               float(volume.spacing.min()), 0)
+    which = rng.integers(0, 4, 3000)
+    points = rng.random((3000, 3)).astype(np.float32)
+    points[:40] = origins[which[:40]]  # depth 0
+    points[40:80] = origins[which[40:80]] + 5.0 * (points[40:80] - origins[which[40:80]])
+    for k in range(80, 400):  # a stored node's depth along a texel centre
+        face, row, col, node = rng.integers(0, 6), rng.integers(0, 6), rng.integers(0, 6), \
+            rng.integers(0, count)
+        depth = pool.curve(slots[which[k]], face, row, col)[node, 0]
+        points[k] = origins[which[k]] + depth * texel_direction_host(face, row, col, 6)
+    for lookup in ("point", "trilinear"):
+        out = wp.zeros((3000, 2), dtype=wp.float32, device=device)
+        wp.launch(lookup_pair_kernel(count), dim=3000,
+                  inputs=[pool.maps(lookup), wp.array(origins[which], dtype=wp.vec3, device=device),
+                          wp.array(slots[which], dtype=wp.int32, device=device),
+                          wp.array(points, dtype=wp.vec3, device=device), out], device=device)
+        scan, counted = out.numpy().T
+        np.testing.assert_array_equal(counted, scan)
+        assert 0.05 < scan.mean() < 0.95 and np.ptp(scan) > 0.5

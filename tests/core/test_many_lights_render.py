@@ -108,3 +108,47 @@ def test_bad_options_are_refused(scene, bad, match):
     volume, sc = scene
     with pytest.raises(ValueError, match=match):
         parse_options(bad, volume, sc)
+
+
+@pytest.mark.parametrize("g", [0.0, 0.4])
+def test_avsm_kernel_equals_the_generic_vl_sum(device, g):
+    """The AVSM-specialised VL sum (tiles of pixels, counting lookups, no cone sample in an
+    isotropic medium) gives the generic ``vl_kernel``'s image, over two bands of rows that
+    are not whole tiles."""
+    import warp as wp
+
+    from vtkillum.core.many_lights import gather
+    from vtkillum.core.many_lights.cache import ManyLightsState
+    from vtkillum.core.warp_common import make_camera
+
+    volume = cloud(SIZE)
+    sc = _medium_scene(volume, 6.0, 0.9, g, [_side_light()])
+    state = ManyLightsState(volume, sc, parse_options({**FAST, "seed": 2}, volume, sc), device)
+    o = state.opts
+    width, height = 100, 61  # on the CPU, bands of 40 and 21 rows
+    cam = make_camera(sc.resolved_camera(volume), volume, width, height)
+    prm = gather.gather_params(o["step_size"], True, 5, o["early_termination"], 8, "avsm",
+                               o["vl_step"], state.scale, False, True)
+    vls, maps = state.virtual_lights(), state.maps()
+    images = [wp.zeros((height, width), dtype=wp.vec3, device=device) for _ in range(2)]
+    alpha = wp.zeros((height, width), dtype=wp.float32, device=device)
+    samples = wp.zeros((height, width), dtype=wp.int32, device=device)
+    gather.gather_device(state.medium, cam, state.lights, vls, maps, prm, images[0], images[1],
+                         alpha, samples, device)
+    tiled = images[1].numpy()
+
+    # The generic kernel over the whole image in one band.
+    position = wp.zeros((8, height, width), dtype=wp.vec3, device=device)
+    weight = wp.zeros((8, height, width), dtype=wp.vec3, device=device)
+    generic = wp.zeros((height, width), dtype=wp.vec3, device=device)
+    wp.launch(gather.view_kernel, dim=(height, width),
+              inputs=[state.medium, cam, state.lights, vls.count, prm, 0, images[0], alpha,
+                      samples, position, weight], device=device)
+    wp.launch(gather.vl_kernel, dim=(8, height, width),
+              inputs=[state.medium, cam, vls, maps, prm, 0, position, weight], device=device)
+    wp.launch(gather.compose_kernel, dim=(height, width), inputs=[0, 8, weight, generic],
+              device=device)
+    generic = generic.numpy()
+    band = gather.BAND_PIXELS["cpu"] // width
+    assert (generic[:band].sum(-1) > 0).mean() > 0.1 and (generic[band:].sum(-1) > 0).mean() > 0.1
+    np.testing.assert_allclose(tiled, generic, rtol=2e-5, atol=1e-7 * generic.max())
