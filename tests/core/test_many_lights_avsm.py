@@ -26,6 +26,8 @@ from vtkillum.core.many_lights.avsm import (
     lookup_function,
     node_insertion,
     texel_direction_host,
+    texel_type,
+    texel_view,
 )
 from vtkillum.core.many_lights.render import ManyLightsRenderer
 from vtkillum.core.transfer_function import TransferFunction
@@ -342,15 +344,17 @@ def test_node_insertion_is_salvis_compression(device, count):
 def lookup_pair_kernel(count):
     """The scanning :func:`avsm_lookup` and the counting ``lookup_function(count)``."""
     counted = lookup_function(count)
+    Texel = texel_type(count)
 
     @wp.kernel(module="unique")
-    def both(sm: ShadowMaps, origins: wp.array(dtype=wp.vec3), slots: wp.array(dtype=wp.int32),
-             points: wp.array(dtype=wp.vec3), out: wp.array2d(dtype=wp.float32)):
+    def both(sm: ShadowMaps, texels: wp.array(dtype=Texel), origins: wp.array(dtype=wp.vec3),
+             slots: wp.array(dtype=wp.int32), points: wp.array(dtype=wp.vec3),
+             out: wp.array2d(dtype=wp.float32)):
         i = wp.tid()
         v = points[i] - origins[i]
         d = wp.length(v)
         out[i, 0] = avsm_lookup(sm, slots[i], v, d)
-        out[i, 1] = counted(sm, slots[i], v, d)
+        out[i, 1] = counted(sm, texels, slots[i], v, d)
 
     return both
 
@@ -380,8 +384,10 @@ def test_counting_lookup_equals_the_scan(device, count):
         points[k] = origins[which[k]] + depth * texel_direction_host(face, row, col, 6)
     for lookup in ("point", "trilinear"):
         out = wp.zeros((3000, 2), dtype=wp.float32, device=device)
+        maps = pool.maps(lookup)
         wp.launch(lookup_pair_kernel(count), dim=3000,
-                  inputs=[pool.maps(lookup), wp.array(origins[which], dtype=wp.vec3, device=device),
+                  inputs=[maps, texel_view(maps),
+                          wp.array(origins[which], dtype=wp.vec3, device=device),
                           wp.array(slots[which], dtype=wp.int32, device=device),
                           wp.array(points, dtype=wp.vec3, device=device), out], device=device)
         scan, counted = out.numpy().T

@@ -44,11 +44,17 @@ grid points without the phase function at the receiving point (an isotropic flue
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import numpy as np
 import warp as wp
 
-from vtkillum.core.many_lights.avsm import ShadowMaps, avsm_lookup, lookup_function
+from vtkillum.core.many_lights.avsm import (
+    ShadowMaps,
+    avsm_lookup,
+    lookup_function,
+    texel_view,
+)
 from vtkillum.core.raycast import single_scatter_light
 from vtkillum.core.raymarch import pixel_ray, sample_count
 from vtkillum.core.warp_common import (
@@ -88,6 +94,33 @@ class VirtualLights:
     slot: wp.array(dtype=wp.int32)
     radius: wp.array(dtype=wp.float32)
     count: int
+
+
+#: One VL for :func:`avsm_vl_kernel`: position (0-2), radius (3), direction (4-6), AVSM slot
+#: (7, exact as a float below 2^24), power (8-10).
+VLRecord = wp.types.vector(length=12, dtype=wp.float32)
+
+
+@wp.kernel
+def record_kernel(vls: VirtualLights, records: wp.array(dtype=VLRecord)):
+    """Pack VL ``wp.tid()`` into its :data:`VLRecord`."""
+    j = wp.tid()
+    p = vls.position[j]
+    d = vls.direction[j]
+    w = vls.power[j]
+    rec = VLRecord()
+    rec[0] = p[0]
+    rec[1] = p[1]
+    rec[2] = p[2]
+    rec[3] = vls.radius[j]
+    rec[4] = d[0]
+    rec[5] = d[1]
+    rec[6] = d[2]
+    rec[7] = float(vls.slot[j])
+    rec[8] = w[0]
+    rec[9] = w[1]
+    rec[10] = w[2]
+    records[j] = rec
 
 
 @wp.struct
@@ -172,6 +205,10 @@ def gather_device(medium: Medium, cam: CameraParams, lights: Lights, vls: Virtua
     S = max(1, params.view_samples)
     position = wp.empty((S, rows, width), dtype=wp.vec3, device=device)
     weight = wp.empty((S, rows, width), dtype=wp.vec3, device=device)
+    if params.multiple != 0 and vls.count > 0 and params.transmittance == TRANSMITTANCE["avsm"]:
+        texels = texel_view(maps)
+        records = wp.empty(vls.count, dtype=VLRecord, device=device)
+        wp.launch(record_kernel, dim=vls.count, inputs=[vls, records], device=device)
     for n, row0 in enumerate(range(0, height, rows)):
         nrows = min(rows, height - row0)
         wp.launch(view_kernel, dim=(nrows, width),
@@ -181,8 +218,8 @@ def gather_device(medium: Medium, cam: CameraParams, lights: Lights, vls: Virtua
             if params.transmittance == TRANSMITTANCE["avsm"]:
                 tiles = (-(-nrows // TILE_ROWS)) * (-(-width // TILE_COLS))
                 wp.launch(avsm_vl_kernel(maps.node_count), dim=S * tiles * 32,
-                          inputs=[medium, cam, vls, maps, params, row0, nrows, position, weight],
-                          device=device, block_dim=128)
+                          inputs=[medium, cam, vls, maps, texels, records, params, row0, nrows,
+                                  position, weight], device=device, block_dim=128)
             else:
                 wp.launch(vl_kernel, dim=(S, nrows, width),
                           inputs=[medium, cam, vls, maps, params, row0, position, weight],
@@ -412,6 +449,8 @@ def avsm_vl_kernel(count: int):
     * no ray-marching code: the unused branch of ``vl_transmittance`` had raised the
       kernel to 92 registers (25 % occupancy);
     * the counting texel lookup of :func:`~vtkillum.core.many_lights.avsm.lookup_function`;
+    * a VL's data in one record (:data:`VLRecord`), read at constant offsets from one
+      address instead of five arrays' address computations;
     * compact tiles: the 32 positions of a warp are closer together than a row of 32
       pixels, so they read fewer distinct texels of each VL's map at a time;
     * blocks of 128 threads (the launch in :func:`gather_device`).
@@ -420,6 +459,7 @@ def avsm_vl_kernel(count: int):
 
     @wp.kernel(module_options={"fast_math": True}, module="unique")
     def kernel(m: Medium, cam: CameraParams, vls: VirtualLights, sm: ShadowMaps,
+               texels: wp.array(dtype=Any), records: wp.array(dtype=VLRecord),
                prm: GatherParams, row0: int, nrows: int, position: wp.array3d(dtype=wp.vec3),
                weight: wp.array3d(dtype=wp.vec3)):
         i = wp.tid()
@@ -445,17 +485,19 @@ def avsm_vl_kernel(count: int):
         x = position[level, r, c]
         acc = wp.vec3(0.0)
         for j in range(vls.count):
-            pw = vls.power[j]
+            rec = records[j]
+            pw = wp.vec3(rec[8], rec[9], rec[10])
             if pw[0] + pw[1] + pw[2] <= 0.0:
                 continue
-            v = vls.position[j] - x
-            valid, toward, dist, w, kern, state = vl_geometry(v, vls.radius[j], m.g, state)
+            v = wp.vec3(rec[0], rec[1], rec[2]) - x
+            valid, toward, dist, w, kern, state = vl_geometry(v, rec[3], m.g, state)
             if valid == 0:
                 continue
-            T = lookup(sm, vls.slot[j], -v, dist)
+            T = lookup(sm, texels, int(rec[7]), -v, dist)
             if prm.scale != 1.0:
                 T = wp.pow(wp.max(T, 0.0), prm.scale)
-            phase = hg_phase(wp.dot(vls.direction[j], -w), m.g) * hg_phase(wp.dot(w, d), m.g)
+            phase = (hg_phase(wp.dot(wp.vec3(rec[4], rec[5], rec[6]), -w), m.g)
+                     * hg_phase(wp.dot(w, d), m.g))
             acc += (phase * T * kern) * pw
         weight[level, r, c] = wp.cw_mul(wgt, acc)
 
