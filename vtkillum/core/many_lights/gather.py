@@ -77,6 +77,8 @@ RAY_MARCHED = wp.constant(0)
 
 #: Pixels per launch (progress reporting between launches).
 BAND_PIXELS = {"cpu": 1 << 12, "cuda": 1 << 20}
+#: The HG phase function for g = 0.
+ISOTROPIC_PHASE = wp.constant(1.0 / (4.0 * np.pi))
 #: Pixels of one warp of :func:`avsm_vl_kernel`: a tile of 8 rows x 4 columns (at one level).
 TILE_ROWS = wp.constant(8)
 TILE_COLS = wp.constant(4)
@@ -402,6 +404,8 @@ def view_kernel(m: Medium, cam: CameraParams, lights: Lights, vl_count: int, prm
                     placed += 1
                     target = -wp.log(wp.max(1.0 - total * (float(placed) + u0) / float(S),
                                             1.0e-30))
+                if placed == S:
+                    break
                 tau += dt
     for level in range(placed, S):
         weight[level, r, c] = wp.vec3(0.0)
@@ -449,6 +453,7 @@ def avsm_vl_kernel(count: int):
     * no ray-marching code: the unused branch of ``vl_transmittance`` had raised the
       kernel to 92 registers (25 % occupancy);
     * the counting texel lookup of :func:`~vtkillum.core.many_lights.avsm.lookup_function`;
+    * in an isotropic medium, no cone sample and constant phase functions;
     * a VL's data in one record (:data:`VLRecord`), read at constant offsets from one
       address instead of five arrays' address computations;
     * compact tiles: the 32 positions of a warp are closer together than a row of 32
@@ -496,8 +501,10 @@ def avsm_vl_kernel(count: int):
             T = lookup(sm, texels, int(rec[7]), -v, dist)
             if prm.scale != 1.0:
                 T = wp.pow(wp.max(T, 0.0), prm.scale)
-            phase = (hg_phase(wp.dot(wp.vec3(rec[4], rec[5], rec[6]), -w), m.g)
-                     * hg_phase(wp.dot(w, d), m.g))
+            phase = ISOTROPIC_PHASE * ISOTROPIC_PHASE
+            if m.g != 0.0:
+                phase = (hg_phase(wp.dot(wp.vec3(rec[4], rec[5], rec[6]), -w), m.g)
+                         * hg_phase(wp.dot(w, d), m.g))
             acc += (phase * T * kern) * pw
         weight[level, r, c] = wp.cw_mul(wgt, acc)
 
