@@ -61,6 +61,7 @@ from vtkillum.core.warp_common import (
     CameraParams,
     Lights,
     Medium,
+    block_run,
     grid_point,
     hg_phase,
     lookup_color,
@@ -349,7 +350,8 @@ def view_kernel(m: Medium, cam: CameraParams, lights: Lights, vl_count: int, prm
     lights' units per steradian), alpha and the number of steps at ``[row, col]``, and
     for each level ``l < S`` the position ``x_t`` and its weight
     ``alpha / S * albedo * colour(x_t)`` at ``[l, row - row0, col]`` (weight 0: no
-    position). See the module docstring.
+    position), and the number of samples it took (those in empty blocks are skipped: they
+    add nothing). See the module docstring.
     """
     r, c = wp.tid()
     row = row0 + r
@@ -366,47 +368,66 @@ def view_kernel(m: Medium, cam: CameraParams, lights: Lights, vl_count: int, prm
             xi = wp.randf(state)
         n = sample_count(t0, t1, prm.step, xi)
         stop_t = 1.0 - prm.stop_alpha
-        used = int(0)
-        for k in range(n):
-            p = o + (t0 + (float(k) + xi) * prm.step) * d
-            s = sample_scalar(m.scalars, m.inv_spacing, p)
-            sig = lookup_sigma_t(m, s)
-            count += 1
-            used = k + 1
-            if sig > 0.0:
-                a = 1.0 - wp.exp(-sig * prm.step)
-                if prm.single != 0:
-                    shadow_xi = float(0.5)
-                    if prm.jitter != 0:
-                        shadow_xi = wp.randf(state)
-                    src = m.albedo * wp.cw_mul(
-                        lookup_color(m, s),
-                        single_scatter_light(m, lights, p, d, prm.step, shadow_xi, stop_t))
-                    colour += (trans * a) * src
-                trans *= 1.0 - a
-                if 1.0 - trans > prm.stop_alpha:
-                    break
+        # Samples in empty blocks (sigma_t exactly 0) are skipped in both marches.
+        start = o + t0 * d
+        used = n
+        k = int(0)
+        run_empty = int(0)
+        run_last = int(-1)
+        while k < n:
+            if k > run_last:
+                run_empty, run_last = block_run(m, start, d, prm.step, k, xi)
+            if run_empty != 0:
+                k = run_last + 1
+            else:
+                p = o + (t0 + (float(k) + xi) * prm.step) * d
+                s = sample_scalar(m.scalars, m.inv_spacing, p)
+                sig = lookup_sigma_t(m, s)
+                count += 1
+                k += 1
+                if sig > 0.0:
+                    a = 1.0 - wp.exp(-sig * prm.step)
+                    if prm.single != 0:
+                        shadow_xi = float(0.5)
+                        if prm.jitter != 0:
+                            shadow_xi = wp.randf(state)
+                        src = m.albedo * wp.cw_mul(
+                            lookup_color(m, s),
+                            single_scatter_light(m, lights, p, d, prm.step, shadow_xi, stop_t))
+                        colour += (trans * a) * src
+                    trans *= 1.0 - a
+                    if 1.0 - trans > prm.stop_alpha:
+                        used = k
+                        k = n
         total = 1.0 - trans
         if prm.multiple != 0 and vl_count > 0 and total > 0.0:
             u0, state = uniform(state)
             tau = float(0.0)
             target = -wp.log(wp.max(1.0 - total * u0 / float(S), 1.0e-30))
-            for k in range(used):
-                p = o + (t0 + (float(k) + xi) * prm.step) * d
-                dt = lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, p)) * prm.step
-                while placed < S and dt > 0.0 and tau + dt >= target:
-                    f = (target - tau) / dt
-                    tx = wp.clamp(t0 + (float(k) + xi - 0.5 + f) * prm.step, t0, t1)
-                    x = o + tx * d
-                    col = lookup_color(m, sample_scalar(m.scalars, m.inv_spacing, x))
-                    position[placed, r, c] = x
-                    weight[placed, r, c] = (total / float(S) * m.albedo) * col
-                    placed += 1
-                    target = -wp.log(wp.max(1.0 - total * (float(placed) + u0) / float(S),
-                                            1.0e-30))
-                if placed == S:
-                    break
-                tau += dt
+            k = int(0)
+            run_last = int(-1)
+            while k < used:
+                if k > run_last:
+                    run_empty, run_last = block_run(m, start, d, prm.step, k, xi)
+                if run_empty != 0:
+                    k = run_last + 1
+                else:
+                    p = o + (t0 + (float(k) + xi) * prm.step) * d
+                    dt = lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, p)) * prm.step
+                    while placed < S and dt > 0.0 and tau + dt >= target:
+                        f = (target - tau) / dt
+                        tx = wp.clamp(t0 + (float(k) + xi - 0.5 + f) * prm.step, t0, t1)
+                        x = o + tx * d
+                        col = lookup_color(m, sample_scalar(m.scalars, m.inv_spacing, x))
+                        position[placed, r, c] = x
+                        weight[placed, r, c] = (total / float(S) * m.albedo) * col
+                        placed += 1
+                        target = -wp.log(wp.max(1.0 - total * (float(placed) + u0) / float(S),
+                                                1.0e-30))
+                    tau += dt
+                    k += 1
+                    if placed == S:
+                        k = used
     for level in range(placed, S):
         weight[level, r, c] = wp.vec3(0.0)
     single_out[row, c] = colour
