@@ -152,3 +152,44 @@ def test_avsm_kernel_equals_the_generic_vl_sum(device, g):
     band = gather.BAND_PIXELS["cpu"] // width
     assert (generic[:band].sum(-1) > 0).mean() > 0.1 and (generic[band:].sum(-1) > 0).mean() > 0.1
     np.testing.assert_allclose(tiled, generic, rtol=2e-5, atol=1e-7 * generic.max())
+
+
+def test_alpha_only_march_leaps_empty_blocks_to_the_same_positions(device):
+    """Without the single term the view rays leap over empty blocks; alpha, the VL
+    positions and so the multiple-scattering image equal those of the march that computes
+    the single term (no jitter: the two then draw the same random numbers)."""
+    import warp as wp
+
+    from vtkillum.core.many_lights import gather
+    from vtkillum.core.many_lights.cache import ManyLightsState
+    from vtkillum.core.warp_common import make_camera
+    from vtkillum.core.transfer_function import TransferFunction
+    from vtkillum.core.volume import Volume
+    from vtkillum.data.procedural import ct_phantom, default_scene
+
+    # A dense cube one cell inside the block faces: the first sample after a leap counts.
+    values = np.zeros((41, 41, 41), np.float32)
+    values[9:32, 9:32, 9:32] = 1.0  # blocks of 8 cells: the outer ones are empty
+    sc = default_scene("ct", ct_phantom(32))
+    volume = Volume(values, (0.025,) * 3, (0.0, 0.0, 0.0))
+    sc.transfer_function = TransferFunction([0.0, 1.0], [0.0, 0.9])
+    sc.camera = None
+    state = ManyLightsState(volume, sc, parse_options({**FAST, "seed": 3}, volume, sc), device)
+    assert (state.medium.occupied.numpy() == 0).mean() > 0.2  # there is air to leap over
+    o = state.opts
+    cam = make_camera(sc.resolved_camera(volume), volume, 40, 40)
+    out = []
+    for single in (True, False):
+        prm = gather.gather_params(o["step_size"], False, 5, o["early_termination"], 8, "avsm",
+                                   o["vl_step"], state.scale, single, True)
+        images = [wp.zeros((40, 40), dtype=wp.vec3, device=device) for _ in range(2)]
+        alpha = wp.zeros((40, 40), dtype=wp.float32, device=device)
+        samples = wp.zeros((40, 40), dtype=wp.int32, device=device)
+        gather.gather_device(state.medium, cam, state.lights, state.virtual_lights(),
+                             state.maps(), prm, images[0], images[1], alpha, samples, device)
+        out.append((images[1].numpy(), alpha.numpy(), samples.numpy()))
+    (ms_a, alpha_a, n_a), (ms_b, alpha_b, n_b) = out
+    np.testing.assert_array_equal(alpha_b, alpha_a)
+    np.testing.assert_array_equal(ms_b, ms_a)
+    assert ms_a.sum() > 0 and alpha_a.max() > 0.1
+    assert n_b.sum() < n_a.sum()  # fewer samples taken

@@ -368,43 +368,58 @@ def view_kernel(m: Medium, cam: CameraParams, lights: Lights, vl_count: int, prm
             xi = wp.randf(state)
         n = sample_count(t0, t1, prm.step, xi)
         stop_t = 1.0 - prm.stop_alpha
-        # Samples in empty blocks (sigma_t exactly 0) are skipped in both marches.
         start = o + t0 * d
         used = n
-        k = int(0)
-        run_empty = int(0)
-        run_last = int(-1)
-        while k < n:
-            if k > run_last:
-                run_empty, run_last = block_run(m, start, d, prm.step, k, xi)
-            if run_empty != 0:
-                k = run_last + 1
-            else:
+        if prm.single != 0:
+            for k in range(n):
                 p = o + (t0 + (float(k) + xi) * prm.step) * d
                 s = sample_scalar(m.scalars, m.inv_spacing, p)
                 sig = lookup_sigma_t(m, s)
                 count += 1
-                k += 1
                 if sig > 0.0:
                     a = 1.0 - wp.exp(-sig * prm.step)
-                    if prm.single != 0:
-                        shadow_xi = float(0.5)
-                        if prm.jitter != 0:
-                            shadow_xi = wp.randf(state)
-                        src = m.albedo * wp.cw_mul(
-                            lookup_color(m, s),
-                            single_scatter_light(m, lights, p, d, prm.step, shadow_xi, stop_t))
-                        colour += (trans * a) * src
+                    shadow_xi = float(0.5)
+                    if prm.jitter != 0:
+                        shadow_xi = wp.randf(state)
+                    src = m.albedo * wp.cw_mul(
+                        lookup_color(m, s),
+                        single_scatter_light(m, lights, p, d, prm.step, shadow_xi, stop_t))
+                    colour += (trans * a) * src
                     trans *= 1.0 - a
                     if 1.0 - trans > prm.stop_alpha:
-                        used = k
-                        k = n
+                        used = k + 1
+                        break
+        else:
+            # Only alpha: leap over empty blocks (sigma_t exactly 0). With the single term
+            # the lockstep loop above is faster: threads that leap fall out of step with
+            # their warp's shadow rays (H100: multiple only 4.4 -> 2.6 ms, single 262 -> 277).
+            k = int(0)
+            run_empty = int(0)
+            run_last = int(-1)
+            while k < n:
+                if k > run_last:
+                    run_empty, run_last = block_run(m, start, d, prm.step, k, xi)
+                if run_empty != 0:
+                    k = run_last + 1
+                else:
+                    sig = lookup_sigma_t(m, sample_scalar(
+                        m.scalars, m.inv_spacing, o + (t0 + (float(k) + xi) * prm.step) * d))
+                    count += 1
+                    k += 1
+                    if sig > 0.0:
+                        a = 1.0 - wp.exp(-sig * prm.step)
+                        trans *= 1.0 - a
+                        if 1.0 - trans > prm.stop_alpha:
+                            used = k
+                            k = n
         total = 1.0 - trans
         if prm.multiple != 0 and vl_count > 0 and total > 0.0:
             u0, state = uniform(state)
             tau = float(0.0)
             target = -wp.log(wp.max(1.0 - total * u0 / float(S), 1.0e-30))
+            # Empty blocks add nothing to tau: leap over them.
             k = int(0)
+            run_empty = int(0)
             run_last = int(-1)
             while k < used:
                 if k > run_last:
