@@ -214,7 +214,7 @@ def gather_device(medium: Medium, cam: CameraParams, lights: Lights, vls: Virtua
         wp.launch(record_kernel, dim=vls.count, inputs=[vls, records], device=device)
     for n, row0 in enumerate(range(0, height, rows)):
         nrows = min(rows, height - row0)
-        wp.launch(view_kernel, dim=(nrows, width),
+        wp.launch(view_kernel if params.single != 0 else alpha_view_kernel, dim=(nrows, width),
                   inputs=[medium, cam, lights, vls.count, params, row0, single, alpha, samples,
                           position, weight], device=device)
         if params.multiple != 0 and vls.count > 0:
@@ -338,116 +338,150 @@ def vl_light(m: Medium, vls: VirtualLights, sm: ShadowMaps, prm: GatherParams, x
 
 
 # --- kernels ------------------------------------------------------------------------------------
-@wp.kernel
-def view_kernel(m: Medium, cam: CameraParams, lights: Lights, vl_count: int, prm: GatherParams,
-                row0: int, single_out: wp.array2d(dtype=wp.vec3),
-                alpha: wp.array2d(dtype=wp.float32), samples: wp.array2d(dtype=wp.int32),
-                position: wp.array3d(dtype=wp.vec3), weight: wp.array3d(dtype=wp.vec3)):
-    """Single scattering along one view ray and its multiple-scattering positions.
-
-    ``wp.tid()`` is ``(row - row0, col)`` of the image (row 0 at the top). Positions in
-    the volume's local frame (world units); writes the single-scattering radiance (the
-    lights' units per steradian), alpha and the number of steps at ``[row, col]``, and
-    for each level ``l < S`` the position ``x_t`` and its weight
-    ``alpha / S * albedo * colour(x_t)`` at ``[l, row - row0, col]`` (weight 0: no
-    position), and the number of samples it took (those in empty blocks are skipped: they
-    add nothing). See the module docstring.
-    """
-    r, c = wp.tid()
-    row = row0 + r
-    o, d, t0, t1 = pixel_ray(cam, m.extent, row, c)
-    colour = wp.vec3(0.0)
-    trans = float(1.0)
-    count = int(0)
+@wp.func
+def place(m: Medium, o: wp.vec3, d: wp.vec3, t0: float, t1: float, xi: float, k: int, dt: float,
+          tau: float, target: float, total: float, u0: float, prm: GatherParams, placed: int,
+          r: int, c: int, position: wp.array3d(dtype=wp.vec3), weight: wp.array3d(dtype=wp.vec3)):
+    """Place the positions whose target optical depth falls in view step ``k`` (optical
+    depth ``dt``, ``tau`` before it); returns ``(placed, tau after the step, target)``."""
     S = position.shape[0]
-    placed = int(0)
-    if t0 < t1:
-        state = wp.rand_init(prm.seed, row * cam.width + c)
-        xi = float(0.5)
-        if prm.jitter != 0:
-            xi = wp.randf(state)
-        n = sample_count(t0, t1, prm.step, xi)
-        stop_t = 1.0 - prm.stop_alpha
-        start = o + t0 * d
-        used = n
-        if prm.single != 0:
-            for k in range(n):
-                p = o + (t0 + (float(k) + xi) * prm.step) * d
-                s = sample_scalar(m.scalars, m.inv_spacing, p)
-                sig = lookup_sigma_t(m, s)
-                count += 1
-                if sig > 0.0:
-                    a = 1.0 - wp.exp(-sig * prm.step)
-                    shadow_xi = float(0.5)
-                    if prm.jitter != 0:
-                        shadow_xi = wp.randf(state)
-                    src = m.albedo * wp.cw_mul(
-                        lookup_color(m, s),
-                        single_scatter_light(m, lights, p, d, prm.step, shadow_xi, stop_t))
-                    colour += (trans * a) * src
-                    trans *= 1.0 - a
-                    if 1.0 - trans > prm.stop_alpha:
-                        used = k + 1
-                        break
-        else:
-            # Only alpha: leap over empty blocks (sigma_t exactly 0). With the single term
-            # the lockstep loop above is faster: threads that leap fall out of step with
-            # their warp's shadow rays (H100: multiple only 4.4 -> 2.6 ms, single 262 -> 277).
-            k = int(0)
-            run_empty = int(0)
-            run_last = int(-1)
-            while k < n:
-                if k > run_last:
-                    run_empty, run_last = block_run(m, start, d, prm.step, k, xi)
-                if run_empty != 0:
-                    k = run_last + 1
-                else:
-                    sig = lookup_sigma_t(m, sample_scalar(
-                        m.scalars, m.inv_spacing, o + (t0 + (float(k) + xi) * prm.step) * d))
+    while placed < S and dt > 0.0 and tau + dt >= target:
+        f = (target - tau) / dt
+        tx = wp.clamp(t0 + (float(k) + xi - 0.5 + f) * prm.step, t0, t1)
+        x = o + tx * d
+        col = lookup_color(m, sample_scalar(m.scalars, m.inv_spacing, x))
+        position[placed, r, c] = x
+        weight[placed, r, c] = (total / float(S) * m.albedo) * col
+        placed += 1
+        target = -wp.log(wp.max(1.0 - total * (float(placed) + u0) / float(S), 1.0e-30))
+    return placed, tau + dt, target
+
+
+@functools.cache
+def _view_kernel(LEAP: bool):
+    """:func:`view_kernel` (``LEAP`` False) or :func:`alpha_view_kernel` (True)."""
+
+    @wp.kernel(module="unique")
+    def view_kernel(m: Medium, cam: CameraParams, lights: Lights, vl_count: int, prm: GatherParams,
+                    row0: int, single_out: wp.array2d(dtype=wp.vec3),
+                    alpha: wp.array2d(dtype=wp.float32), samples: wp.array2d(dtype=wp.int32),
+                    position: wp.array3d(dtype=wp.vec3), weight: wp.array3d(dtype=wp.vec3)):
+        """Single scattering along one view ray and its multiple-scattering positions.
+
+        ``wp.tid()`` is ``(row - row0, col)`` of the image (row 0 at the top). Positions in
+        the volume's local frame (world units); writes the single-scattering radiance (the
+        lights' units per steradian), alpha and the number of steps at ``[row, col]``, and
+        for each level ``l < S`` the position ``x_t`` and its weight
+        ``alpha / S * albedo * colour(x_t)`` at ``[l, row - row0, col]`` (weight 0: no
+        position), and the number of samples it took (:data:`alpha_view_kernel` leaps over
+        those in empty blocks). See the module docstring.
+        """
+        r, c = wp.tid()
+        row = row0 + r
+        o, d, t0, t1 = pixel_ray(cam, m.extent, row, c)
+        colour = wp.vec3(0.0)
+        trans = float(1.0)
+        count = int(0)
+        S = position.shape[0]
+        placed = int(0)
+        if t0 < t1:
+            state = wp.rand_init(prm.seed, row * cam.width + c)
+            xi = float(0.5)
+            if prm.jitter != 0:
+                xi = wp.randf(state)
+            n = sample_count(t0, t1, prm.step, xi)
+            stop_t = 1.0 - prm.stop_alpha
+            start = o + t0 * d
+            used = n
+            if wp.static(not LEAP):
+                for k in range(n):
+                    p = o + (t0 + (float(k) + xi) * prm.step) * d
+                    s = sample_scalar(m.scalars, m.inv_spacing, p)
+                    sig = lookup_sigma_t(m, s)
                     count += 1
-                    k += 1
                     if sig > 0.0:
                         a = 1.0 - wp.exp(-sig * prm.step)
+                        if prm.single != 0:
+                            shadow_xi = float(0.5)
+                            if prm.jitter != 0:
+                                shadow_xi = wp.randf(state)
+                            src = m.albedo * wp.cw_mul(lookup_color(m, s), single_scatter_light(
+                                m, lights, p, d, prm.step, shadow_xi, stop_t))
+                            colour += (trans * a) * src
                         trans *= 1.0 - a
                         if 1.0 - trans > prm.stop_alpha:
-                            used = k
-                            k = n
-        total = 1.0 - trans
-        if prm.multiple != 0 and vl_count > 0 and total > 0.0:
-            u0, state = uniform(state)
-            tau = float(0.0)
-            target = -wp.log(wp.max(1.0 - total * u0 / float(S), 1.0e-30))
-            # Empty blocks add nothing to tau: leap over them.
-            k = int(0)
-            run_empty = int(0)
-            run_last = int(-1)
-            while k < used:
-                if k > run_last:
-                    run_empty, run_last = block_run(m, start, d, prm.step, k, xi)
-                if run_empty != 0:
-                    k = run_last + 1
+                            used = k + 1
+                            break
+            else:
+                k = int(0)
+                run_empty = int(0)
+                run_last = int(-1)
+                while k < n:
+                    if k > run_last:
+                        run_empty, run_last = block_run(m, start, d, prm.step, k, xi)
+                    if run_empty != 0:
+                        k = run_last + 1
+                    else:
+                        sig = lookup_sigma_t(m, sample_scalar(
+                            m.scalars, m.inv_spacing, o + (t0 + (float(k) + xi) * prm.step) * d))
+                        count += 1
+                        k += 1
+                        if sig > 0.0:
+                            a = 1.0 - wp.exp(-sig * prm.step)
+                            trans *= 1.0 - a
+                            if 1.0 - trans > prm.stop_alpha:
+                                used = k
+                                k = n
+            total = 1.0 - trans
+            if prm.multiple != 0 and vl_count > 0 and total > 0.0:
+                u0, state = uniform(state)
+                tau = float(0.0)
+                target = -wp.log(wp.max(1.0 - total * u0 / float(S), 1.0e-30))
+                if wp.static(not LEAP):
+                    for k in range(used):
+                        p = o + (t0 + (float(k) + xi) * prm.step) * d
+                        sig = lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, p))
+                        placed, tau, target = place(m, o, d, t0, t1, xi, k, sig * prm.step, tau,
+                                                    target, total, u0, prm, placed, r, c,
+                                                    position, weight)
+                        if placed == S:
+                            break
                 else:
-                    p = o + (t0 + (float(k) + xi) * prm.step) * d
-                    dt = lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, p)) * prm.step
-                    while placed < S and dt > 0.0 and tau + dt >= target:
-                        f = (target - tau) / dt
-                        tx = wp.clamp(t0 + (float(k) + xi - 0.5 + f) * prm.step, t0, t1)
-                        x = o + tx * d
-                        col = lookup_color(m, sample_scalar(m.scalars, m.inv_spacing, x))
-                        position[placed, r, c] = x
-                        weight[placed, r, c] = (total / float(S) * m.albedo) * col
-                        placed += 1
-                        target = -wp.log(wp.max(1.0 - total * (float(placed) + u0) / float(S),
-                                                1.0e-30))
-                    tau += dt
-                    k += 1
-                    if placed == S:
-                        k = used
-    for level in range(placed, S):
-        weight[level, r, c] = wp.vec3(0.0)
-    single_out[row, c] = colour
-    alpha[row, c] = 1.0 - trans
-    samples[row, c] = count
+                    # Empty blocks add nothing to tau: leap over them.
+                    k = int(0)
+                    run_empty = int(0)
+                    run_last = int(-1)
+                    while k < used:
+                        if k > run_last:
+                            run_empty, run_last = block_run(m, start, d, prm.step, k, xi)
+                        if run_empty != 0:
+                            k = run_last + 1
+                        else:
+                            p = o + (t0 + (float(k) + xi) * prm.step) * d
+                            sig = lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, p))
+                            placed, tau, target = place(m, o, d, t0, t1, xi, k, sig * prm.step,
+                                                        tau, target, total, u0, prm, placed, r,
+                                                        c, position, weight)
+                            k += 1
+                            if placed == S:
+                                k = used
+        for level in range(placed, S):
+            weight[level, r, c] = wp.vec3(0.0)
+        single_out[row, c] = colour
+        alpha[row, c] = 1.0 - trans
+        samples[row, c] = count
+
+    return view_kernel
+
+
+#: Single scattering, alpha and the multiple-scattering positions of each view ray.
+view_kernel = _view_kernel(False)
+#: :func:`view_kernel` without the single term, leaping over empty blocks: alpha and the
+#: same positions (tested). With the single term the lockstep loop of ``view_kernel`` is
+#: faster: threads that leap fall out of step with their warp's shadow rays, and the
+#: leaping code's registers slowed the single term by a fifth (H100, 800^2 CT: multiple
+#: only 4.4 -> 2.6 ms).
+alpha_view_kernel = _view_kernel(True)
 
 
 @wp.kernel(module_options={"fast_math": True}, module="unique")
