@@ -48,3 +48,56 @@ def test_many_lights_refine_while_the_camera_rests():
     assert not np.array_equal(first, shown.result.radiance)
     assert shown.refine(1) == 3
     window.Finalize()
+
+
+def test_many_lights_edit_keeps_the_lights_and_regenerates_progressively():
+    """A transfer-function edit through set_scene: the next image is the paper's immediate
+    update of the same VLs, refine() regenerates the stale paths a fraction per pass, and
+    once none is stale the image equals a fresh renderer's with the edited scene."""
+    import copy
+
+    from vtkillum.core.transfer_function import TransferFunction
+
+    volume = cloud(16)
+    scene = _medium_scene(volume, 6.0, 0.9, 0.3, [_side_light()])
+    renderer = vtkRenderer()
+    window = offscreen_window(renderer, scene.resolved_camera(volume), SIZE, SIZE)
+    shown = ComputeVolumeRenderer(renderer, volume, scene, method="many-lights", device="cpu",
+                                  update_fraction=0.3, **OPTIONS)
+    window.Render()
+    before = shown.result.radiance.copy()
+    tracer = shown._tracer
+    tf = scene.transfer_function
+    edited = copy.copy(scene)
+    edited.transfer_function = TransferFunction(tf.scalars, np.asarray(tf.opacity) * 2.0,
+                                                tf.colors)
+    shown.set_scene(edited)
+    window.Render()
+    assert shown._tracer is tracer  # the VLs were kept
+    assert shown.result.info["stale_paths"] > 0
+    assert not np.array_equal(before, shown.result.radiance)
+    frames = 0
+    while shown.result.info["stale_paths"] > 0:
+        shown.refine(1)
+        assert shown.refined
+        frames += 1
+        assert frames < 10
+    assert frames >= 2  # a fraction of the paths per pass
+
+    other = vtkRenderer()
+    other_window = offscreen_window(other, scene.resolved_camera(volume), SIZE, SIZE)
+    fresh = ComputeVolumeRenderer(other, volume, edited, method="many-lights", device="cpu",
+                                  update_fraction=0.3, **OPTIONS)
+    other_window.Render()
+    np.testing.assert_allclose(shown.result.radiance, fresh.result.radiance, rtol=1e-4,
+                               atol=1e-7)
+
+    # Other many-lights options: a new set of lights.
+    more = copy.copy(edited)
+    more.options = copy.deepcopy(edited.options)
+    more.options["many_lights"]["avsm_nodes"] = 6
+    shown.set_scene(more)
+    window.Render()
+    assert shown._tracer is not tracer
+    window.Finalize()
+    other_window.Finalize()

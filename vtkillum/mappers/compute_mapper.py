@@ -136,6 +136,7 @@ class ComputeVolumeRenderer:
         self.options: dict = {}
         self.set_method(method, **options)
         self.result: RenderResult | None = None
+        self.refined = False  # whether the last refine() showed a new image
         self._tracer = None
         self._key = None  # (camera state, width, height) of the image shown
         self._timer = None  # (weak interactor, timer id, observer tag)
@@ -175,11 +176,36 @@ class ComputeVolumeRenderer:
         self.invalidate()
 
     def set_scene(self, scene: Scene) -> None:
-        """Use a new scene (optical model, lights, options); the next render redraws."""
+        """Use a new scene (optical model, lights, options); the next render redraws.
+
+        ``many-lights`` keeps its virtual lights through an edit of the transfer function,
+        the medium, the phase function or the lights when its options stay the same: the
+        next render shows the paper's immediate response (contributions re-evaluated along
+        the stored paths, section 4), and :meth:`refine` regenerates the stale paths a
+        fraction per pass before it adds sets (section 4.2). Other edits start afresh.
+        """
         if not isinstance(scene, Scene):
             raise TypeError(f"scene must be a vtkillum Scene, got {type(scene).__name__}")
-        self.scene = scene
+        old, self.scene = self.scene, scene
+        if self.method == "many-lights" and self._tracer is not None and \
+                self._same_many_light_options(old, scene):
+            edited = copy.copy(scene)
+            edited.camera = self._tracer.camera
+            edited.lights = self.lights
+            self._tracer.update(edited)
+            self._key = None
+            return
         self.invalidate()
+
+    def _same_many_light_options(self, old: Scene, new: Scene) -> bool:
+        """Whether ``many-lights`` resolves the same options for both scenes."""
+        from vtkillum.core.many_lights.render import parse_options
+
+        try:
+            return bool(parse_options(self.options, self.volume, old)
+                        == parse_options(self.options, self.volume, new))
+        except (ValueError, TypeError):
+            return False  # the render reports the bad option
 
     def set_illumination(self, illumination) -> None:
         """The illumination volume for ``illumination``: IlluminationVolume, array or image data.
@@ -280,27 +306,40 @@ class ComputeVolumeRenderer:
     def refine(self, passes: int = 1) -> int:
         """Add ``passes`` passes of a progressive method and show the new mean.
 
-        ``path``: samples per pixel, up to ``spp``; ``many-lights``: sets of virtual
-        lights, up to ``max_sets``. Returns the number of passes accumulated. Does not
+        ``path``: samples per pixel, up to ``spp``; ``many-lights``: after an edit a step
+        of the progressive regeneration per pass while paths are stale (the image shows
+        set 0), then sets of virtual lights, up to ``max_sets``. Returns the number of
+        passes accumulated; :attr:`refined` tells whether a new image was shown. Does not
         render the window: call ``render_window.Render()`` to see the result.
         """
         if self.method not in PROGRESSIVE:
             raise ValueError(f"refine() is for the progressive methods {PROGRESSIVE}, not "
                              f"{self.method!r}")
+        self.refined = False
         if self._tracer is None:
             self.update()
             if self._tracer is None:
                 return 0
-        passes = min(int(passes), self._limit - self._tracer.passes)
-        if passes > 0:
-            self._tracer.run(passes)
+        if self.method == "many-lights":
+            # After an edit: regenerate stale paths first (the image is set 0), then add sets.
+            for _ in range(int(passes)):
+                if not self._tracer.state.stale and self._tracer.passes >= self._limit:
+                    break
+                self._tracer.frame()
+                self.refined = True
+        else:
+            passes = min(int(passes), self._limit - self._tracer.passes)
+            if passes > 0:
+                self._tracer.run(passes)
+                self.refined = True
+        if self.refined:
             self.result = self._tracer.result()
             self._show(self.result)
         return self._tracer.passes
 
     def start_refinement(self, interactor=None, interval_ms: int = 30,
                          passes_per_tick: int = 1) -> None:
-        """Refine ``path`` images on a repeating interactor timer while the camera rests.
+        """Refine ``path`` and ``many-lights`` images on a repeating timer while the camera rests.
 
         Each tick adds ``passes_per_tick`` passes when the camera has not moved since
         the image shown, then renders the window; a moved camera restarts the image
@@ -319,10 +358,10 @@ class ComputeVolumeRenderer:
                 return
             w, h = self.viewport_size()
             camera = camera_from_vtk(renderer.GetActiveCamera(), aspect=w / h)
-            resting = self._key == (_camera_state(camera), w, h)
-            before = self.passes
-            if resting and self.refine(passes_per_tick) == before:
-                return  # converged to spp: nothing new to show
+            if self._key == (_camera_state(camera), w, h):  # resting
+                self.refine(passes_per_tick)
+                if not self.refined:
+                    return  # converged: nothing new to show
             renderer.GetRenderWindow().Render()
 
         tag = interactor.AddObserver(vtkCommand.TimerEvent, on_timer)
