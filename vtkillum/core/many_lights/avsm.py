@@ -286,29 +286,44 @@ def avsm_transmittance(sm: ShadowMaps, slot: int, origin: wp.vec3, x: wp.vec3):
 
 
 @wp.func
-def avsm_lookup(sm: ShadowMaps, slot: int, v: wp.vec3, depth: float):
-    """:func:`avsm_transmittance` for the offset ``v = x - origin`` of length ``depth``."""
-    if depth <= 0.0:
-        return 1.0
+def map_footprint(sm: ShadowMaps, slot: int, v: wp.vec3):
+    """The texels a lookup along ``v`` reads in the map in ``slot``.
+
+    Returns ``(texel, fx, fy)``: the flat index ``((slot * 6 + face) * R + row) * R + col``
+    of the nearest texel (point filter; weights 0) or of the first of the four that are
+    blended (trilinear: ``texel + 1``, ``texel + R``, ``texel + R + 1`` with the bilinear
+    weights ``fx``, ``fy``).
+    """
     face, s, t = cube_coords(v)
     R = sm.resolution
-    m = sm.node_count
     base = (slot * 6 + face) * R
     fu = (s + 1.0) * 0.5 * float(R) - 0.5
     fv = (t + 1.0) * 0.5 * float(R) - 0.5
     if sm.filter == 0:
         c = wp.clamp(int(wp.floor(fu + 0.5)), 0, R - 1)
         r = wp.clamp(int(wp.floor(fv + 0.5)), 0, R - 1)
-        return texel_transmittance(sm.nodes, ((base + r) * R + c) * m, m, depth)
+        return (base + r) * R + c, 0.0, 0.0
     c0 = wp.clamp(int(wp.floor(fu)), 0, R - 2)
     r0 = wp.clamp(int(wp.floor(fv)), 0, R - 2)
-    fx = wp.clamp(fu - float(c0), 0.0, 1.0)
-    fy = wp.clamp(fv - float(r0), 0.0, 1.0)
-    first = ((base + r0) * R + c0) * m
+    return ((base + r0) * R + c0, wp.clamp(fu - float(c0), 0.0, 1.0),
+            wp.clamp(fv - float(r0), 0.0, 1.0))
+
+
+@wp.func
+def avsm_lookup(sm: ShadowMaps, slot: int, v: wp.vec3, depth: float):
+    """:func:`avsm_transmittance` for the offset ``v = x - origin`` of length ``depth``."""
+    if depth <= 0.0:
+        return 1.0
+    texel, fx, fy = map_footprint(sm, slot, v)
+    m = sm.node_count
+    first = texel * m
+    if sm.filter == 0:
+        return texel_transmittance(sm.nodes, first, m, depth)
+    row = sm.resolution * m
     t00 = texel_transmittance(sm.nodes, first, m, depth)
     t01 = texel_transmittance(sm.nodes, first + m, m, depth)
-    t10 = texel_transmittance(sm.nodes, first + R * m, m, depth)
-    t11 = texel_transmittance(sm.nodes, first + R * m + m, m, depth)
+    t10 = texel_transmittance(sm.nodes, first + row, m, depth)
+    t11 = texel_transmittance(sm.nodes, first + row + m, m, depth)
     return wp.lerp(wp.lerp(t00, t01, fx), wp.lerp(t10, t11, fx), fy)
 
 
@@ -361,24 +376,14 @@ def lookup_function(count: int):
         """:func:`avsm_lookup` for maps of ``COUNT`` nodes per texel."""
         if depth <= 0.0:
             return 1.0
-        face, s, t = cube_coords(v)
-        R = sm.resolution
-        base = (slot * 6 + face) * R
-        fu = (s + 1.0) * 0.5 * float(R) - 0.5
-        fv = (t + 1.0) * 0.5 * float(R) - 0.5
+        texel, fx, fy = map_footprint(sm, slot, v)
         if sm.filter == 0:
-            c = wp.clamp(int(wp.floor(fu + 0.5)), 0, R - 1)
-            r = wp.clamp(int(wp.floor(fv + 0.5)), 0, R - 1)
-            return texel_counted(texels, sm.nodes, (base + r) * R + c, depth)
-        c0 = wp.clamp(int(wp.floor(fu)), 0, R - 2)
-        r0 = wp.clamp(int(wp.floor(fv)), 0, R - 2)
-        fx = wp.clamp(fu - float(c0), 0.0, 1.0)
-        fy = wp.clamp(fv - float(r0), 0.0, 1.0)
-        first = (base + r0) * R + c0
-        t00 = texel_counted(texels, sm.nodes, first, depth)
-        t01 = texel_counted(texels, sm.nodes, first + 1, depth)
-        t10 = texel_counted(texels, sm.nodes, first + R, depth)
-        t11 = texel_counted(texels, sm.nodes, first + R + 1, depth)
+            return texel_counted(texels, sm.nodes, texel, depth)
+        R = sm.resolution
+        t00 = texel_counted(texels, sm.nodes, texel, depth)
+        t01 = texel_counted(texels, sm.nodes, texel + 1, depth)
+        t10 = texel_counted(texels, sm.nodes, texel + R, depth)
+        t11 = texel_counted(texels, sm.nodes, texel + R + 1, depth)
         return wp.lerp(wp.lerp(t00, t01, fx), wp.lerp(t10, t11, fx), fy)
 
     return lookup
