@@ -1,4 +1,7 @@
-"""The compute path shows ``many-lights`` by its registered name (no mapper changes)."""
+"""The compute path shows ``many-lights``: its image, progressive sets, edits that keep the
+virtual lights."""
+
+import copy
 
 import numpy as np
 from helpers import offscreen_window, read_window_rgb
@@ -14,13 +17,21 @@ SIZE = 20
 OPTIONS = {"count": 32, "avsm_resolution": 8, "jitter": False, "seed": 2}
 
 
-def test_compute_path_shows_the_many_light_image():
+def shown_cloud(scene=None, **options):
+    """A cloud in an offscreen window shown by a many-lights compute renderer:
+    ``(volume, scene, renderer, window, shown)``."""
     volume = cloud(16)
-    scene = _medium_scene(volume, 6.0, 0.9, 0.3, [_side_light()])
+    if scene is None:
+        scene = _medium_scene(volume, 6.0, 0.9, 0.3, [_side_light()])
     renderer = vtkRenderer()
     window = offscreen_window(renderer, scene.resolved_camera(volume), SIZE, SIZE)
     shown = ComputeVolumeRenderer(renderer, volume, scene, method="many-lights", device="cpu",
-                                  **OPTIONS)
+                                  **options, **OPTIONS)
+    return volume, scene, renderer, window, shown
+
+
+def test_compute_path_shows_the_many_light_image():
+    volume, scene, renderer, window, shown = shown_cloud()
     image = read_window_rgb(window)
     scene.camera = camera_from_vtk(renderer.GetActiveCamera(), aspect=1.0)
     expected = render(volume, scene, "many-lights", SIZE, SIZE, "cpu", **OPTIONS)
@@ -34,12 +45,7 @@ def test_compute_path_shows_the_many_light_image():
 
 def test_many_lights_refine_while_the_camera_rests():
     """Progressive like ``path``: refine() adds VL sets up to max_sets, the mean of the sets."""
-    volume = cloud(16)
-    scene = _medium_scene(volume, 6.0, 0.9, 0.3, [_side_light()])
-    renderer = vtkRenderer()
-    window = offscreen_window(renderer, scene.resolved_camera(volume), SIZE, SIZE)
-    shown = ComputeVolumeRenderer(renderer, volume, scene, method="many-lights", device="cpu",
-                                  max_sets=3, **OPTIONS)
+    _volume, _scene, _renderer, window, shown = shown_cloud(max_sets=3)
     window.Render()
     assert shown.passes == 1
     first = shown.result.radiance.copy()
@@ -54,16 +60,9 @@ def test_many_lights_edit_keeps_the_lights_and_regenerates_progressively():
     """A transfer-function edit through set_scene: the next image is the paper's immediate
     update of the same VLs, refine() regenerates the stale paths a fraction per pass, and
     once none is stale the image equals a fresh renderer's with the edited scene."""
-    import copy
-
     from vtkillum.core.transfer_function import TransferFunction
 
-    volume = cloud(16)
-    scene = _medium_scene(volume, 6.0, 0.9, 0.3, [_side_light()])
-    renderer = vtkRenderer()
-    window = offscreen_window(renderer, scene.resolved_camera(volume), SIZE, SIZE)
-    shown = ComputeVolumeRenderer(renderer, volume, scene, method="many-lights", device="cpu",
-                                  update_fraction=0.3, **OPTIONS)
+    volume, scene, _renderer, window, shown = shown_cloud(update_fraction=0.3)
     window.Render()
     before = shown.result.radiance.copy()
     tracer = shown._tracer
@@ -84,10 +83,7 @@ def test_many_lights_edit_keeps_the_lights_and_regenerates_progressively():
         assert frames < 10
     assert frames >= 2  # a fraction of the paths per pass
 
-    other = vtkRenderer()
-    other_window = offscreen_window(other, scene.resolved_camera(volume), SIZE, SIZE)
-    fresh = ComputeVolumeRenderer(other, volume, edited, method="many-lights", device="cpu",
-                                  update_fraction=0.3, **OPTIONS)
+    *_, other_window, fresh = shown_cloud(edited, update_fraction=0.3)
     other_window.Render()
     np.testing.assert_allclose(shown.result.radiance, fresh.result.radiance, rtol=1e-4,
                                atol=1e-7)
