@@ -349,9 +349,10 @@ def vl_light(m: Medium, vls: VirtualLights, sm: ShadowMaps, prm: GatherParams, x
 
 # --- kernels ------------------------------------------------------------------------------------
 @wp.func
-def place(m: Medium, o: wp.vec3, d: wp.vec3, t0: float, t1: float, xi: float, k: int, dt: float,
-          tau: float, target: float, total: float, u0: float, prm: GatherParams, placed: int,
-          r: int, c: int, position: wp.array3d(dtype=wp.vec3), weight: wp.array3d(dtype=wp.vec3)):
+def place_positions(m: Medium, o: wp.vec3, d: wp.vec3, t0: float, t1: float, xi: float,
+                    k: int, dt: float, tau: float, target: float, total: float, u0: float,
+                    prm: GatherParams, placed: int, r: int, c: int,
+                    position: wp.array3d(dtype=wp.vec3), weight: wp.array3d(dtype=wp.vec3)):
     """Place the positions whose target optical depth falls in view step ``k`` (optical
     depth ``dt``, ``tau`` before it); returns ``(placed, tau after the step, target)``."""
     S = position.shape[0]
@@ -451,9 +452,9 @@ def _view_kernel(LEAP: bool):
                     for k in range(used):
                         p = o + (t0 + (float(k) + xi) * prm.step) * d
                         sig = lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, p))
-                        placed, tau, target = place(m, o, d, t0, t1, xi, k, sig * prm.step, tau,
-                                                    target, total, u0, prm, placed, r, c,
-                                                    position, weight)
+                        placed, tau, target = place_positions(
+                            m, o, d, t0, t1, xi, k, sig * prm.step, tau, target, total, u0, prm,
+                            placed, r, c, position, weight)
                         if placed == S:
                             break
                 else:
@@ -469,9 +470,9 @@ def _view_kernel(LEAP: bool):
                         else:
                             p = o + (t0 + (float(k) + xi) * prm.step) * d
                             sig = lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, p))
-                            placed, tau, target = place(m, o, d, t0, t1, xi, k, sig * prm.step,
-                                                        tau, target, total, u0, prm, placed, r,
-                                                        c, position, weight)
+                            placed, tau, target = place_positions(
+                                m, o, d, t0, t1, xi, k, sig * prm.step, tau, target, total, u0,
+                                prm, placed, r, c, position, weight)
                             k += 1
                             if placed == S:
                                 k = used
