@@ -41,8 +41,7 @@ from pathlib import Path
 
 import numpy as np
 
-from vtkillum.core.ambient import tube_march
-from vtkillum.core.ambient.cache import AmbientScatteringCache
+from vtkillum.core.ambient.cache import STEP_SAMPLES, TUBE_SAMPLING, AmbientScatteringCache
 from vtkillum.core.camera import Camera
 from vtkillum.core.lights import DirectionalLight, PointLight
 from vtkillum.core.render import render
@@ -161,16 +160,15 @@ def reference(name: str, n: int, size: int, spp: int, cache: Path) -> np.ndarray
 
 
 def ambient(name: str, n: int, size: int, radius: float, gather: str, device: str,
-            before: bool = False) -> np.ndarray:
+            before: bool = False, tube_sampling: str = "field",
+            step_samples: int = STEP_SAMPLES) -> np.ndarray:
     vol, scene = make(name, n)
-    default = tube_march.default_substeps
-    if before:  # one sample of σ̃t per tube step, at the sphere's centre (the paper's)
-        tube_march.default_substeps = lambda radius, spacing: 1
-    try:
-        return render(vol, scene, "ambient-scattering", size, size, device=device,
-                      radius=radius, gather=gather, cache=AmbientScatteringCache(device)).radiance
-    finally:
-        tube_march.default_substeps = default
+    if before:  # one sample of σ̃t per tube step, at the step's middle (the paper's)
+        tube_sampling = "paper"
+    cache = AmbientScatteringCache(device, tube_sampling=tube_sampling,
+                                   step_samples=step_samples)
+    return render(vol, scene, "ambient-scattering", size, size, device=device,
+                  radius=radius, gather=gather, cache=cache).radiance
 
 
 def errors(img, ref):
@@ -191,6 +189,10 @@ def main(argv=None) -> None:
     ap.add_argument("--before", action="store_true",
                     help="also the method before issue 8 (paper gather, 1 sample per tube step)")
     ap.add_argument("--single", action="store_true", help="also the single-scattering method")
+    ap.add_argument("--tube-sampling", default="field", choices=list(TUBE_SAMPLING),
+                    help="how the tube march measures a step's extinction (cache option)")
+    ap.add_argument("--step-samples", type=int, default=STEP_SAMPLES,
+                    help="samples of the step field per tube step (cache option)")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--cache", type=Path, default=Path("/tmp/vtkillum-ambient-refs"))
     args = ap.parse_args(argv)
@@ -210,7 +212,8 @@ def main(argv=None) -> None:
         ref = reference(name, args.resolution, args.size, args.spp, args.cache)
         cells = []
         for lab, (g, r, b) in zip(labels, columns):
-            e = errors(ambient(name, args.resolution, args.size, r, g, args.device, b), ref)
+            e = errors(ambient(name, args.resolution, args.size, r, g, args.device, b,
+                               args.tube_sampling, args.step_samples), ref)
             table[lab].append(e)
             cells.append(f"{e[0]:.3f} / {e[1]:.2f}")
         if args.single:

@@ -31,7 +31,7 @@ import time
 import numpy as np
 import warp as wp
 
-from vtkillum.core.ambient.cache import AmbientScatteringCache
+from vtkillum.core.ambient.cache import STEP_SAMPLES, TUBE_SAMPLING, AmbientScatteringCache
 from vtkillum.core.ambient.gather import gather_device
 from vtkillum.core.ambient.table import load_table
 from vtkillum.core.camera import Camera
@@ -111,14 +111,16 @@ def median_ms(fn, repeats: int) -> float:
 
 
 def bench(name: str, scale: float, image: int, frames: int, repeats: int, device: str,
-          step_voxels: float, stop: float, hardware: bool = False, mode: str = "centred"):
+          step_voxels: float, stop: float, hardware: bool = False, mode: str = "centred",
+          tube_sampling: str = "field", step_samples: int = STEP_SAMPLES):
     spec = DATASETS[name]
     dims = tuple(max(8, int(round(n * scale))) for n in spec["dims"])
     radius = spec["radius"] * (dims[0] / spec["dims"][0])  # the same fraction of the data
     volume = stand_in(name, dims)
     tf_a, tf_b = transfer_functions()
     table = load_table(0.9, progress=False)
-    cache = AmbientScatteringCache(device, hardware_filtering=hardware)
+    cache = AmbientScatteringCache(device, hardware_filtering=hardware,
+                                   tube_sampling=tube_sampling, step_samples=step_samples)
     u = 1.0
     state = {"tf": tf_a, "g": 0.6, "shift": 0.0}
 
@@ -201,7 +203,15 @@ def main(argv=None) -> None:
                     help="gather estimator (default centred; paper: Algorithm 1 as published)")
     ap.add_argument("--hardware-filtering", action="store_true",
                     help="also time CUDA texture filtering (a second row per data set, 'hw')")
+    ap.add_argument("--tube-sampling", nargs="+", default=["field"], choices=list(TUBE_SAMPLING),
+                    help="how the tube march measures a step's extinction (a row each; "
+                         "default field, the cache's default)")
+    ap.add_argument("--step-samples", type=int, nargs="+", default=[STEP_SAMPLES],
+                    help=f"samples of the step field per tube step with field (a row each; "
+                         f"default {STEP_SAMPLES})")
     args = ap.parse_args(argv)
+    if min(args.step_samples) < 1:
+        ap.error("--step-samples must be integers >= 1")
     device = resolve_device(args.device)
     name = device_name(device)
     print(f"ambient scattering ({args.gather} gather) on {name}; image {args.image}², "
@@ -209,12 +219,15 @@ def main(argv=None) -> None:
           f"early termination {args.early_termination}, volume scale {args.sizes}; "
           "paper: GTX 560")
     modes = [False, True] if args.hardware_filtering else [False]
+    samplings = [(t, k) for t in args.tube_sampling
+                 for k in (args.step_samples if t == "field" else [None])]
     print("| data set | sampling | size | r [vox] | TF [ms] (σt+SAT / σ̃t / radiance) | g [ms] | light [ms] "
           "| fps | paper TF / g / light [ms], fps | speed-up TF / g / light / fps |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for ds, hardware in ((ds, hw) for ds in args.datasets for hw in modes):
+    for ds, hardware, (tube, k) in ((ds, hw, ts) for ds in args.datasets for hw in modes
+                                    for ts in samplings):
         r = bench(ds, args.sizes, args.image, args.frames, args.repeats, device, args.step,
-                  args.early_termination, hardware, args.gather)
+                  args.early_termination, hardware, args.gather, tube, k or STEP_SAMPLES)
         p_tf, p_g, p_l, p_fps = DATASETS[ds]["paper"]
         size = "×".join(str(n) for n in r["dims"])
         speed = (p_tf / r["tf"], p_g / r["g"], p_l / r["light"], r["fps"] / p_fps)
@@ -222,7 +235,8 @@ def main(argv=None) -> None:
         ratios = (f"{speed[0]:.1f} / {speed[1]:.1f} / {speed[2]:.1f} / {speed[3]:.1f}{flag}"
                   if args.sizes == 1.0 and args.image == 512 else "— (not the paper's sizes)")
         a, b, c = r["split"]
-        mode = "hw texture" if hardware else "sw trilinear"
+        mode = ("hw texture" if hardware else "sw trilinear") + ", tube " + (
+            f"field ×{k}" if tube == "field" else tube)
         print(f"| {ds} | {mode} | {size} | {r['radius']:.1f} | {r['tf']:.1f} ({a:.1f} / {b:.1f} / {c:.1f}) "
               f"| {r['g']:.2f} | "
               f"{r['light']:.2f} | {r['fps']:.1f} | {p_tf:g} / {p_g:g} / {p_l:g}, {p_fps:g} | "

@@ -7,8 +7,8 @@ exactly the stages each one needs:
 edit                        recomputed
 ==========================  ===============================================
 transfer function (or data) σt grid and its SAT (and the empty-space blocks),
-                            ``σ̃t``, radiance cache
-ambient radius ``r``        ``σ̃t`` (from the kept SAT), radiance cache
+                            ``σ̃t`` and ``σ̂``, radiance cache
+ambient radius ``r``        ``σ̃t`` and the step field ``σ̂`` (from the kept SAT), radiance cache
 anisotropy ``g``, albedo,   radiance cache only
 lights, cache resolution
 camera, image size          nothing (only the gather runs)
@@ -59,9 +59,9 @@ from vtkillum.core.ambient.textures import (
     optics_texture,
     texture_from,
 )
-from vtkillum.core.ambient.tube_march import RadianceCache, radiance_cache
+from vtkillum.core.ambient.tube_march import RadianceCache, radiance_cache, step_extinction_field
 from vtkillum.core.device import resolve_device
-from vtkillum.core.lights import pack_lights
+from vtkillum.core.lights import pack_lights, resolved_radius
 from vtkillum.core.resample import scaled_shape
 from vtkillum.core.volume import array_digest
 from vtkillum.core.warp_common import Lights, Medium, make_lights, make_medium, to_device
@@ -70,6 +70,10 @@ from vtkillum.core.warp_common import Lights, Medium, make_lights, make_medium, 
 #: array's identity (in-place edits call for :meth:`AmbientScatteringCache.invalidate`), so it
 #: is kept small: 4096 values cost ~6 µs per update on the H200 machine's host (432³ data).
 FINGERPRINT_SAMPLES = 1 << 12
+#: Ways the tube march measures a step's extinction (:class:`AmbientScatteringCache`).
+TUBE_SAMPLING = ("field", "midpoint", "paper")
+#: Default samples of the step field per tube step (``step_samples``).
+STEP_SAMPLES = 1
 
 
 @dataclass
@@ -131,6 +135,16 @@ class AmbientScatteringCache:
     ----------
     device : str, optional
         Warp device every array lives on.
+    tube_sampling : {"field", "midpoint", "paper"}
+        How the tube march measures a step's extinction (see
+        :mod:`~vtkillum.core.ambient.tube_march`): ``"field"`` (default) one sample of the
+        step field ``σ̂`` (``σ̃t`` box-averaged over ``2r``, kept with ``σ̃t``) at the step's
+        middle; ``"midpoint"`` the mean of ``σ̃t`` along the step, a sample per data spacing
+        (16× the samples at ``r = 8`` voxels); ``"paper"`` one sample of ``σ̃t`` (thin shells
+        slip between the steps: for comparisons only).
+    step_samples : int
+        With ``"field"``: samples of ``σ̂`` per step of ``2r``, each at the middle of its
+        ``2r / step_samples`` (the box then has that side: less lateral blur, more samples).
     hardware_filtering : bool
         Sample ``σ̃t``, the radiance cache and the scalars through CUDA textures (hardware
         trilinear filtering, see the module docstring). Ignored on the CPU, which always
@@ -144,10 +158,19 @@ class AmbientScatteringCache:
         Whether textures are used (requested and the device is CUDA).
     """
 
-    def __init__(self, device: str | None = None, hardware_filtering: bool = False) -> None:
+    def __init__(self, device: str | None = None, hardware_filtering: bool = False,
+                 tube_sampling: str = "field", step_samples: int = STEP_SAMPLES) -> None:
         if not isinstance(hardware_filtering, (bool, np.bool_)):
             raise ValueError("hardware_filtering must be true or false, got "
                              f"{hardware_filtering!r}")
+        if tube_sampling not in TUBE_SAMPLING:
+            raise ValueError(f"tube_sampling must be one of {', '.join(TUBE_SAMPLING)}, "
+                             f"got {tube_sampling!r}")
+        if isinstance(step_samples, bool) or not isinstance(step_samples, (int, np.integer)) \
+                or step_samples < 1:
+            raise ValueError(f"step_samples must be an integer >= 1, got {step_samples!r}")
+        self.tube_sampling = tube_sampling
+        self.step_samples = int(step_samples)
         self.device = resolve_device(device)
         self.hardware_filtering = bool(hardware_filtering) and hardware_filtering_available(
             self.device)
@@ -167,9 +190,11 @@ class AmbientScatteringCache:
         self._sat = None
         self._ext_key = None
         self._sigma_tilde = None
+        self._step_field = None
         self._rad_key = None
         self._radiance = None
         self._lights = None
+        self._light_key = None
         self._device_table = None
         self._textured = False
         self._scalars_texture = None  # scalars and σ̃t, two channels (data_texture)
@@ -222,18 +247,23 @@ class AmbientScatteringCache:
         slice_key = (id(table), g_key)
 
         kinds, vecs, rgb = pack_lights(lights, volume.direction, volume.origin)
-        rad_key = (self._ext_key, slice_key, kinds.tobytes(), vecs.tobytes(), rgb.tobytes(),
+        radii = np.array([resolved_radius(light, volume) for light in lights], np.float32)
+        light_key = (kinds.tobytes(), vecs.tobytes(), rgb.tobytes(), radii.tobytes())
+        rad_key = (self._ext_key, slice_key, light_key,
                    float(cache_scale), None if cache_shape is None else tuple(cache_shape))
         if rad_key != self._rad_key:
             t = time.perf_counter()
-            self._lights = _upload_lights(self._lights, lights, volume, kinds, vecs, rgb,
-                                          device)
+            self._lights = _upload_lights(self._lights, lights, volume, kinds, vecs, rgb, radii,
+                                          device, same=light_key == self._light_key)
+            self._light_key = light_key
             self._radiance = radiance_cache(self._sigma_tilde, volume.spacing, volume.extent,
                                             self._lights, dtable.transmittance_slice,
                                             table.sigma_max, state.radius, cache_scale, device,
                                             cache_shape, out=self._radiance,
                                             sigma_tilde_texture=self._hardware_texture(
-                                                len(kinds), cache_scale, cache_shape))
+                                                len(kinds), cache_scale, cache_shape),
+                                            substeps=self._tube_substeps(),
+                                            step_field=self._step_field)
             wp.synchronize_device(device)
             state.timings["radiance_ms"] = 1e3 * (time.perf_counter() - t)
             self._rad_key = rad_key
@@ -255,6 +285,10 @@ class AmbientScatteringCache:
                                              self._radiance.texture, self._table_texture,
                                              self._optics_texture, self._scattered_texture)
         return state
+
+    def _tube_substeps(self) -> int | None:
+        """Samples per tube step for :func:`radiance_cache` (None: one per data spacing)."""
+        return {"field": self.step_samples, "paper": 1}.get(self.tube_sampling)
 
     def _hardware_texture(self, n_lights: int, cache_scale: float, cache_shape):
         """``σ̃t``'s texture when hardware filtering applies to this update, else None."""
@@ -314,6 +348,10 @@ class AmbientScatteringCache:
             t = time.perf_counter()
             self._sigma_tilde = ambient_extinction(self._sigma_t, volume.spacing, radius_world,
                                                    device, sat=self._sat)
+            if self.tube_sampling == "field":
+                self._step_field = step_extinction_field(
+                    self._sigma_tilde, volume.spacing, radius_world, device,
+                    samples=self.step_samples, out=self._step_field)
             if self._textured:  # same shape as the scalars
                 self._sigma_tilde_texture = texture_from(self._sigma_tilde,
                                                          self._sigma_tilde_texture)
@@ -353,13 +391,17 @@ def _data_identity(volume) -> tuple:
             tuple(np.asarray(volume.spacing).tolist())), sample
 
 
-def _upload_lights(current: Lights | None, lights, volume, kinds, vecs, rgb, device) -> Lights:
-    """The light list on the device, written into ``current``'s arrays when the count matches."""
+def _upload_lights(current: Lights | None, lights, volume, kinds, vecs, rgb, radii, device,
+                   same: bool = False) -> Lights:
+    """The light list on the device, written into ``current``'s arrays when the count matches
+    (nothing to copy when ``same``: the lights ``current`` holds)."""
     if current is None or current.count != len(kinds) or len(kinds) == 0:
         return make_lights(lights, volume, device)
-    current.kind.assign(kinds)
-    current.vec.assign(vecs)
-    current.rgb.assign(rgb)
+    if not same:
+        current.kind.assign(kinds)
+        current.vec.assign(vecs)
+        current.rgb.assign(rgb)
+        current.radius.assign(radii)
     return current
 
 

@@ -66,28 +66,37 @@ class DeviceTable:
         k, w = self.table.g_bracket(g)
         k1 = min(k + 1, self.table.g.size - 1)
         nt, ns, _ = self.table.shape
-        for source, target in ((self._radiance, self.g_slice),
-                               (self._scattered, self.scattered_slice)):
-            wp.launch(g_slice_kernel, dim=(nt, ns),
-                      inputs=[source, self._transmittance, k, k1, wp.float64(w),
-                              float(np.float32(1 - w)), float(np.float32(w)), target,
-                              self.transmittance_slice], device=self.device)
+        # both slices in one launch (an edit's launches are its cost at small sizes)
+        wp.launch(g_slice_kernel, dim=(2, nt, ns),
+                  inputs=[self._radiance, self._scattered, self._transmittance, k, k1,
+                          wp.float64(w), float(np.float32(1 - w)), float(np.float32(w)),
+                          self.g_slice, self.scattered_slice, self.transmittance_slice],
+                  device=self.device)
         self.g = float(g)
 
 
 @wp.kernel
-def g_slice_kernel(radiance: wp.array3d(dtype=wp.float32),
+def g_slice_kernel(radiance: wp.array3d(dtype=wp.float32), scattered: wp.array3d(dtype=wp.float32),
                    transmittance: wp.array2d(dtype=wp.float32), k: int, k1: int,
-                   w: wp.float64, wa: float, wb: float, out: wp.array2d(dtype=wp.float32),
+                   w: wp.float64, wa: float, wb: float, out_radiance: wp.array2d(dtype=wp.float32),
+                   out_scattered: wp.array2d(dtype=wp.float32),
                    out_transmittance: wp.array(dtype=wp.float32)):
-    """``wp.tid()`` = ``(θ index, σ̃t index)``: blend tabulated slices ``k`` and ``k1``.
+    """``wp.tid()`` = ``(which, θ index, σ̃t index)``: blend tabulated slices ``k`` and ``k1``
+    of ``L̃o`` (``which`` 0) or ``M`` (1).
 
     ``w`` is the fraction towards ``k1``; ``wa``, ``wb`` are ``1 - w`` and ``w`` rounded to
-    float32 (the host's single-precision transmittance blend). Row 0 also writes ``T̃``.
+    float32 (the host's single-precision transmittance blend). Row 0 of ``L̃o`` also writes
+    ``T̃``.
     """
-    i, j = wp.tid()
-    a = wp.float64(radiance[i, j, k])
-    b = wp.float64(radiance[i, j, k1])
+    which, i, j = wp.tid()
+    a = wp.float64(0.0)
+    b = wp.float64(0.0)
+    if which == 0:
+        a = wp.float64(radiance[i, j, k])
+        b = wp.float64(radiance[i, j, k1])
+    else:
+        a = wp.float64(scattered[i, j, k])
+        b = wp.float64(scattered[i, j, k1])
     one = wp.float64(1.0)
     v = a
     if w >= one:
@@ -97,9 +106,12 @@ def g_slice_kernel(radiance: wp.array3d(dtype=wp.float32),
             v = wp.exp((one - w) * wp.log(a) + w * wp.log(b))
         else:
             v = (one - w) * a + w * b
-    out[i, j] = wp.float32(v)
-    if i == 0:
-        t = transmittance[j, k]
-        if k1 != k:
-            t = wa * transmittance[j, k] + wb * transmittance[j, k1]
-        out_transmittance[j] = t
+    if which == 0:
+        out_radiance[i, j] = wp.float32(v)
+        if i == 0:
+            t = transmittance[j, k]
+            if k1 != k:
+                t = wa * transmittance[j, k] + wb * transmittance[j, k1]
+            out_transmittance[j] = t
+    else:
+        out_scattered[i, j] = wp.float32(v)
