@@ -59,6 +59,7 @@ class DeviceTable:
         self.scattered_slice = wp.empty((nt, ns), dtype=wp.float32, device=self.device)
         self.transmittance_slice = wp.empty(ns, dtype=wp.float32, device=self.device)
         self.g = None
+        self._launch = None  # the slicing launch, recorded by the first set_g
 
     def set_g(self, g: float) -> None:
         """Fill :attr:`g_slice`, :attr:`scattered_slice` and :attr:`transmittance_slice` at
@@ -66,12 +67,19 @@ class DeviceTable:
         k, w = self.table.g_bracket(g)
         k1 = min(k + 1, self.table.g.size - 1)
         nt, ns, _ = self.table.shape
-        # both slices in one launch (an edit's launches are its cost at small sizes)
-        wp.launch(g_slice_kernel, dim=(2, nt, ns),
-                  inputs=[self._radiance, self._scattered, self._transmittance, k, k1,
-                          wp.float64(w), float(np.float32(1 - w)), float(np.float32(w)),
-                          self.g_slice, self.scattered_slice, self.transmittance_slice],
-                  device=self.device)
+        blend = (k, k1, wp.float64(w), float(np.float32(1 - w)), float(np.float32(w)))
+        # Both slices in one launch, recorded once and replayed with the new blend: at small
+        # sizes an edit's cost is its launches and their argument packing.
+        if self._launch is None:
+            self._launch = wp.launch(
+                g_slice_kernel, dim=(2, nt, ns),
+                inputs=[self._radiance, self._scattered, self._transmittance, *blend,
+                        self.g_slice, self.scattered_slice, self.transmittance_slice],
+                device=self.device, record_cmd=True)
+        else:
+            for index, value in enumerate(blend, start=3):
+                self._launch.set_param_at_index(index, value)
+        self._launch.launch()
         self.g = float(g)
 
 

@@ -62,6 +62,7 @@ so stored values lie in [0, 1] with a relative rounding of 2⁻¹¹.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Any
 
@@ -125,6 +126,12 @@ class RadianceCache:
         With hardware filtering: the lights the cache was marched for (for :meth:`numpy`).
     radius : float
         The sphere radius ``r`` it was marched with (world units).
+    replay : wp.Launch or None
+        The step-field march as recorded, replayed by the next :func:`radiance_cache` with
+        this cache as ``out`` and the same inputs (``replay_key``): a g or light edit, whose
+        arrays are overwritten in place, then costs one launch and no argument packing.
+    replay_key : tuple or None
+        The inputs ``replay`` was recorded with.
     """
 
     grid: RadianceGrid
@@ -133,6 +140,8 @@ class RadianceCache:
     staging: object = None
     lights: Lights | None = None
     radius: float = 0.0
+    replay: object = None
+    replay_key: tuple | None = None
 
     def numpy(self) -> np.ndarray:
         """The cache as ``(n_lights, nx, ny, nz, 3)`` float32 (irradiance units)."""
@@ -202,6 +211,18 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
     RadianceCache
     """
     device = resolve_device(device)
+    key = None
+    if step_field is not None:
+        key = _replay_key(step_field, sigma_tilde, data_spacing, extent, lights, transmittance,
+                          sigma_max, radius, scale, device, shape,
+                          sigma_tilde_texture is not None, substeps)
+        if key is not None and out is not None and out.replay is not None \
+                and out.replay_key == key:
+            out.replay.launch()  # the same inputs, overwritten in place (a g or light edit)
+            if out.texture is not None:
+                texture_from(out.staging.reshape((lights.count * out.shape[0],) + out.shape[1:]),
+                             out.texture)
+            return out
     scale = float(scale)
     if not (0.0 < scale <= 1.0):
         raise ValueError(f"radiance_cache_scale must lie in (0, 1], got {scale}")
@@ -251,26 +272,53 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
     spacing = wp.vec3(*(extent / (np.asarray(shape) - 1)).astype(np.float32))
     bricks = [-(-n // b) for n, b in zip(shape, BRICK)]
     threads = lights.count * int(np.prod(bricks)) * int(np.prod(BRICK))
+    replay = None
     if threads > 0:
         # table entries per unit σ̃t, with the radius folded in: one multiply per step
         lookup_scale = radius * (transmittance.shape[0] - 1) / float(sigma_max)
         if step_field is not None:
-            kernel = tube_march_field_half if hardware else tube_march_software
-            source = step_field
+            # flat, contiguous: the kernel indexes it with 32-bit offsets
+            flat = step_field if step_field.is_contiguous else step_field.contiguous()
+            flat = flat.reshape((flat.size,))
+            replay = wp.launch(field_march_kernel(int(substeps), hardware), dim=threads,
+                               inputs=[flat, wp.vec3i(*step_field.shape), inv_data, lights,
+                                       transmittance, float(lookup_scale), radius, spacing,
+                                       wp.vec3i(*shape), wp.vec3i(*bricks), grid.extent,
+                                       target],
+                               device=device, record_cmd=True)
+            replay.launch()
         else:
             kernel = tube_march_texture if hardware else tube_march_software
             source = sigma_tilde_texture if hardware else sigma_tilde
-        wp.launch(kernel, dim=threads,
-                  inputs=[source, inv_data, lights,
-                          transmittance, float(lookup_scale), radius, int(substeps), spacing,
-                          wp.vec3i(*shape), wp.vec3i(*bricks), grid.extent, target],
-                  device=device)
+            wp.launch(kernel, dim=threads,
+                      inputs=[source, inv_data, lights,
+                              transmittance, float(lookup_scale), radius, int(substeps), spacing,
+                              wp.vec3i(*shape), wp.vec3i(*bricks), grid.extent, target],
+                      device=device)
+    key = key if replay is not None else None
     if not hardware:
-        return RadianceCache(grid, shape)
+        return RadianceCache(grid, shape, replay=replay, replay_key=key)
     # lights stacked along the texture's depth: [light * nx + i, j, k]
     stacked = target.reshape((lights.count * shape[0], shape[1], shape[2]))
     texture = texture_from(stacked, out.texture if out is not None else None)
-    return RadianceCache(grid, shape, texture, target, lights, radius)
+    return RadianceCache(grid, shape, texture, target, lights, radius, replay, key)
+
+
+def _replay_key(step_field, sigma_tilde, data_spacing, extent, lights: Lights, transmittance,
+                sigma_max, radius, scale, device, shape, hardware: bool, substeps):
+    """Everything a recorded step-field march depends on (arrays by address: a g or light
+    edit overwrites them in place); None when it cannot be replayed (a host table is
+    uploaded afresh by every call)."""
+    if not isinstance(transmittance, wp.array):
+        return None
+    table = (transmittance.ptr, transmittance.shape)
+    return (device, step_field.ptr, tuple(step_field.shape), tuple(sigma_tilde.shape),
+            tuple(np.ravel(data_spacing)),
+            tuple(np.ravel(extent)), id(lights), lights.count,
+            None if lights.count == 0 else (lights.kind.ptr, lights.vec.ptr, lights.rgb.ptr,
+                                            lights.radius.ptr),
+            table, sigma_max, radius, scale, None if shape is None else tuple(shape),
+            hardware, substeps)
 
 
 def step_extinction_field(sigma_tilde, spacing, radius: float, device: str | None = None,
@@ -527,6 +575,91 @@ tube_march_software = wp.overload(tube_march_kernel, {
 #: Hardware texture filtering of ``σ̃t`` (CUDA), half-precision RGBA output for the cache texture.
 tube_march_texture = wp.overload(tube_march_kernel, {
     "sigma_tilde": wp.Texture3D, "out": wp.array4d(dtype=wp.vec4h)})
-#: The step field sampled in software, half-precision RGBA output for the cache texture.
-tube_march_field_half = wp.overload(tube_march_kernel, {
-    "sigma_tilde": wp.array3d(dtype=wp.float32), "out": wp.array4d(dtype=wp.vec4h)})
+
+
+@wp.func
+def field_sample(field: wp.array(dtype=wp.float32), dims: wp.vec3i, u: wp.vec3):
+    """Trilinear sample of the flat ``(nx, ny, nz)`` grid ``field`` at index position ``u``
+    (clamped): 32-bit offsets from one base instead of eight 3D index computations."""
+    i = wp.clamp(int(u[0]), 0, dims[0] - 2)
+    j = wp.clamp(int(u[1]), 0, dims[1] - 2)
+    k = wp.clamp(int(u[2]), 0, dims[2] - 2)
+    fx = wp.clamp(u[0] - float(i), 0.0, 1.0)
+    fy = wp.clamp(u[1] - float(j), 0.0, 1.0)
+    fz = wp.clamp(u[2] - float(k), 0.0, 1.0)
+    sz = dims[2]
+    sy = dims[1] * dims[2]
+    b = (i * dims[1] + j) * sz + k
+    c00 = wp.lerp(field[b], field[b + 1], fz)
+    c01 = wp.lerp(field[b + sz], field[b + sz + 1], fz)
+    c10 = wp.lerp(field[b + sy], field[b + sy + 1], fz)
+    c11 = wp.lerp(field[b + sy + sz], field[b + sy + sz + 1], fz)
+    return wp.lerp(wp.lerp(c00, c01, fy), wp.lerp(c10, c11, fy), fx)
+
+
+@functools.cache
+def field_march_kernel(samples: int, half: bool):
+    """The march of :func:`tube_march_kernel` on a step field (:func:`step_extinction_field`):
+    ``samples`` samples per step of ``2r`` (unrolled), each at the middle of its share,
+    positions advanced incrementally in the field's index units. ``half``: the
+    half-precision RGBA output of the texture path, else RGB float."""
+    SAMPLES = int(samples)
+
+    @wp.kernel(module="unique")
+    def march(field: wp.array(dtype=wp.float32), dims: wp.vec3i, inv_field: wp.vec3,
+              lights: Lights, transmittance: wp.array(dtype=wp.float32), lookup_scale: float,
+              radius: float, spacing: wp.vec3, shape: wp.vec3i, bricks: wp.vec3i,
+              extent: wp.vec3, out: Any):
+        tid = wp.tid()
+        per_brick = BRICK_I * BRICK_J * BRICK_K
+        b = tid / per_brick
+        q = tid - b * per_brick
+        per_light = bricks[0] * bricks[1] * bricks[2]
+        li = b / per_light
+        b = b - li * per_light
+        i = (b / (bricks[1] * bricks[2])) * BRICK_I + q / (BRICK_J * BRICK_K)
+        j = ((b / bricks[2]) % bricks[1]) * BRICK_J + (q / BRICK_K) % BRICK_J
+        k = (b % bricks[2]) * BRICK_K + q % BRICK_K
+        if i >= shape[0] or j >= shape[1] or k >= shape[2]:
+            return
+        p = wp.vec3(float(i) * spacing[0], float(j) * spacing[1], float(k) * spacing[2])
+        to_light, dist, e = light_incidence(lights, li, p)
+        if lights.kind[li] == POINT:
+            r = wp.max(radius, lights.radius[li])
+            e = lights.rgb[li] / wp.max(dist * dist, r * r)
+        tt = ray_box(p, to_light, extent)
+        length = wp.max(wp.min(tt[1], dist), 0.0)
+        step = 2.0 * radius
+        steps = length / step
+        n_full = int(wp.floor(steps))
+        eta = steps - float(n_full)
+        entry = p + length * to_light
+        h = step / float(wp.static(SAMPLES))
+        du = wp.cw_mul(-h * to_light, inv_field)  # one sample to the next
+        u = wp.cw_mul(entry, inv_field) + 0.5 * du
+        last = float(transmittance.shape[0] - 1)
+        scale = lookup_scale / float(wp.static(SAMPLES))
+        front = float(1.0)
+        n = int(0)
+        while n < n_full:
+            st = float(0.0)
+            for _s in range(wp.static(SAMPLES)):
+                st += field_sample(field, dims, u)
+                u += du
+            front *= table_lerp(transmittance, wp.clamp(st * scale, 0.0, last))
+            if front < NEGLIGIBLE:
+                front = 0.0
+                n = n_full
+            n += 1
+        beyond = front
+        if eta > 0.0 and front > 0.0:
+            st = float(0.0)
+            for _s in range(wp.static(SAMPLES)):
+                st += field_sample(field, dims, u)
+                u += du
+            beyond = front * table_lerp(transmittance, wp.clamp(st * scale, 0.0, last))
+        store_radiance(out, li, i, j, k, ((1.0 - eta) * front + eta * beyond) * e,
+                       radiance_unit(lights, li, radius))
+
+    out_type = wp.array4d(dtype=wp.vec4h) if half else wp.array4d(dtype=wp.vec3)
+    return wp.overload(march, {"out": out_type})
