@@ -145,6 +145,12 @@ class AmbientScatteringCache:
     step_samples : int
         With ``"field"``: samples of ``σ̂`` per step of ``2r``, each at the middle of its
         ``2r / step_samples`` (the box then has that side: less lateral blur, more samples).
+    field_texture : bool, optional
+        With ``"field"``: sample ``σ̂`` through a CUDA texture (hardware trilinear
+        filtering, one fetch per step instead of eight loads). Default (None): on CUDA
+        devices. ``σ̂`` is a box average over ``2r``, smooth at the grid's scale, so the
+        texture units' 8-bit interpolation weights change the radiance cache by ~1e-4 of
+        its maximum on average (tested within 1e-3); False keeps the exact software path.
     hardware_filtering : bool
         Sample ``σ̃t``, the radiance cache and the scalars through CUDA textures (hardware
         trilinear filtering, see the module docstring). Ignored on the CPU, which always
@@ -159,7 +165,8 @@ class AmbientScatteringCache:
     """
 
     def __init__(self, device: str | None = None, hardware_filtering: bool = False,
-                 tube_sampling: str = "field", step_samples: int = STEP_SAMPLES) -> None:
+                 tube_sampling: str = "field", step_samples: int = STEP_SAMPLES,
+                 field_texture: bool | None = None) -> None:
         if not isinstance(hardware_filtering, (bool, np.bool_)):
             raise ValueError("hardware_filtering must be true or false, got "
                              f"{hardware_filtering!r}")
@@ -169,9 +176,13 @@ class AmbientScatteringCache:
         if isinstance(step_samples, bool) or not isinstance(step_samples, (int, np.integer)) \
                 or step_samples < 1:
             raise ValueError(f"step_samples must be an integer >= 1, got {step_samples!r}")
+        if field_texture is not None and not isinstance(field_texture, (bool, np.bool_)):
+            raise ValueError(f"field_texture must be true, false or None, got {field_texture!r}")
         self.tube_sampling = tube_sampling
         self.step_samples = int(step_samples)
         self.device = resolve_device(device)
+        cuda = hardware_filtering_available(self.device)
+        self.field_texture = cuda if field_texture is None else bool(field_texture) and cuda
         self.hardware_filtering = bool(hardware_filtering) and hardware_filtering_available(
             self.device)
         self.stats = {"sat": 0, "extinction": 0, "radiance": 0}
@@ -191,6 +202,7 @@ class AmbientScatteringCache:
         self._ext_key = None
         self._sigma_tilde = None
         self._step_field = None
+        self._step_field_texture = None
         self._rad_key = None
         self._radiance = None
         self._lights = None
@@ -254,7 +266,7 @@ class AmbientScatteringCache:
         if rad_key != self._rad_key:
             t = time.perf_counter()
             self._lights = _upload_lights(self._lights, lights, volume, kinds, vecs, rgb, radii,
-                                          device, same=light_key == self._light_key)
+                                          device, light_key, self._light_key)
             self._light_key = light_key
             self._radiance = radiance_cache(self._sigma_tilde, volume.spacing, volume.extent,
                                             self._lights, dtable.transmittance_slice,
@@ -263,7 +275,8 @@ class AmbientScatteringCache:
                                             sigma_tilde_texture=self._hardware_texture(
                                                 len(kinds), cache_scale, cache_shape),
                                             substeps=self._tube_substeps(),
-                                            step_field=self._step_field)
+                                            step_field=self._step_field,
+                                            step_field_texture=self._step_field_texture)
             wp.synchronize_device(device)
             state.timings["radiance_ms"] = 1e3 * (time.perf_counter() - t)
             self._rad_key = rad_key
@@ -352,6 +365,11 @@ class AmbientScatteringCache:
                 self._step_field = step_extinction_field(
                     self._sigma_tilde, volume.spacing, radius_world, device,
                     samples=self.step_samples, out=self._step_field)
+                if self.field_texture and fits_texture(self._step_field.shape):
+                    self._step_field_texture = texture_from(self._step_field,
+                                                            self._step_field_texture)
+                else:
+                    self._step_field_texture = None
             if self._textured:  # same shape as the scalars
                 self._sigma_tilde_texture = texture_from(self._sigma_tilde,
                                                          self._sigma_tilde_texture)
@@ -392,16 +410,19 @@ def _data_identity(volume) -> tuple:
 
 
 def _upload_lights(current: Lights | None, lights, volume, kinds, vecs, rgb, radii, device,
-                   same: bool = False) -> Lights:
-    """The light list on the device, written into ``current``'s arrays when the count matches
-    (nothing to copy when ``same``: the lights ``current`` holds)."""
-    if current is None or current.count != len(kinds) or len(kinds) == 0:
+                   key: tuple, held: tuple | None) -> Lights:
+    """The light list on the device, written into ``current``'s arrays when the count matches.
+
+    ``key`` holds the bytes of the four packed arrays, ``held`` those ``current`` holds: only
+    the arrays that differ are copied (moving a light copies its positions alone; each copy
+    is a synchronous host-to-device transfer).
+    """
+    if current is None or current.count != len(kinds) or len(kinds) == 0 or held is None:
         return make_lights(lights, volume, device)
-    if not same:
-        current.kind.assign(kinds)
-        current.vec.assign(vecs)
-        current.rgb.assign(rgb)
-        current.radius.assign(radii)
+    targets = (current.kind, current.vec, current.rgb, current.radius)
+    for target, values, new, old in zip(targets, (kinds, vecs, rgb, radii), key, held):
+        if new != old:
+            target.assign(values)
     return current
 
 

@@ -67,18 +67,19 @@ class DeviceTable:
         k, w = self.table.g_bracket(g)
         k1 = min(k + 1, self.table.g.size - 1)
         nt, ns, _ = self.table.shape
-        blend = (k, k1, wp.float64(w), float(np.float32(1 - w)), float(np.float32(w)))
+        blend = (int(k), int(k1), float(w), float(np.float32(1 - w)), float(np.float32(w)))
         # Both slices in one launch, recorded once and replayed with the new blend: at small
         # sizes an edit's cost is its launches and their argument packing.
         if self._launch is None:
             self._launch = wp.launch(
                 g_slice_kernel, dim=(2, nt, ns),
-                inputs=[self._radiance, self._scattered, self._transmittance, *blend,
+                inputs=[self._radiance, self._scattered, self._transmittance, k, k1,
+                        wp.float64(w), *blend[3:],
                         self.g_slice, self.scattered_slice, self.transmittance_slice],
                 device=self.device, record_cmd=True)
-        else:
+        else:  # written into the packed parameters as they are (no conversion)
             for index, value in enumerate(blend, start=3):
-                self._launch.set_param_at_index(index, value)
+                self._launch.set_param_at_index_from_ctype(index, value)
         self._launch.launch()
         self.g = float(g)
 
