@@ -3,7 +3,8 @@
 For each data set (procedural stand-ins of the paper's sizes) it measures, with
 the caches of :class:`~vtkillum.core.ambient.cache.AmbientScatteringCache`:
 
-* TF change: σt grid, SAT, ambient extinction and radiance cache (ms),
+* TF change: σt grid, SAT, ambient extinction σ̃t with the tube march's step field σ̂, and
+  radiance cache (ms),
 * g change and light change: radiance cache only (ms),
 * frames per second of the ambient gather at ``--image``² with the caches ready, the
   camera orbiting (kernel time, image left on the device); ``--gather`` picks the
@@ -221,7 +222,7 @@ def main(argv=None) -> None:
     modes = [False, True] if args.hardware_filtering else [False]
     samplings = [(t, k) for t in args.tube_sampling
                  for k in (args.step_samples if t == "field" else [None])]
-    print("| data set | sampling | size | r [vox] | TF [ms] (σt+SAT / σ̃t / radiance) | g [ms] | light [ms] "
+    print("| data set | sampling | size | r [vox] | TF [ms] (σt+SAT / σ̃t and σ̂ / radiance) | g [ms] | light [ms] "
           "| fps | paper TF / g / light [ms], fps | speed-up TF / g / light / fps |")
     print("|---|---|---|---|---|---|---|---|---|---|")
     for ds, hardware, (tube, k) in ((ds, hw, ts) for ds in args.datasets for hw in modes
