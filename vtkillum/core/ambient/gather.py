@@ -91,6 +91,7 @@ Optional terms, as in the paper's comparisons (Figs. 6d, 6e)
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import numpy as np
@@ -131,7 +132,10 @@ DELAY = 64
 DelayLine = wp.types.vector(length=DELAY, dtype=wp.float32)
 #: Estimators of the gather (see the module docstring).
 GATHER_MODES = {"centred": 0, "paper": 1}
-CENTRED = wp.constant(0)
+#: Register cap per thread of the CUDA gather (:func:`gather_kernel`) and its threads per
+#: block.
+GATHER_REGISTERS = 0
+GATHER_BLOCK = 256
 
 
 def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, camera: CameraParams,
@@ -234,14 +238,14 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
     if not isinstance(table, wp.array):
         table = wp.array(np.asarray(table, dtype=np.float32), dtype=wp.float32, device=device)
     table_size = wp.vec2i(*table.shape)
+    registers = 0 if device == "cpu" else GATHER_REGISTERS
+    kernel = gather_kernel(mode, textures is not None, registers)
     if textures is None:
-        kernel = ambient_gather_software
         sources = [medium.scalars, sigma_tilde, cache.data, medium.sigma_table]
     else:
         if not wp.get_device(device).is_cuda:
             raise ValueError("gather: hardware-filtered textures need a CUDA device; on the CPU "
                              "pass textures=None (the exact software path)")
-        kernel = ambient_gather_texture
         given = textures.scattered if mode == "centred" else textures.table
         table = given if given is not None else texture_from(table)
         optics = textures.optics if textures.optics is not None else optics_texture(medium)
@@ -267,7 +271,7 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
         threads = tiles_x * -(-band // TILE[1]) * TILE[0] * TILE[1]
         wp.launch(kernel, dim=threads,
                   inputs=[*inputs, row0, row0 + band, tiles_x, radiance, alpha, samples],
-                  device=device)
+                  device=device, block_dim=GATHER_BLOCK)
         if progress is not None and row0 + band < height:
             wp.synchronize_device(device)
             progress((row0 + band) / height)
@@ -376,177 +380,190 @@ def block_exit(o: wp.vec3, d: wp.vec3, lo: wp.vec3, hi: wp.vec3):
 
 
 # --- kernel ---------------------------------------------------------------------------------------
-@wp.kernel
-def ambient_gather_kernel(
-    m: Medium,
-    scalars: Any,
-    sigma_tilde: Any,
-    radiance_src: Any,
-    optics: Any,
-    cache: RadianceGrid,
-    lights: Lights,
-    cam: CameraParams,
-    table: Any,
-    table_size: wp.vec2i,
-    sigma_max: float,
-    radius: float,
-    step: float,
-    jitter: int,
-    seed: int,
-    stop_alpha: float,
-    specular: float,
-    shininess: float,
-    grad_eps: float,
-    ambient_occlusion: float,
-    occupied: wp.array3d(dtype=wp.int32),
-    block: wp.vec3,
-    inv_block: wp.vec3,
-    delay: int,
-    mode: int,
-    row0: int,
-    row_end: int,
-    tiles_x: int,
-    radiance: wp.array2d(dtype=wp.vec3),
-    alpha: wp.array2d(dtype=wp.float32),
-    samples: wp.array2d(dtype=wp.int32),
-):
-    """Algorithm 1 for one pixel.
+@functools.cache
+def gather_kernel(mode: str, texture: bool, registers: int = 0):
+    """The gather kernel of estimator ``mode``, made on first use.
 
-    ``wp.tid()`` enumerates tiles of :data:`TILE` pixels of rows ``row0 .. row_end - 1``
-    (``tiles_x`` tiles per row of tiles, the pixels of a tile row by row); threads outside
-    the image return. Row 0 is at the top. Positions in the volume's local frame,
-    ``step`` and ``radius`` in world units, ``σ`` in 1/world units; ``occupied`` flags the
-    blocks of size ``block`` (world units, ``inv_block`` its reciprocal) that may hold
-    matter (:mod:`~vtkillum.core.empty_space`); ``delay`` is
-    :func:`delay_samples` (-1: sample ``σt`` at ``x_o``; ``"paper"`` only); ``mode`` is
-    :data:`GATHER_MODES`' value of the estimator. Writes the gathered radiance
-    ``J̃`` and ``alpha = 1 - T`` at ``[row, col]``. Generic: ``scalars``, ``sigma_tilde``,
-    ``radiance_src``, ``optics`` and ``table`` are ``m.scalars``, the σ̃t array,
-    ``cache.data``, ``m.sigma_table`` and the table slice array
-    (:data:`ambient_gather_software`) or the two-channel scalar/σ̃t ``wp.Texture3D``, 0
-    (σ̃t comes with the scalars), the radiance ``wp.Texture3D``, the RGBA colour/σt
-    ``wp.Texture1D`` and a ``wp.Texture2D`` (:data:`ambient_gather_texture`).
+    The estimator is compiled in (the centred kernel carries neither the delay line nor the
+    ``x_o`` attenuation of ``"paper"``). ``texture``: the overload sampling textures
+    (hardware filtering), else the exact software one. ``registers`` caps the registers per
+    thread on CUDA (0: none): uncapped, the kernel took 147 registers, one block of 256
+    threads per multiprocessor (12.5 % occupancy) and stalled on its chains of dependent
+    loads (H100, Nsight Compute); see :data:`GATHER_REGISTERS`.
     """
-    tid = wp.tid()
-    tile = tid / (TILE_W * TILE_H)
-    lane = tid - tile * (TILE_W * TILE_H)
-    row = row0 + (tile / tiles_x) * TILE_H + lane / TILE_W
-    c = (tile % tiles_x) * TILE_W + lane % TILE_W
-    if row >= row_end or c >= cam.width:
-        return
-    o, d, t0, t1 = pixel_ray(cam, m.extent, row, c)
-    colour = wp.vec3(0.0)
-    trans = float(1.0)  # T along the ray up to the sample (alpha)
-    trans_out = float(1.0)  # T from the sphere's exit point x_o to the camera (Algorithm 1)
-    count = int(0)
-    if t0 < t1:
-        state = wp.rand_init(seed, row * cam.width + c)
-        xi = float(0.0)
-        if jitter != 0:
-            xi = wp.randf(state)
-        n = sample_count(t0, t1, step, xi)
-        stop_t = 1.0 - stop_alpha
-        # The paper attenuates from x_o = x' + r ω, r closer to the camera; the centred
-        # estimator from x' itself.
-        shift = wp.where(mode == CENTRED, 0.0, radius)
-        t_matter = float(-1.0e30)  # position of the last sample with sigma_t > 0
-        recent = DelayLine()  # sigma_t of sample k at [k % DELAY] (0: leapt over or none yet)
-        k = int(0)
-        while k < n:
-            t = t0 + (float(k) + xi) * step
-            p = o + t * d
-            if t - shift > t_matter:
-                # (x_o has) left all matter behind: leap over a surely empty block
-                bi = wp.clamp(int(wp.floor(p[0] * inv_block[0])), 0, occupied.shape[0] - 1)
-                bj = wp.clamp(int(wp.floor(p[1] * inv_block[1])), 0, occupied.shape[1] - 1)
-                bk = wp.clamp(int(wp.floor(p[2] * inv_block[2])), 0, occupied.shape[2] - 1)
-                if occupied[bi, bj, bk] == 0:
-                    lo = wp.vec3(float(bi) * block[0], float(bj) * block[1], float(bk) * block[2])
-                    t_exit = block_exit(o, d, lo, lo + block)
-                    k_next = int(wp.ceil((t_exit - t0) / step - xi))
-                    if k_next > k:
-                        k = k_next
-                        # the last `delay` samples and those leapt over are all empty
-                        recent = DelayLine()
-                        continue
-            data = fetch_data(scalars, m.inv_spacing, p)
-            s = data[0]
-            opt = fetch_optics(optics, m, s)
-            sig = opt[3]
-            count += 1
-            if sig > 0.0:
-                t_matter = t
-                col = optics_color(optics, m, s, opt)
-                tau_amb = radius * fetch_ambient(sigma_tilde, m.inv_spacing, p, data)
-                normal = wp.vec3(0.0)
-                if specular > 0.0:
-                    normal = view_normal(m, p, d, grad_eps)
-                light = wp.vec3(0.0)
-                e_sum = wp.vec3(0.0)
-                for li in range(lights.count):
-                    to_light, dist, e = light_incidence(lights, li, p)
-                    # cos θ_j = ω · ω_j with ω = -d (to the camera), ω_j = -to_light (travel).
-                    cos_theta = wp.dot(d, to_light)
-                    lobe = lookup_table(table, table_size, cos_theta, tau_amb, sigma_max)
-                    spec = float(0.0)
-                    if specular > 0.0 and wp.length_sq(normal) > 0.0:
-                        h = wp.normalize(to_light - d)
-                        spec = specular * wp.pow(wp.max(wp.dot(normal, h), 0.0), shininess) / (
-                            4.0 * wp.pi)
-                    if mode == CENTRED:
-                        # x_j = x' - r ω_j (not past a point light): the light entering the
-                        # sphere; the unscattered part reaches x' through the real medium.
-                        seg = wp.min(radius, dist)
-                        seg_xi = float(0.5)
-                        if jitter != 0:
-                            seg_xi = wp.randf(state)
-                        ld = fetch_radiance(radiance_src, cache, lights, li, radius,
-                                            p + seg * to_light)
-                        direct = segment_transmittance(m, scalars, optics, p, to_light, seg,
-                                                       step, seg_xi)
-                        light += ((hg_phase(cos_theta, m.g) + spec) * direct + lobe) * ld
+    centred = mode == "centred"
+    options = {"enable_backward": False, "module": "unique"}
+    if registers:
+        options["cuda_max_registers"] = int(registers)
+
+    @wp.kernel(**options)
+    def ambient_gather_kernel(
+        m: Medium,
+        scalars: Any,
+        sigma_tilde: Any,
+        radiance_src: Any,
+        optics: Any,
+        cache: RadianceGrid,
+        lights: Lights,
+        cam: CameraParams,
+        table: Any,
+        table_size: wp.vec2i,
+        sigma_max: float,
+        radius: float,
+        step: float,
+        jitter: int,
+        seed: int,
+        stop_alpha: float,
+        specular: float,
+        shininess: float,
+        grad_eps: float,
+        ambient_occlusion: float,
+        occupied: wp.array3d(dtype=wp.int32),
+        block: wp.vec3,
+        inv_block: wp.vec3,
+        delay: int,
+        mode: int,
+        row0: int,
+        row_end: int,
+        tiles_x: int,
+        radiance: wp.array2d(dtype=wp.vec3),
+        alpha: wp.array2d(dtype=wp.float32),
+        samples: wp.array2d(dtype=wp.int32),
+    ):
+        """Algorithm 1 for one pixel.
+
+        ``wp.tid()`` enumerates tiles of :data:`TILE` pixels of rows ``row0 .. row_end - 1``
+        (``tiles_x`` tiles per row of tiles, the pixels of a tile row by row); threads outside
+        the image return. Row 0 is at the top. Positions in the volume's local frame,
+        ``step`` and ``radius`` in world units, ``σ`` in 1/world units; ``occupied`` flags the
+        blocks of size ``block`` (world units, ``inv_block`` its reciprocal) that may hold
+        matter (:mod:`~vtkillum.core.empty_space`); ``delay`` is
+        :func:`delay_samples` (-1: sample ``σt`` at ``x_o``; ``"paper"`` only); ``mode`` is
+        :data:`GATHER_MODES`' value of the estimator (informative: the estimator is
+        compiled in, see :func:`gather_kernel`). Writes the gathered radiance
+        ``J̃`` and ``alpha = 1 - T`` at ``[row, col]``. Generic: ``scalars``, ``sigma_tilde``,
+        ``radiance_src``, ``optics`` and ``table`` are ``m.scalars``, the σ̃t array,
+        ``cache.data``, ``m.sigma_table`` and the table slice array
+        (the software overload) or the two-channel scalar/σ̃t ``wp.Texture3D``, 0
+        (σ̃t comes with the scalars), the radiance ``wp.Texture3D``, the RGBA colour/σt
+        ``wp.Texture1D`` and a ``wp.Texture2D`` (the texture overload).
+        """
+        tid = wp.tid()
+        tile = tid / (TILE_W * TILE_H)
+        lane = tid - tile * (TILE_W * TILE_H)
+        row = row0 + (tile / tiles_x) * TILE_H + lane / TILE_W
+        c = (tile % tiles_x) * TILE_W + lane % TILE_W
+        if row >= row_end or c >= cam.width:
+            return
+        o, d, t0, t1 = pixel_ray(cam, m.extent, row, c)
+        colour = wp.vec3(0.0)
+        trans = float(1.0)  # T along the ray up to the sample (alpha)
+        trans_out = float(1.0)  # T from the sphere's exit point x_o to the camera (Algorithm 1)
+        count = int(0)
+        if t0 < t1:
+            state = wp.rand_init(seed, row * cam.width + c)
+            xi = float(0.0)
+            if jitter != 0:
+                xi = wp.randf(state)
+            n = sample_count(t0, t1, step, xi)
+            stop_t = 1.0 - stop_alpha
+            # The paper attenuates from x_o = x' + r ω, r closer to the camera; the centred
+            # estimator from x' itself.
+            shift = wp.where(wp.static(centred), 0.0, radius)
+            t_matter = float(-1.0e30)  # position of the last sample with sigma_t > 0
+            recent = DelayLine()  # sigma_t of sample k at [k % DELAY] (0: leapt over or none yet)
+            k = int(0)
+            while k < n:
+                t = t0 + (float(k) + xi) * step
+                p = o + t * d
+                if t - shift > t_matter:
+                    # (x_o has) left all matter behind: leap over a surely empty block
+                    bi = wp.clamp(int(wp.floor(p[0] * inv_block[0])), 0, occupied.shape[0] - 1)
+                    bj = wp.clamp(int(wp.floor(p[1] * inv_block[1])), 0, occupied.shape[1] - 1)
+                    bk = wp.clamp(int(wp.floor(p[2] * inv_block[2])), 0, occupied.shape[2] - 1)
+                    if occupied[bi, bj, bk] == 0:
+                        lo = wp.vec3(float(bi) * block[0], float(bj) * block[1], float(bk) * block[2])
+                        t_exit = block_exit(o, d, lo, lo + block)
+                        k_next = int(wp.ceil((t_exit - t0) / step - xi))
+                        if k_next > k:
+                            k = k_next
+                            # the last `delay` samples and those leapt over are all empty
+                            recent = DelayLine()
+                            continue
+                data = fetch_data(scalars, m.inv_spacing, p)
+                s = data[0]
+                opt = fetch_optics(optics, m, s)
+                sig = opt[3]
+                count += 1
+                if sig > 0.0:
+                    t_matter = t
+                    col = optics_color(optics, m, s, opt)
+                    tau_amb = radius * fetch_ambient(sigma_tilde, m.inv_spacing, p, data)
+                    normal = wp.vec3(0.0)
+                    if specular > 0.0:
+                        normal = view_normal(m, p, d, grad_eps)
+                    light = wp.vec3(0.0)
+                    e_sum = wp.vec3(0.0)
+                    for li in range(lights.count):
+                        to_light, dist, e = light_incidence(lights, li, p)
+                        # cos θ_j = ω · ω_j with ω = -d (to the camera), ω_j = -to_light (travel).
+                        cos_theta = wp.dot(d, to_light)
+                        lobe = lookup_table(table, table_size, cos_theta, tau_amb, sigma_max)
+                        spec = float(0.0)
+                        if specular > 0.0 and wp.length_sq(normal) > 0.0:
+                            h = wp.normalize(to_light - d)
+                            spec = specular * wp.pow(wp.max(wp.dot(normal, h), 0.0), shininess) / (
+                                4.0 * wp.pi)
+                        if wp.static(centred):
+                            # x_j = x' - r ω_j (not past a point light): the light entering the
+                            # sphere; the unscattered part reaches x' through the real medium.
+                            seg = wp.min(radius, dist)
+                            seg_xi = float(0.5)
+                            if jitter != 0:
+                                seg_xi = wp.randf(state)
+                            ld = fetch_radiance(radiance_src, cache, lights, li, radius,
+                                                p + seg * to_light)
+                            direct = segment_transmittance(m, scalars, optics, p, to_light, seg,
+                                                           step, seg_xi)
+                            light += ((hg_phase(cos_theta, m.g) + spec) * direct + lobe) * ld
+                        else:
+                            # at x_j = x' - r ω_j
+                            ld = fetch_radiance(radiance_src, cache, lights, li, radius,
+                                                p + radius * to_light)
+                            light += (lobe + spec) * ld
+                        e_sum += e
+                    if ambient_occlusion > 0.0:
+                        light += (ambient_occlusion * wp.exp(-tau_amb) / (4.0 * wp.pi)) * e_sum
+                    if wp.static(centred):
+                        # the step's own attenuation integrated exactly, as the ray caster does
+                        colour += (trans * (1.0 - wp.exp(-sig * step)) * m.albedo) * wp.cw_mul(
+                            col, light)
                     else:
-                        # at x_j = x' - r ω_j
-                        ld = fetch_radiance(radiance_src, cache, lights, li, radius,
-                                            p + radius * to_light)
-                        light += (lobe + spec) * ld
-                    e_sum += e
-                if ambient_occlusion > 0.0:
-                    light += (ambient_occlusion * wp.exp(-tau_amb) / (4.0 * wp.pi)) * e_sum
-                if mode == CENTRED:
-                    # the step's own attenuation integrated exactly, as the ray caster does
-                    colour += (trans * (1.0 - wp.exp(-sig * step)) * m.albedo) * wp.cw_mul(
-                        col, light)
+                        colour += (trans_out * step * m.albedo * sig) * wp.cw_mul(col, light)
+                trans *= wp.exp(-sig * step)
+                if wp.static(centred):
+                    if trans < stop_t:
+                        break
                 else:
-                    colour += (trans_out * step * m.albedo * sig) * wp.cw_mul(col, light)
-            trans *= wp.exp(-sig * step)
-            if mode == CENTRED:
-                if trans < stop_t:
-                    break
-            else:
-                t_out = t - radius  # x_o = x' + r ω lies r closer to the camera
-                if delay > 0:
-                    sig_out = recent[(k - delay + DELAY) % DELAY]  # sample k - delay, at x_o
-                    recent[k % DELAY] = sig
-                    if t_out > 0.0:
-                        trans_out *= wp.exp(-sig_out * step)
-                elif t_out > 0.0:
-                    trans_out *= wp.exp(-sigma_t_from(m, scalars, optics, o + t_out * d) * step)
-                if trans_out < stop_t:
-                    break
-            k += 1
-    radiance[row, c] = colour
-    alpha[row, c] = 1.0 - trans
-    samples[row, c] = count
+                    t_out = t - radius  # x_o = x' + r ω lies r closer to the camera
+                    if delay > 0:
+                        sig_out = recent[(k - delay + DELAY) % DELAY]  # sample k - delay, at x_o
+                        recent[k % DELAY] = sig
+                        if t_out > 0.0:
+                            trans_out *= wp.exp(-sig_out * step)
+                    elif t_out > 0.0:
+                        trans_out *= wp.exp(-sigma_t_from(m, scalars, optics, o + t_out * d) * step)
+                    if trans_out < stop_t:
+                        break
+                k += 1
+        radiance[row, c] = colour
+        alpha[row, c] = 1.0 - trans
+        samples[row, c] = count
 
-
-#: The exact software path (the default).
-ambient_gather_software = wp.overload(ambient_gather_kernel, {
-    "scalars": wp.array3d(dtype=wp.float32), "sigma_tilde": wp.array3d(dtype=wp.float32),
-    "radiance_src": wp.array4d(dtype=wp.vec3), "optics": wp.array(dtype=wp.float32),
-    "table": wp.array2d(dtype=wp.float32)})
-#: Hardware texture filtering (CUDA): scalars with σ̃t, the RGBA radiance cache, the transfer
-#: function's colour/σt tables and the table slice as textures.
-ambient_gather_texture = wp.overload(ambient_gather_kernel, {
-    "scalars": wp.Texture3D, "sigma_tilde": int, "radiance_src": wp.Texture3D,
-    "optics": wp.Texture1D, "table": wp.Texture2D})
+    types = ({"scalars": wp.Texture3D, "sigma_tilde": int, "radiance_src": wp.Texture3D,
+              "optics": wp.Texture1D, "table": wp.Texture2D} if texture else
+             {"scalars": wp.array3d(dtype=wp.float32),
+              "sigma_tilde": wp.array3d(dtype=wp.float32),
+              "radiance_src": wp.array4d(dtype=wp.vec3), "optics": wp.array(dtype=wp.float32),
+              "table": wp.array2d(dtype=wp.float32)})
+    return wp.overload(ambient_gather_kernel, types)
