@@ -132,10 +132,13 @@ DELAY = 64
 DelayLine = wp.types.vector(length=DELAY, dtype=wp.float32)
 #: Estimators of the gather (see the module docstring).
 GATHER_MODES = {"centred": 0, "paper": 1}
-#: Register cap per thread of the CUDA gather (:func:`gather_kernel`) and its threads per
-#: block.
-GATHER_REGISTERS = 0
-GATHER_BLOCK = 256
+#: Register cap per thread of the CUDA gather (:func:`gather_kernel`), software and texture
+#: sampling, and its threads per block. H100, centred gather at 512² (Supernova / Manix
+#: stand-ins): blocks of 128 instead of 256 threads 7.7 → 7.2 ms / 2.3 → 2.0 ms (software),
+#: a cap of 96 registers 3.6 → 3.0 / 1.3 → 1.2 ms (textures); capping the software kernel
+#: at 64-128 registers was slower or no faster (it is bound by its loads, 95 % L1 hits).
+GATHER_REGISTERS = {False: 0, True: 96}
+GATHER_BLOCK = 128
 
 
 def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, camera: CameraParams,
@@ -238,7 +241,7 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
     if not isinstance(table, wp.array):
         table = wp.array(np.asarray(table, dtype=np.float32), dtype=wp.float32, device=device)
     table_size = wp.vec2i(*table.shape)
-    registers = 0 if device == "cpu" else GATHER_REGISTERS
+    registers = 0 if device == "cpu" else GATHER_REGISTERS[textures is not None]
     kernel = gather_kernel(mode, textures is not None, registers)
     if textures is None:
         sources = [medium.scalars, sigma_tilde, cache.data, medium.sigma_table]
@@ -389,7 +392,8 @@ def gather_kernel(mode: str, texture: bool, registers: int = 0):
     (hardware filtering), else the exact software one. ``registers`` caps the registers per
     thread on CUDA (0: none): uncapped, the kernel took 147 registers, one block of 256
     threads per multiprocessor (12.5 % occupancy) and stalled on its chains of dependent
-    loads (H100, Nsight Compute); see :data:`GATHER_REGISTERS`.
+    loads (H100, Nsight Compute), but it is bound by the number of its loads rather than by
+    occupancy: see :data:`GATHER_REGISTERS`.
     """
     centred = mode == "centred"
     options = {"enable_backward": False, "module": "unique"}
