@@ -15,6 +15,8 @@ flux-limited radiative-transfer diffusion; ``paper``: Zhang & Ma's eq. 23):
    physical model's residual is the nonlinear one, over the medium).
 4. **One sweep vs the paper's iteration** (eq. 16 time steps to the steady state).
 5. **Time series**: diffusion iterations with and without warm start.
+6. **V-cycle**: one multigrid cycle of each model against the memory traffic it needs,
+   at the measured copy bandwidth.
 
 Data are synthetic (an analytic cellular field, no download) at the paper's sizes;
 lights alternate between oblique directional lights and point lights inside the
@@ -345,7 +347,76 @@ def parse_sizes(values):
 
 
 #: The tables ``--tables`` can pick (module docstring, items 1-5).
-TABLES = ("stages", "sizes", "residual", "iterated", "series")
+TABLES = ("stages", "sizes", "residual", "iterated", "series", "vcycle")
+#: Bytes per cell a V(2,2) cycle must move at least on one level (vec3 float32 = 12 bytes
+#: per array and cell): 4 red–black sweeps (each colour reads the whole x and its half of
+#: b, writes its half of x: 24; the physical model also reads every face coefficient kx,
+#: ky, kz, 36, and its half of sigma_a and leak, 12), the fused residual-restriction (reads
+#: x, b and the coefficients: 24 or 84), the prolongation (reads and writes x: 24) and the
+#: coarse grid's arrays (4.5).
+VCYCLE_BYTES_PER_CELL = {"paper": 8 * 24 + 24 + 24 + 4.5,
+                         "physical": 8 * (24 + 36 + 12) + 84 + 24 + 4.5}
+
+
+def copy_bandwidth(device: str) -> float:
+    """Achievable device memory bandwidth (bytes/s): a 512 MiB device-to-device copy."""
+    a = wp.zeros(1 << 27, dtype=wp.float32, device=device)
+    b = wp.zeros_like(a)
+    wp.copy(b, a)
+    wp.synchronize_device(device)
+    t = time.perf_counter()
+    for _ in range(10):
+        wp.copy(b, a)
+    wp.synchronize_device(device)
+    return 10 * 2 * a.size * 4 / (time.perf_counter() - t)
+
+
+def vcycle_table(sizes, device, repeats) -> None:
+    """One multigrid V-cycle per model, replayed as a CUDA graph, against the memory
+    traffic it needs at least (:data:`VCYCLE_BYTES_PER_CELL` over the levels, the coarsest
+    grid's solve included) at the measured copy bandwidth."""
+    from vtkillum.core.convection_diffusion.multigrid import Multigrid
+    from vtkillum.core.graphs import LaunchGraphs
+
+    bandwidth = copy_bandwidth(device)
+    print(f"\n### 6. One multigrid V(2,2) cycle, device {device_name(device)} (copy bandwidth "
+          f"{bandwidth / 1e12:.2f} TB/s; CUDA graph replay, median of {repeats} x 20)\n")
+    print("| light volume | model | levels | ms / V-cycle | bytes moved (at least) | "
+          "bandwidth limit ms | ratio to the limit |")
+    print("|---|---|---|---|---|---|---|")
+    for n in sizes:
+        vol = synthetic((2 * n, 2 * n, 2 * n))
+        cd = ConvectionDiffusionSolver(light_volume_shape=(n, n, n), device=device)
+        cd.update(vol, TF_A, vol.mean_spacing(), make_lights(vol, 2), albedo=ALBEDO,
+                  anisotropy=ANISOTROPY)
+        h = cd.spacing
+        b = wp.array(cd.composed, dtype=wp.vec3, device=device)
+        mg = Multigrid((n, n, n), h, [(4.0 * h.max()) ** 2] * 3, device)
+        rd = RadiativeDiffusion((n, n, n), h, device=device)
+        rd.set_medium(cd._sigma, cd._color_sigma, ALBEDO, ANISOTROPY)
+        q = wp.array(cd.source, dtype=wp.vec3, device=device)
+        x2 = wp.zeros_like(q)
+        rd.solve(q, x2, 3, 1e-12)  # lagged coefficients of a partly converged solution
+        x = wp.clone(b)
+        for model, shapes, cycle, coarse_bytes in (
+                ("paper", mg.shapes, lambda: mg.vcycle(x, b),
+                 3 * int(np.prod(mg.shapes[-1])) ** 2 * 4),
+                ("physical", [lv.shape for lv in rd.levels], lambda: rd.vcycle(x2, q),
+                 8 * 12 * int(np.prod(rd.levels[-1].shape)))):
+            graphs = LaunchGraphs(device)
+            graphs.run(("cycle",), cycle)
+            wp.synchronize_device(device)
+
+            def twenty():
+                for _ in range(20):
+                    graphs.run(("cycle",), cycle)
+                wp.synchronize_device(device)
+            ms = median_ms(twenty, repeats) / 20
+            cells = sum(int(np.prod(sh)) for sh in shapes[:-1])
+            moved = VCYCLE_BYTES_PER_CELL[model] * cells + coarse_bytes
+            limit = 1e3 * moved / bandwidth
+            print(f"| {n}³ | {model} | {len(shapes)} | {ms:.3f} | {moved / 1e6:.0f} MB | "
+                  f"{limit:.3f} | {ms / limit:.1f}× |", flush=True)
 
 
 def main(argv=None) -> None:
@@ -359,6 +430,7 @@ def main(argv=None) -> None:
     ap.add_argument("--iterated-size", type=int, default=64)
     ap.add_argument("--series-size", type=int, default=64)
     ap.add_argument("--render-size", type=int, default=512)
+    ap.add_argument("--vcycle-sizes", type=int, nargs="+", default=[64, 128, 256])
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--tables", nargs="+", default=list(TABLES), choices=list(TABLES),
                     help="which tables to print (default: all)")
@@ -381,6 +453,8 @@ def main(argv=None) -> None:
         iterated_table(args.iterated_size, device)
     if "series" in args.tables:
         time_series_table(args.series_size, device)
+    if "vcycle" in args.tables:
+        vcycle_table(args.vcycle_sizes, device, args.repeats)
 
 
 if __name__ == "__main__":

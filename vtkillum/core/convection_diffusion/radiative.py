@@ -215,7 +215,6 @@ class Level:
         self.sol = None
         self.x = vec3(self.shape)  # coarse-level correction
         self.b = vec3(self.shape)  # coarse-level right-hand side
-        self.r = vec3(self.shape)  # residual
 
     @property
     def coefficients(self):
@@ -549,12 +548,11 @@ class RadiativeDiffusion:
             coarse_relax(lv, x, b, COARSE_SWEEPS)
             return
         relax(lv, x, b, PRE_SMOOTH)
-        wp.launch(residual_field_kernel, dim=lv.shape, device=self.device,
-                  inputs=[x, b, lv.r, *lv.coefficients])
         coarse = self.levels[level + 1]
         ratio = self._ratio(lv, coarse)
-        wp.launch(restrict_kernel, dim=coarse.shape, device=self.device,
-                  inputs=[lv.r, coarse.b, ratio])
+        # the residual is only restricted: computed per child inside the restriction
+        wp.launch(residual_restrict_kernel, dim=coarse.shape, device=self.device,
+                  inputs=[x, b, coarse.b, *lv.coefficients, ratio])
         coarse.x.zero_()
         self.vcycle(coarse.x, coarse.b, level + 1)
         wp.launch(prolong_add_kernel, dim=lv.shape, device=self.device,
@@ -922,6 +920,32 @@ def residual_field_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.v
     off, diag = neighbours(x, i, j, k, kx, ky, kz)
     diag += sigma_a[i, j, k] + leak[i, j, k]
     r[i, j, k] = b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
+
+
+@wp.kernel
+def residual_restrict_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
+                             bc: wp.array3d(dtype=wp.vec3), kx: wp.array3d(dtype=wp.vec3),
+                             ky: wp.array3d(dtype=wp.vec3), kz: wp.array3d(dtype=wp.vec3),
+                             sigma_a: wp.array3d(dtype=wp.vec3), leak: wp.array3d(dtype=wp.vec3),
+                             ratio: wp.vec3i):
+    """Coarse right-hand side at coarse cell ``wp.tid()``: the mean residual ``b - A x`` of
+    its children (``restrict_kernel`` of ``residual_field_kernel``'s values, without the
+    residual field in between)."""
+    ci, cj, ck = wp.tid()
+    s = wp.vec3(0.0)
+    count = float(0.0)
+    for a in range(ratio[0]):
+        i = ci * ratio[0] + a
+        for q in range(ratio[1]):
+            j = cj * ratio[1] + q
+            for c in range(ratio[2]):
+                k = ck * ratio[2] + c
+                if i < x.shape[0] and j < x.shape[1] and k < x.shape[2]:
+                    off, diag = neighbours(x, i, j, k, kx, ky, kz)
+                    diag += sigma_a[i, j, k] + leak[i, j, k]
+                    s += b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
+                    count += 1.0
+    bc[ci, cj, ck] = s / count
 
 
 @wp.kernel
