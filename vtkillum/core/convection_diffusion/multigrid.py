@@ -34,8 +34,11 @@ from vtkillum.core.convection_diffusion.stencil import (
     neighbours,
 )
 
-#: Largest grid solved directly (cells).
-COARSEST_POINTS = 512
+#: Largest grid solved directly (cells). The dense solve is one thread per row, so a
+#: smaller grid with one more level is faster: 512 cells took 0.25-0.39 ms of a 0.7-0.85 ms
+#: V-cycle at 128³ on an H100 (16 warps, each thread a 512-long dot product), 64 cells a few
+#: microseconds, the extra 8³ level some 30 µs.
+COARSEST_POINTS = 64
 #: Red–black sweeps before and after the coarse-grid correction.
 PRE_SMOOTH = 2
 POST_SMOOTH = 2
@@ -115,9 +118,7 @@ def coarse_inverse(shape, spacing, scattering) -> np.ndarray:
         np.add.at(lap, (lo, hi), -w)
         np.add.at(lap, (hi, lo), -w)
     eye = np.eye(n)
-    inverses = [np.linalg.inv(eye + float(s) * lap) for s in scattering]
-    # A is symmetric, so is its inverse: made exactly so, the solve may read it by columns
-    return np.stack([0.5 * (m + m.T) for m in inverses]).astype(np.float32)
+    return np.stack([np.linalg.inv(eye + float(s) * lap) for s in scattering]).astype(np.float32)
 
 
 # --- kernels -------------------------------------------------------------------------------------
@@ -202,10 +203,7 @@ def dense_solve_kernel(inverse: wp.array3d(dtype=wp.float32), b: wp.array3d(dtyp
                        x: wp.array3d(dtype=wp.vec3)):
     """``x = A^-1 b`` on the coarsest grid; ``wp.tid()`` is the row (C-order flat index).
 
-    ``inverse[c]`` is the (symmetric) inverse matrix of channel ``c``, read as
-    ``inverse[c, col, row]``: the threads of a warp (consecutive rows) then read
-    consecutive addresses (by rows, each thread's loads were a row apart: 0.25 ms for a
-    512-cell grid on an H100, a third of a V-cycle at 128³).
+    ``inverse[c]`` is the inverse matrix of channel ``c``.
     """
     row = wp.tid()
     ny = b.shape[1]
@@ -213,6 +211,6 @@ def dense_solve_kernel(inverse: wp.array3d(dtype=wp.float32), b: wp.array3d(dtyp
     acc = wp.vec3(0.0)
     for col in range(inverse.shape[1]):
         bv = b[col // (ny * nz), (col // nz) % ny, col % nz]
-        acc += wp.vec3(inverse[0, col, row] * bv[0], inverse[1, col, row] * bv[1],
-                       inverse[2, col, row] * bv[2])
+        acc += wp.vec3(inverse[0, row, col] * bv[0], inverse[1, row, col] * bv[1],
+                       inverse[2, row, col] * bv[2])
     x[row // (ny * nz), (row // nz) % ny, row % nz] = acc
