@@ -535,16 +535,20 @@ def cache_point(tid: int, bricks: wp.vec3i):
 
 @wp.func
 def march_path(lights: Lights, li: int, p: wp.vec3, radius: float, extent: wp.vec3):
-    """Unit direction to light ``li`` from ``p``, the irradiance ``E_l(p)`` of eq. 15 (a point
-    light's held at ``I / r²`` within one radius) and the length of the path from ``p`` to
-    where the front starts (the box face towards the light, or the point light)."""
+    """The front's path to ``p`` from light ``li``: unit direction to the light, the
+    irradiance ``E_l(p)`` of eq. 15 (a point light's held at ``I / r²`` within one radius),
+    the point where the front starts (the box face towards the light, or the point light),
+    the whole steps of ``2r`` from there and the fraction ``η`` of eq. 17 left over."""
     to_light, dist, e = light_incidence(lights, li, p)
     if lights.kind[li] == POINT:
         # Inside one radius of a point light the sphere contains it: no 1/d² divergence.
         r = wp.max(radius, lights.radius[li])
         e = lights.rgb[li] / wp.max(dist * dist, r * r)
     tt = ray_box(p, to_light, extent)
-    return to_light, e, wp.max(wp.min(tt[1], dist), 0.0)
+    length = wp.max(wp.min(tt[1], dist), 0.0)
+    steps = length / (2.0 * radius)
+    n_full = int(wp.floor(steps))
+    return to_light, e, p + length * to_light, n_full, steps - float(n_full)
 
 
 @wp.kernel
@@ -569,12 +573,8 @@ def tube_march_kernel(sigma_tilde: Any, inv_data_spacing: wp.vec3,
     if i >= shape[0] or j >= shape[1] or k >= shape[2]:
         return
     p = wp.vec3(float(i) * spacing[0], float(j) * spacing[1], float(k) * spacing[2])
-    to_light, e, length = march_path(lights, li, p, radius, extent)
+    to_light, e, entry, n_full, eta = march_path(lights, li, p, radius, extent)
     step = 2.0 * radius
-    steps = length / step
-    n_full = int(wp.floor(steps))
-    eta = steps - float(n_full)
-    entry = p + length * to_light
     travel = -to_light
     last = float(transmittance.shape[0] - 1)
     front = float(1.0)
@@ -647,13 +647,8 @@ def field_march_kernel(samples: int, half: bool, texture: bool = False):
         if i >= shape[0] or j >= shape[1] or k >= shape[2]:
             return
         p = wp.vec3(float(i) * spacing[0], float(j) * spacing[1], float(k) * spacing[2])
-        to_light, e, length = march_path(lights, li, p, radius, extent)
-        step = 2.0 * radius
-        steps = length / step
-        n_full = int(wp.floor(steps))
-        eta = steps - float(n_full)
-        entry = p + length * to_light
-        h = step / float(wp.static(SAMPLES))
+        to_light, e, entry, n_full, eta = march_path(lights, li, p, radius, extent)
+        h = 2.0 * radius / float(wp.static(SAMPLES))
         du = wp.cw_mul(-h * to_light, inv_field)  # one sample to the next
         u = wp.cw_mul(entry, inv_field) + 0.5 * du
         last = float(transmittance.shape[0] - 1)

@@ -132,16 +132,22 @@ def restrict_kernel(r: wp.array3d(dtype=wp.vec3), bc: wp.array3d(dtype=wp.vec3),
     ci, cj, ck = wp.tid()
     s = wp.vec3(0.0)
     count = float(0.0)
-    for a in range(ratio[0]):
-        i = ci * ratio[0] + a
-        for b in range(ratio[1]):
-            j = cj * ratio[1] + b
-            for c in range(ratio[2]):
-                k = ck * ratio[2] + c
-                if i < r.shape[0] and j < r.shape[1] and k < r.shape[2]:
-                    s += r[i, j, k]
-                    count += 1.0
+    for child in range(ratio[0] * ratio[1] * ratio[2]):
+        i, j, k = child_cell(ci, cj, ck, ratio, child)
+        if i < r.shape[0] and j < r.shape[1] and k < r.shape[2]:
+            s += r[i, j, k]
+            count += 1.0
     bc[ci, cj, ck] = s / count
+
+
+@wp.func
+def child_cell(ci: int, cj: int, ck: int, ratio: wp.vec3i, child: int):
+    """Fine cell ``child`` (0 .. ratio product - 1, the last axis fastest) of coarse cell
+    ``(ci, cj, ck)``; it may lie beyond an odd fine grid's end."""
+    a = child // (ratio[1] * ratio[2])
+    q = (child // ratio[2]) % ratio[1]
+    c = child % ratio[2]
+    return ci * ratio[0] + a, cj * ratio[1] + q, ck * ratio[2] + c
 
 
 @wp.kernel
@@ -153,16 +159,12 @@ def residual_restrict_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=w
     ci, cj, ck = wp.tid()
     s = wp.vec3(0.0)
     count = float(0.0)
-    for a in range(ratio[0]):
-        i = ci * ratio[0] + a
-        for q in range(ratio[1]):
-            j = cj * ratio[1] + q
-            for c in range(ratio[2]):
-                k = ck * ratio[2] + c
-                if i < x.shape[0] and j < x.shape[1] and k < x.shape[2]:
-                    off, diag = neighbours(x, i, j, k, cx, cy, cz)
-                    s += b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
-                    count += 1.0
+    for child in range(ratio[0] * ratio[1] * ratio[2]):
+        i, j, k = child_cell(ci, cj, ck, ratio, child)
+        if i < x.shape[0] and j < x.shape[1] and k < x.shape[2]:
+            off, diag = neighbours(x, i, j, k, cx, cy, cz)
+            s += b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
+            count += 1.0
     bc[ci, cj, ck] = s / count
 
 

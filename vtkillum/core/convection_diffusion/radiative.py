@@ -150,7 +150,11 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.convection_diffusion.diffusion import DiffusionReport
-from vtkillum.core.convection_diffusion.multigrid import prolong_add_kernel, restrict_kernel
+from vtkillum.core.convection_diffusion.multigrid import (
+    child_cell,
+    prolong_add_kernel,
+    restrict_kernel,
+)
 from vtkillum.core.convection_diffusion.stencil import add_channels, sum_squares_kernel
 from vtkillum.core.graphs import LaunchGraphs, array_key
 
@@ -934,17 +938,13 @@ def residual_restrict_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=w
     ci, cj, ck = wp.tid()
     s = wp.vec3(0.0)
     count = float(0.0)
-    for a in range(ratio[0]):
-        i = ci * ratio[0] + a
-        for q in range(ratio[1]):
-            j = cj * ratio[1] + q
-            for c in range(ratio[2]):
-                k = ck * ratio[2] + c
-                if i < x.shape[0] and j < x.shape[1] and k < x.shape[2]:
-                    off, diag = neighbours(x, i, j, k, kx, ky, kz)
-                    diag += sigma_a[i, j, k] + leak[i, j, k]
-                    s += b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
-                    count += 1.0
+    for child in range(ratio[0] * ratio[1] * ratio[2]):
+        i, j, k = child_cell(ci, cj, ck, ratio, child)
+        if i < x.shape[0] and j < x.shape[1] and k < x.shape[2]:
+            off, diag = neighbours(x, i, j, k, kx, ky, kz)
+            diag += sigma_a[i, j, k] + leak[i, j, k]
+            s += b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
+            count += 1.0
     bc[ci, cj, ck] = s / count
 
 
