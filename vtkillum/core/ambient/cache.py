@@ -207,6 +207,7 @@ class AmbientScatteringCache:
         self._radiance = None
         self._lights = None
         self._light_key = None
+        self._light_staging = {}  # pinned host arrays of the light upload (CUDA)
         self._device_table = None
         self._textured = False
         self._scalars_texture = None  # scalars and σ̃t, two channels (data_texture)
@@ -266,7 +267,8 @@ class AmbientScatteringCache:
         if rad_key != self._rad_key:
             t = time.perf_counter()
             self._lights = _upload_lights(self._lights, lights, volume, kinds, vecs, rgb, radii,
-                                          device, light_key, self._light_key)
+                                          device, light_key, self._light_key,
+                                          self._light_staging)
             self._light_key = light_key
             self._radiance = radiance_cache(self._sigma_tilde, volume.spacing, volume.extent,
                                             self._lights, dtable.transmittance_slice,
@@ -410,19 +412,30 @@ def _data_identity(volume) -> tuple:
 
 
 def _upload_lights(current: Lights | None, lights, volume, kinds, vecs, rgb, radii, device,
-                   key: tuple, held: tuple | None) -> Lights:
+                   key: tuple, held: tuple | None, staging: dict) -> Lights:
     """The light list on the device, written into ``current``'s arrays when the count matches.
 
     ``key`` holds the bytes of the four packed arrays, ``held`` those ``current`` holds: only
-    the arrays that differ are copied (moving a light copies its positions alone; each copy
-    is a synchronous host-to-device transfer).
+    the arrays that differ are copied (moving a light copies its positions alone). On CUDA
+    each goes through a pinned host array kept in ``staging`` (an asynchronous copy instead
+    of a pageable, synchronous one; the cache synchronises before the next edit writes it).
     """
     if current is None or current.count != len(kinds) or len(kinds) == 0 or held is None:
         return make_lights(lights, volume, device)
     targets = (current.kind, current.vec, current.rgb, current.radius)
-    for target, values, new, old in zip(targets, (kinds, vecs, rgb, radii), key, held):
-        if new != old:
+    for field, target, values, new, old in zip(range(4), targets, (kinds, vecs, rgb, radii),
+                                               key, held):
+        if new == old:
+            continue
+        if not target.device.is_cuda:
             target.assign(values)
+            continue
+        pinned = staging.get(field)
+        if pinned is None or pinned.shape != target.shape:
+            pinned = staging[field] = wp.empty(target.shape, dtype=target.dtype, device="cpu",
+                                               pinned=True)
+        pinned.numpy()[...] = np.asarray(values).reshape(pinned.numpy().shape)
+        wp.copy(target, pinned)
     return current
 
 
