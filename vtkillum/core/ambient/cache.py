@@ -423,16 +423,16 @@ def _upload_lights(current: Lights | None, lights, volume, kinds, vecs, rgb, rad
     if current is None or current.count != len(kinds) or len(kinds) == 0 or held is None:
         return make_lights(lights, volume, device)
     targets = (current.kind, current.vec, current.rgb, current.radius)
-    for field, target, values, new, old in zip(range(4), targets, (kinds, vecs, rgb, radii),
-                                               key, held):
+    for slot, target, values, new, old in zip(range(4), targets, (kinds, vecs, rgb, radii),
+                                              key, held):
         if new == old:
             continue
         if not target.device.is_cuda:
             target.assign(values)
             continue
-        pinned = staging.get(field)
+        pinned = staging.get(slot)
         if pinned is None or pinned.shape != target.shape:
-            pinned = staging[field] = wp.empty(target.shape, dtype=target.dtype, device="cpu",
+            pinned = staging[slot] = wp.empty(target.shape, dtype=target.dtype, device="cpu",
                                                pinned=True)
         pinned.numpy()[...] = np.asarray(values).reshape(pinned.numpy().shape)
         wp.copy(target, pinned)

@@ -387,8 +387,8 @@ def block_exit(o: wp.vec3, d: wp.vec3, lo: wp.vec3, hi: wp.vec3):
 def gather_kernel(mode: str, texture: bool, registers: int = 0):
     """The gather kernel of estimator ``mode``, made on first use.
 
-    The estimator is compiled in (the centred kernel carries neither the delay line nor the
-    ``x_o`` attenuation of ``"paper"``). ``texture``: the overload sampling textures
+    The estimator is compiled in (``wp.static``: the centred kernel has no branches for the
+    ``x_o`` attenuation and delay line of ``"paper"``, and its registers show it). ``texture``: the overload sampling textures
     (hardware filtering), else the exact software one. ``registers`` caps the registers per
     thread on CUDA (0: none): uncapped, the kernel took 147 registers, one block of 256
     threads per multiprocessor (12.5 % occupancy) and stalled on its chains of dependent
