@@ -433,7 +433,7 @@ def _upload_lights(current: Lights | None, lights, volume, kinds, vecs, rgb, rad
         pinned = staging.get(slot)
         if pinned is None or pinned.shape != target.shape:
             pinned = staging[slot] = wp.empty(target.shape, dtype=target.dtype, device="cpu",
-                                               pinned=True)
+                                              pinned=True)
         pinned.numpy()[...] = np.asarray(values).reshape(pinned.numpy().shape)
         wp.copy(target, pinned)
     return current
