@@ -165,6 +165,16 @@ def stage_table(rows, device, repeats, render_size, model) -> None:
               f"{render_ms:.2f} |")
 
 
+def cube_case(n: int, device: str, lights=None, **optics):
+    """A synthetic ``(2n)³`` volume and a solver for an ``n³`` light volume, updated with
+    ``TF_A`` and ``lights`` (default: two, :func:`make_lights`)."""
+    vol = synthetic((2 * n, 2 * n, 2 * n))
+    cd = ConvectionDiffusionSolver(light_volume_shape=(n, n, n), device=device)
+    cd.update(vol, TF_A, vol.mean_spacing(), make_lights(vol, 2) if lights is None else lights,
+              **optics)
+    return vol, cd
+
+
 def light_size_table(sizes, device, repeats) -> None:
     print("\n### 2. Light-volume sizes (paper's Table 2): ms for one light and for the diffusion "
           "(cold start, to the default tolerance 1e-4)\n")
@@ -172,10 +182,8 @@ def light_size_table(sizes, device, repeats) -> None:
           "scattering, paper (multigrid, iters) | scattering, physical (multigrid, iters) |")
     print("|---|---|---|---|---|")
     for n in sizes:
-        vol = synthetic((2 * n, 2 * n, 2 * n))
-        cd = ConvectionDiffusionSolver(light_volume_shape=(n, n, n), device=device)
-        cd.update(vol, TF_A, vol.mean_spacing(), [DirectionalLight((1.0, -0.7, 0.3))],
-                  albedo=ALBEDO, anisotropy=ANISOTROPY)
+        vol, cd = cube_case(n, device, [DirectionalLight((1.0, -0.7, 0.3))], albedo=ALBEDO,
+                            anisotropy=ANISOTROPY)
         sigma, h = cd._sigma, cd.spacing
         out = wp.empty_like(sigma)
 
@@ -211,9 +219,7 @@ def light_size_table(sizes, device, repeats) -> None:
 
 
 def residual_table(n, device, repeats) -> None:
-    vol = synthetic((2 * n, 2 * n, 2 * n))
-    cd = ConvectionDiffusionSolver(light_volume_shape=(n, n, n), device=device)
-    cd.update(vol, TF_A, vol.mean_spacing(), make_lights(vol, 2))
+    vol, cd = cube_case(n, device)
     h = cd.spacing
     s = (4.0 * h.max()) ** 2
     b = wp.array(cd.composed, dtype=wp.vec3, device=device)
@@ -271,9 +277,7 @@ def residual_table(n, device, repeats) -> None:
 def iterated_table(n, device) -> None:
     from vtkillum.core.convection_diffusion.convection import sweep_plan
 
-    vol = synthetic((2 * n, 2 * n, 2 * n))
-    cd = ConvectionDiffusionSolver(light_volume_shape=(n, n, n), device=device)
-    cd.update(vol, TF_A, vol.mean_spacing(), [DirectionalLight((1.0, -0.7, 0.3))])
+    vol, cd = cube_case(n, device, [DirectionalLight((1.0, -0.7, 0.3))])
     sigma, h = cd._sigma, cd.spacing
     print(f"\n### 4. Convection of one light, light volume {n}³: one ordered sweep vs iterating "
           "to |ΔT| < 1e-6 (upwind: the paper's time steps, eq. 16, CFL 1/2; characteristics: "
@@ -385,10 +389,7 @@ def vcycle_table(sizes, device, repeats) -> None:
           "bandwidth limit ms | ratio to the limit |")
     print("|---|---|---|---|---|---|---|")
     for n in sizes:
-        vol = synthetic((2 * n, 2 * n, 2 * n))
-        cd = ConvectionDiffusionSolver(light_volume_shape=(n, n, n), device=device)
-        cd.update(vol, TF_A, vol.mean_spacing(), make_lights(vol, 2), albedo=ALBEDO,
-                  anisotropy=ANISOTROPY)
+        vol, cd = cube_case(n, device, albedo=ALBEDO, anisotropy=ANISOTROPY)
         h = cd.spacing
         b = wp.array(cd.composed, dtype=wp.vec3, device=device)
         mg = Multigrid((n, n, n), h, [(4.0 * h.max()) ** 2] * 3, device)

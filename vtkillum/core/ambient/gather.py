@@ -259,8 +259,7 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
               float(step), int(bool(jitter)), int(seed), float(early_termination),
               float(specular), float(shininess), float(grad_eps), float(ambient_occlusion),
               occupied, wp.vec3(*block.astype(np.float32)),
-              wp.vec3(*(1.0 / block).astype(np.float32)), delay_samples(radius, step),
-              GATHER_MODES[mode]]
+              wp.vec3(*(1.0 / block).astype(np.float32)), delay_samples(radius, step)]
     width, height = int(camera.width), int(camera.height)
     # every pixel is written: no need to clear
     radiance = wp.empty((height, width), dtype=wp.vec3, device=device)
@@ -426,7 +425,6 @@ def gather_kernel(mode: str, texture: bool, registers: int = 0):
         block: wp.vec3,
         inv_block: wp.vec3,
         delay: int,
-        mode: int,
         row0: int,
         row_end: int,
         tiles_x: int,
@@ -442,9 +440,8 @@ def gather_kernel(mode: str, texture: bool, registers: int = 0):
         ``step`` and ``radius`` in world units, ``σ`` in 1/world units; ``occupied`` flags the
         blocks of size ``block`` (world units, ``inv_block`` its reciprocal) that may hold
         matter (:mod:`~vtkillum.core.empty_space`); ``delay`` is
-        :func:`delay_samples` (-1: sample ``σt`` at ``x_o``; ``"paper"`` only); ``mode`` is
-        :data:`GATHER_MODES`' value of the estimator (informative: the estimator is
-        compiled in, see :func:`gather_kernel`). Writes the gathered radiance
+        :func:`delay_samples` (-1: sample ``σt`` at ``x_o``; ``"paper"`` only); the
+        estimator is compiled in (:func:`gather_kernel`). Writes the gathered radiance
         ``J̃`` and ``alpha = 1 - T`` at ``[row, col]``. Generic: ``scalars``, ``sigma_tilde``,
         ``radiance_src``, ``optics`` and ``table`` are ``m.scalars``, the σ̃t array,
         ``cache.data``, ``m.sigma_table`` and the table slice array

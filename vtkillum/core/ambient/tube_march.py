@@ -271,10 +271,12 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
     grid.extent = wp.vec3(*extent.astype(np.float32))
     grid.inv_spacing = wp.vec3(*((np.asarray(shape) - 1) / np.maximum(extent, 1e-30))
                                .astype(np.float32))
-    inv_data = wp.vec3(*(1.0 / np.asarray(data_spacing, dtype=np.float64)).astype(np.float32))
     if step_field is not None:  # the field's own grid over the same box
         inv_data = wp.vec3(*((np.asarray(step_field.shape) - 1)
                              / np.maximum(extent, 1e-30)).astype(np.float32))
+    else:
+        inv_data = wp.vec3(*(1.0 / np.asarray(data_spacing, dtype=np.float64))
+                           .astype(np.float32))
     spacing = wp.vec3(*(extent / (np.asarray(shape) - 1)).astype(np.float32))
     bricks = [-(-n // b) for n, b in zip(shape, BRICK)]
     threads = lights.count * int(np.prod(bricks)) * int(np.prod(BRICK))
