@@ -171,3 +171,62 @@ def test_softness_widens_the_penumbra(device):
     assert hard.min() < 0.01 and hard.max() > 0.99
     assert width(hard) <= 2 < width(soft) < width(softer)
     assert soft.sum() == pytest.approx(hard.sum(), rel=0.05)  # blurred, not lost
+
+
+def oblique_scene():
+    """:func:`small_scene` seen from above and aside: the planes cut the cube in polygons
+    much smaller than its sheared shadow, so light culling has texels to skip."""
+    volume, scene = small_scene(opacity=0.3)
+    scene.camera = Camera((2.5, 1.8, -4.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), view_angle=35.0)
+    return volume, scene
+
+
+def test_plane_rects_hold_the_cross_sections():
+    """Every point of the box on a plane lies inside that plane's rectangle, ``margin`` texels
+    from its edge (unless the grid ends first); the rectangles skip a good part of the grid."""
+    from vtkillum.core.refraction.planes import camera_corners, plane_rects, sweep_geometry
+
+    volume, scene = oblique_scene()
+    camera = scene.resolved_camera(volume)
+    g = sweep_geometry(volume, camera, 40, 40, scene.lights[0].direction, 0.1)
+    R, cam, corners = camera_corners(volume, camera)
+    rects = plane_rects(corners, g, 3)
+    rng = np.random.default_rng(1)
+    pts = (rng.random((20000, 3)) * volume.extent - cam) @ R.T  # camera frame
+    j = np.round((pts[:, 2] - g.z0) / g.dz).astype(int)
+    keep = (j >= 0) & (j < g.planes) & (np.abs(pts[:, 2] - g.z0 - j * g.dz) < 0.05 * g.dz)
+    tex = (pts[keep, :2] - g.grid_origin - j[keep, None] * g.shift) / g.texel
+    r = rects[j[keep]]
+    n = np.array([g.nx, g.ny])
+    assert keep.sum() > 500
+    assert np.all((tex >= r[:, :2] + 3 - 1e-6) | (r[:, :2] == 0))
+    assert np.all((tex <= r[:, 2:] - 3 - 1 + 1e-6) | (r[:, 2:] == n))
+    area = (rects[:, 2] - rects[:, 0]) * (rects[:, 3] - rects[:, 1])
+    assert area.mean() < 0.8 * g.texels and np.all(rects[:, 2:] >= rects[:, :2])
+
+
+@pytest.mark.parametrize("eta, tol", [((1.0, 1.0), 1e-6), ((1.0, 1.4), 1e-6)])
+def test_light_culling_leaves_the_image(device, eta, tol):
+    """Propagating the light only over the planes' cross-sections with the box gives the
+    image of the whole sheared grid (straight light and gentle refraction), with fewer
+    texels."""
+    volume, scene = oblique_scene()
+    optics = RefractiveOptics([0.0, 1.0], list(eta))
+    whole = render_refraction(volume, scene, 40, 40, device, optics=optics, softness=0.2,
+                              cull_light=False)
+    culled = render_refraction(volume, scene, 40, 40, device, optics=optics, softness=0.2)
+    assert culled.info["light_texels"] < 0.8 * whole.info["light_texels"]
+    np.testing.assert_allclose(culled.radiance, whole.radiance, atol=tol * whole.radiance.max())
+
+
+def test_light_culling_changes_strong_caustics_less_than_the_blur_seed(device):
+    """Behind strong refraction the light field is chaotic: the light just outside the culled
+    rectangles reaches the inside through the blur and the Newton step. Culling then changes
+    the image, but far less than the blur's random rotations (another seed) do."""
+    volume, scene = oblique_scene()
+    optics = RefractiveOptics([0.0, 0.3, 1.0], [1.0, 1.6, 1.3])
+    kw = dict(optics=optics, softness=0.2)
+    whole = render_refraction(volume, scene, 40, 40, device, cull_light=False, **kw).radiance
+    culled = render_refraction(volume, scene, 40, 40, device, **kw).radiance
+    seed = render_refraction(volume, scene, 40, 40, device, cull_light=False, seed=1, **kw).radiance
+    assert np.abs(culled - whole).mean() < 0.25 * np.abs(seed - whole).mean()

@@ -84,26 +84,30 @@ class LightBuffers:
     ``v``: ray direction ``η dx/ds`` (unnormalised); ``g``: ``∇η`` at the texel;
     ``p``: the ray tube's cross-section ``dX/dX0`` (2x2, columns, in-plane): how a texel
     cell of plane 0 has been mapped onto this plane, for the intensity law.
+    ``rect[j]``: the texels ``(a0, b0, a1, b1)`` (ends exclusive) computed on plane ``j``
+    (:func:`~vtkillum.core.refraction.planes.plane_rects`); any other texel of the plane
+    reads as the unobstructed light.
     """
 
     l: wp.array2d(dtype=wp.vec3)
     v: wp.array2d(dtype=wp.vec3)
     g: wp.array2d(dtype=wp.vec3)
     p: wp.array2d(dtype=wp.vec4)
+    rect: wp.array(dtype=wp.vec4i)
     ring: int
 
 @wp.func
-def light_fetch(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, a: int, b: int,
-                outside: Any):
+def light_fetch(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, r: wp.vec4i, a: int,
+                b: int, outside: Any):
     """Texel ``(a, b)`` of ``layer``, or ``outside`` (what the unobstructed light carries)
-    beyond the grid."""
-    if a < 0 or b < 0 or a >= p.nx or b >= p.ny:
+    beyond the plane's computed rectangle ``r``."""
+    if a < r[0] or b < r[1] or a >= r[2] or b >= r[3]:
         return outside
     return buf[layer, b * p.nx + a]
 
 @wp.func
-def light_bilinear(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, x: float, y: float,
-                   outside: Any):
+def light_bilinear(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, r: wp.vec4i,
+                   x: float, y: float, outside: Any):
     """Bilinear lookup at continuous texel coordinates ``(x, y)`` (``outside`` beyond the grid)."""
     x0 = wp.floor(x)
     y0 = wp.floor(y)
@@ -111,15 +115,16 @@ def light_bilinear(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, x: fl
     b = int(y0)
     fx = x - x0
     fy = y - y0
-    bottom = wp.lerp(light_fetch(buf, layer, p, a, b, outside),
-                     light_fetch(buf, layer, p, a + 1, b, outside), fx)
-    top = wp.lerp(light_fetch(buf, layer, p, a, b + 1, outside),
-                  light_fetch(buf, layer, p, a + 1, b + 1, outside), fx)
+    bottom = wp.lerp(light_fetch(buf, layer, p, r, a, b, outside),
+                     light_fetch(buf, layer, p, r, a + 1, b, outside), fx)
+    top = wp.lerp(light_fetch(buf, layer, p, r, a, b + 1, outside),
+                  light_fetch(buf, layer, p, r, a + 1, b + 1, outside), fx)
     return wp.lerp(bottom, top, fy)
 
 @wp.func
-def light_filtered(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, x: float, y: float,
-                   outside: Any, radius: float, major: wp.vec2, stretch: float, phi: float):
+def light_filtered(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, r: wp.vec4i,
+                   x: float, y: float, outside: Any, radius: float, major: wp.vec2,
+                   stretch: float, phi: float):
     """Three-sample elliptical kernel (Patel et al. 2013) around texel coordinates ``(x, y)``.
 
     ``radius`` is the cone's radius on the plane (texels), ``major`` the unit direction in
@@ -128,7 +133,7 @@ def light_filtered(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, x: fl
     apart. ``radius = 0``: one bilinear lookup.
     """
     if radius <= 0.0:
-        return light_bilinear(buf, layer, p, x, y, outside)
+        return light_bilinear(buf, layer, p, r, x, y, outside)
     minor = wp.vec2(-major[1], major[0])
     rs = radius * 0.70710678
     c120 = -0.5
@@ -140,9 +145,9 @@ def light_filtered(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, x: fl
     s0 = major * (rs * stretch * u0[0]) + minor * (rs * u0[1])
     s1 = major * (rs * stretch * u1[0]) + minor * (rs * u1[1])
     s2 = major * (rs * stretch * u2[0]) + minor * (rs * u2[1])
-    c0 = light_bilinear(buf, layer, p, x + s0[0], y + s0[1], outside)
-    c1 = light_bilinear(buf, layer, p, x + s1[0], y + s1[1], outside)
-    c2 = light_bilinear(buf, layer, p, x + s2[0], y + s2[1], outside)
+    c0 = light_bilinear(buf, layer, p, r, x + s0[0], y + s0[1], outside)
+    c1 = light_bilinear(buf, layer, p, r, x + s1[0], y + s1[1], outside)
+    c2 = light_bilinear(buf, layer, p, r, x + s2[0], y + s2[1], outside)
     # Written so that three equal samples give exactly that value (no drift with η ≡ 1).
     return c0 + ((c1 - c0) + (c2 - c0)) * (1.0 / 3.0)
 
@@ -154,18 +159,19 @@ def chord_estimate(v: wp.vec3, g: wp.vec3, dz: float):
     return v + g * (0.5 * dz / wp.max(c[2], MIN_COS))
 
 @wp.func
-def neighbour_offset(lb: LightBuffers, rv: int, rg: int, p: SweepParams, a: int, b: int,
-                     v0: wp.vec3):
+def neighbour_offset(lb: LightBuffers, rv: int, rg: int, p: SweepParams, r: wp.vec4i, a: int,
+                     b: int, v0: wp.vec3):
     """In-plane displacement to the next plane of the ray leaving texel ``(a, b)`` (its
-    direction in layer ``rv`` of ``v``, ``∇η`` in layer ``rg`` of ``g``)."""
-    g = light_fetch(lb.g, rg, p, a, b, wp.vec3(0.0))
-    return plane_offset(chord_estimate(light_fetch(lb.v, rv, p, a, b, v0), g, p.dz), p.dz)
+    direction in layer ``rv`` of ``v``, ``∇η`` in layer ``rg`` of ``g``, the plane's
+    rectangle ``r``)."""
+    g = light_fetch(lb.g, rg, p, r, a, b, wp.vec3(0.0))
+    return plane_offset(chord_estimate(light_fetch(lb.v, rv, p, r, a, b, v0), g, p.dz), p.dz)
 
 @wp.func
-def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, t: int, lb: LightBuffers):
-    """Light texel ``t`` of plane ``j`` (Algorithm 1, lines 7–18)."""
-    b = t / p.nx
-    a = t - b * p.nx
+def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, a: int, b: int,
+                    lb: LightBuffers):
+    """Light texel ``(a, b)`` of plane ``j`` (Algorithm 1, lines 7–18)."""
+    t = b * p.nx + a
     wr = j % lb.ring
     wg = j % GP_LAYERS
     x = texel_position(p, float(a), float(b), j)
@@ -181,6 +187,7 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, t: int, lb: Lig
         return
     rd = (j - 1) % lb.ring
     rg = (j - 1) % GP_LAYERS
+    r = lb.rect[j - 1]
     inv_h = 1.0 / p.texel
     # Backward integration: find lp on plane j-1 with lp + off(lp) = x, off(y) the in-plane
     # displacement of the ray leaving y (its chord estimate). In deviations from the straight
@@ -193,11 +200,11 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, t: int, lb: Lig
     da = wp.vec2(0.0)
     db = wp.vec2(0.0)
     if m.eta_varies != 0:
-        oe = neighbour_offset(lb, rd, rg, p, a + 1, b, v0)
-        ow = neighbour_offset(lb, rd, rg, p, a - 1, b, v0)
-        on = neighbour_offset(lb, rd, rg, p, a, b + 1, v0)
-        os = neighbour_offset(lb, rd, rg, p, a, b - 1, v0)
-        delta = plane_offset(chord_estimate(lb.v[rd, t], lb.g[rg, t], p.dz), p.dz) - off0
+        oe = neighbour_offset(lb, rd, rg, p, r, a + 1, b, v0)
+        ow = neighbour_offset(lb, rd, rg, p, r, a - 1, b, v0)
+        on = neighbour_offset(lb, rd, rg, p, r, a, b + 1, v0)
+        os = neighbour_offset(lb, rd, rg, p, r, a, b - 1, v0)
+        delta = neighbour_offset(lb, rd, rg, p, r, a, b, v0) - off0
         da = (oe - ow) * (0.5 * inv_h)
         db = (on - os) * (0.5 * inv_h)
         det = (1.0 + da[0]) * (1.0 + db[1]) - da[1] * db[0]
@@ -222,11 +229,11 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, t: int, lb: Lig
     if p.softness > 0.0 or p.direction_blur > 0.0:
         state = wp.rand_init(p.seed + j * 7919, t)
         phi = 2.0 * wp.pi * wp.randf(state)
-    l_in = light_filtered(lb.l, rd, p, la, lb_, p.light_rgb, p.softness * ds * inv_h, major,
+    l_in = light_filtered(lb.l, rd, p, r, la, lb_, p.light_rgb, p.softness * ds * inv_h, major,
                           1.0 / cz, phi)
-    v_in = light_filtered(lb.v, rd, p, la, lb_, v0, p.direction_blur * ds * inv_h, major,
+    v_in = light_filtered(lb.v, rd, p, r, la, lb_, v0, p.direction_blur * ds * inv_h, major,
                           1.0 / cz, phi)
-    g_in = light_bilinear(lb.g, rg, p, la, lb_, zero)
+    g_in = light_bilinear(lb.g, rg, p, r, la, lb_, zero)
     v_half = v_in + g_in * (0.5 * ds)
     v_new = v_half + g_x * (0.5 * ds)
     # Intensity law (eqs. 11-13): a texel cell of plane j-1 maps onto (I + J) times itself on
@@ -238,7 +245,7 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, t: int, lb: Lig
     gain = float(1.0)
     p_new = unit
     if m.eta_varies != 0:
-        p_in = light_bilinear(lb.p, rg, p, la, lb_, unit)
+        p_in = light_bilinear(lb.p, rg, p, r, la, lb_, unit)
         p_new = wp.vec4((1.0 + da[0]) * p_in[0] + db[0] * p_in[1],
                         da[1] * p_in[0] + (1.0 + db[1]) * p_in[1],
                         (1.0 + da[0]) * p_in[2] + db[0] * p_in[3],
@@ -279,5 +286,6 @@ def light_at(m: RefractiveMedium, p: SweepParams, lb: LightBuffers, q: wp.vec3, 
     """Light colour and direction of plane ``j`` at camera-frame point ``q`` (bilinear)."""
     c = texel_coordinates(p, q, j)
     layer = j % lb.ring
-    return (light_bilinear(lb.l, layer, p, c[0], c[1], p.light_rgb),
-            light_bilinear(lb.v, layer, p, c[0], c[1], p.light_dir * m.eta_outside))
+    r = lb.rect[j]
+    return (light_bilinear(lb.l, layer, p, r, c[0], c[1], p.light_rgb),
+            light_bilinear(lb.v, layer, p, r, c[0], c[1], p.light_dir * m.eta_outside))

@@ -89,10 +89,59 @@ class SweepGeometry:
     texel: float
     nx: int
     ny: int
+    reach: int = 0  # texels a light texel reads around its straight predecessor (a bound)
 
     @property
     def texels(self) -> int:
         return self.nx * self.ny
+
+#: Corner pairs of the box's 12 edges (corner ``i`` at ``((i >> 2) & 1, (i >> 1) & 1, i & 1)``).
+BOX_EDGES = np.array([(a, b) for a in range(8) for b in range(a + 1, 8)
+                      if bin(a ^ b).count("1") == 1])
+
+
+def camera_corners(volume, camera):
+    """``(R, cam, corners)``: the rotation local → camera frame, the camera's local position
+    and the box's eight corners in the camera frame (``corners[i]`` as in :data:`BOX_EDGES`)."""
+    r, u, f = (volume.to_local_direction(a) for a in camera.basis())
+    R = np.stack([r, u, f])
+    cam = volume.to_local(camera.position)
+    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)],
+                       np.float64) * volume.extent
+    return R, cam, (corners - cam) @ R.T
+
+
+def plane_rects(corners: np.ndarray, geometry: SweepGeometry, margin: int) -> np.ndarray:
+    """Per plane, the texel rectangle ``(a0, b0, a1, b1)`` (ends exclusive) that holds the
+    box's cross-section with the plane, widened by ``margin`` texels and clipped to the grid.
+
+    Outside it the light of that plane is the unobstructed light (straight, not yet in the
+    box) or light that has left the box for good (a straight ray leaves a convex box once),
+    which no view ray inside the box reads; the light kernel computes only these texels,
+    the paper's slice polygon (about a third to a half of the sheared grid). ``margin``
+    covers what a texel inside reads around it: its neighbours, the bilinear and blur
+    footprints and the bending of one plane.
+    """
+    j = np.arange(geometry.planes)
+    z = geometry.z0 + j * geometry.dz
+    a, b = corners[BOX_EDGES[:, 0]], corners[BOX_EDGES[:, 1]]
+    dzab = b[:, 2] - a[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = (z[:, None] - a[None, :, 2]) / dzab[None, :]
+    hit = (t >= 0.0) & (t <= 1.0) & (dzab[None, :] != 0.0)
+    t = np.where(hit, t, 0.0)
+    pts = a[None, :, :2] + t[..., None] * (b - a)[None, :, :2]  # (planes, 12, 2)
+    tex = (pts - geometry.grid_origin - j[:, None, None] * geometry.shift) / geometry.texel
+    big = np.float64(1e30)
+    lo = np.where(hit[..., None], tex, big).min(1)
+    hi = np.where(hit[..., None], tex, -big).max(1)
+    n = np.array([geometry.nx, geometry.ny])
+    empty = ~hit.any(1)[:, None]
+    lo = np.where(empty, 0, np.clip(np.floor(np.where(empty, 0.0, lo)) - margin, 0, n))
+    hi = np.where(empty, 0, np.clip(np.ceil(np.where(empty, 0.0, hi)) + margin + 1, 0, n))
+    hi = np.maximum(hi, lo)
+    return np.concatenate([lo, hi], 1).astype(np.int32)
+
 
 def light_angle(light_direction, view_direction) -> float:
     """Angle in degrees between a light's travel direction and the camera's view direction."""
@@ -124,12 +173,7 @@ def sweep_geometry(volume, camera, width: int, height: int, light_direction, dz:
         Cap on the grid size (default ``4 W H``, at least ``256²``): the texels grow
         beyond it.
     """
-    r, u, f = (volume.to_local_direction(a) for a in camera.basis())
-    R = np.stack([r, u, f])  # local -> camera
-    cam = volume.to_local(camera.position)
-    corners = np.array([[i, j, k] for i in (0, 1) for j in (0, 1) for k in (0, 1)],
-                       np.float64) * volume.extent
-    c = (corners - cam) @ R.T
+    R, cam, c = camera_corners(volume, camera)
     zmin, zmax = float(c[:, 2].min()), float(c[:, 2].max())
     near = 0.0 if camera.parallel_projection else 1e-3 * dz
     z0 = max(zmin, near)
@@ -141,7 +185,7 @@ def sweep_geometry(volume, camera, width: int, height: int, light_direction, dz:
     if camera.parallel_projection:
         footprint = 2.0 * camera.parallel_scale / height
     else:
-        depth = max(float((volume.extent / 2 - cam) @ f), dz)
+        depth = max(float((volume.extent / 2 - cam) @ R[2]), dz)
         footprint = 2.0 * depth * np.tan(np.radians(camera.view_angle) / 2) / height
     h = float(light_buffer_scale) * footprint
     span = q.max(0) - q.min(0)
@@ -157,7 +201,10 @@ def sweep_geometry(volume, camera, width: int, height: int, light_direction, dz:
         h *= 1.1
         n, margin = dims(h)
     origin = q.min(0) - margin * h
-    return SweepGeometry(z0, float(dz), planes, w, shift, origin, h, int(n[0]), int(n[1]))
+    # Newton neighbours and bilinear footprint (2), the blur, one plane's bending (<= 45°).
+    reach = 2 + int(np.ceil((radius + dz) / h))
+    return SweepGeometry(z0, float(dz), planes, w, shift, origin, h, int(n[0]), int(n[1]),
+                         reach)
 
 def make_params(volume, camera, width: int, height: int, geometry: SweepGeometry, light_rgb,
                 opts: dict, background) -> SweepParams:

@@ -35,6 +35,9 @@ once registered in :data:`vtkillum.core.scene.METHOD_OPTIONS`):
 ``seed``                 seed of the blur's random rotations
 ``graph``                on CUDA, capture the launches once per plane count and replay
                          them (True)
+``cull_light``           propagate the light only over each plane's cross-section with the
+                         box (plus a margin), as the paper's slice polygons do (True; off,
+                         and with ``record_light``, the whole sheared grid)
 
 The light is one distant (directional) light within :data:`MAX_LIGHT_ANGLE` degrees
 of the view direction, as in the paper; anything else is refused with an error
@@ -58,8 +61,10 @@ from vtkillum.core.refraction.preintegration import make_refractive_medium
 from vtkillum.core.refraction.planes import (
     MAX_LIGHT_ANGLE,
     SweepParams,
+    camera_corners,
     light_angle,
     make_params,
+    plane_rects,
     sweep_geometry,
 )
 from vtkillum.core.refraction.sweep import SweepBuffers, sweep_kernels, sweep_launches
@@ -81,7 +86,7 @@ REFRACTION_OPTIONS = {
 }
 #: Keyword-only options (not in the scene file).
 EXTRA_OPTIONS = {"optics": None, "step_size": None, "composite_background": None,
-                 "graph": True, "record_light": None}
+                 "graph": True, "record_light": None, "cull_light": True}
 
 _RENDERERS: dict[str, "RefractionRenderer"] = {}
 
@@ -165,7 +170,7 @@ def parse_options(options: dict, volume, scene) -> dict:
     if diagonal / opts["step_size"] > 1 << 16:
         raise ValueError(f"refraction: a plane spacing of {opts['step_size']:g} needs "
                          f"{diagonal / opts['step_size']:.3g} planes; use a larger sample_distance")
-    for name in ("intensity_correction", "graph"):
+    for name in ("intensity_correction", "graph", "cull_light"):
         if not isinstance(opts[name], (bool, np.bool_)):
             raise ValueError(f"refraction.{name} must be true or false, got {opts[name]!r}")
     seed = opts["seed"]
@@ -242,15 +247,23 @@ class RefractionRenderer:
         geometry = sweep_geometry(volume, camera, width, height, light.direction,
                                   opts["step_size"], opts["light_buffer_scale"],
                                   max(opts["softness"], opts["direction_blur"]))
-        replaced = self.buffers.ensure(geometry.texels, width * height)
+        replaced = self.buffers.ensure(geometry.texels, width * height, geometry.planes)
         if replaced:
             self._graphs.clear()
         params = make_params(volume, camera, width, height, geometry, light.irradiance, opts,
                              scene.background)
         self._params.assign(wp.array([params], dtype=SweepParams, device="cpu"))
+        record = opts["record_light"]
+        if opts["cull_light"] and record is None:
+            rects = plane_rects(camera_corners(volume, camera)[2], geometry, 2 * geometry.reach)
+        else:
+            rects = np.tile(np.array([0, 0, geometry.nx, geometry.ny], np.int32),
+                            (geometry.planes, 1))
+        wp.copy(self.buffers.light.rect, wp.array(rects, dtype=wp.vec4i, device="cpu"),
+                count=geometry.planes)
+        light_dims = (rects[:, 2] - rects[:, 0]) * (rects[:, 3] - rects[:, 1])
         t_setup = time.perf_counter()
 
-        record = opts["record_light"]
         recorded = {}
         after = None
         if record is not None:
@@ -275,7 +288,8 @@ class RefractionRenderer:
                     wp.synchronize_device(self.device)
                     progress(j / (geometry.planes + 1))
 
-        launches = self._run(medium, environment, geometry.planes, width, height, opts, after)
+        launches = self._run(medium, environment, geometry.planes, width, height, opts,
+                             light_dims, after)
         wp.synchronize_device(self.device)
         t_sweep = time.perf_counter()
         radiance = self.buffers.view["radiance"].numpy()[: width * height]
@@ -291,6 +305,7 @@ class RefractionRenderer:
             "planes": geometry.planes,
             "plane_spacing": geometry.dz,
             "light_grid": (geometry.nx, geometry.ny),
+            "light_texels": int(light_dims.sum()),
             "light_texel": geometry.texel,
             "light_angle_deg": light_angle(light.direction, camera.forward),
             "eta_outside": float(medium.eta_outside),
@@ -313,12 +328,19 @@ class RefractionRenderer:
         return bool(opts["graph"]) and self.device.startswith("cuda") \
             and opts["record_light"] is None and self._graph_error is None
 
-    def _run(self, medium, environment, planes, width, height, opts, after) -> int:
+    def _run(self, medium, environment, planes, width, height, opts, light_dims,
+             after) -> int:
         args = (medium, self._params, self.buffers, environment, planes, width, height,
                 self.device)
         if not self._use_graph(opts):
-            return sweep_launches(*args, after_plane=after)
-        key = (planes, width, height, self.buffers.capacity, self._medium_key,
+            return sweep_launches(*args, light_dims, after_plane=after)
+        # A graph fixes its launch sizes: every light plane gets the largest rectangle,
+        # rounded up to a sixteenth of the grid so that a moving camera seldom recaptures.
+        step = -(-self.buffers.capacity // 16)
+        dim = min(self.buffers.capacity, -(-int(light_dims.max()) // step) * step)
+        light_dims = [dim] * planes
+        args = (*args, light_dims)
+        key = (planes, width, height, self.buffers.capacity, dim, self._medium_key,
                self._environment_key)
         entry = self._graphs.get(key)
         if entry is None:

@@ -65,6 +65,7 @@ class SweepBuffers:
     def __init__(self, device: str) -> None:
         self.device = device
         self.capacity = 0
+        self.plane_capacity = 0
         self.pixels = 0
         self.light = None
         self.view = None
@@ -74,11 +75,13 @@ class SweepBuffers:
         """Segments per view launch (the ring holds ``chunk + 1`` light planes)."""
         return self.light.ring - 1
 
-    def ensure(self, texels: int, pixels: int) -> bool:
-        """Allocate for ``texels`` and ``pixels``; returns True when arrays were replaced."""
+    def ensure(self, texels: int, pixels: int, planes: int = 1) -> bool:
+        """Allocate for ``texels``, ``pixels`` and ``planes``; returns True when arrays were
+        replaced."""
         changed = False
-        if texels > self.capacity:
-            self.capacity = int(texels * 1.25) + 64
+        if texels > self.capacity or planes > self.plane_capacity:
+            self.capacity = max(self.capacity, int(texels * 1.25) + 64)
+            self.plane_capacity = max(self.plane_capacity, int(planes * 1.25) + 8)
             # l and v: 24 bytes a texel and layer.
             ring = max(2, min(VIEW_CHUNK + 1, RING_BYTES // (24 * self.capacity)))
             d = self.device
@@ -89,6 +92,7 @@ class SweepBuffers:
                                                    device=d))
             self.light.g = wp.zeros((GP_LAYERS, self.capacity), dtype=wp.vec3, device=d)
             self.light.p = wp.zeros((GP_LAYERS, self.capacity), dtype=wp.vec4, device=d)
+            self.light.rect = wp.zeros(self.plane_capacity, dtype=wp.vec4i, device=d)
             changed = True
         if pixels != self.pixels:
             self.pixels = pixels
@@ -117,12 +121,14 @@ class SweepBuffers:
 
 def sweep_launches(medium: RefractiveMedium, params, buffers: SweepBuffers,
                    environment: Environment, planes: int, width: int, height: int,
-                   device: str, after_plane=None) -> int:
+                   device: str, light_dims, after_plane=None) -> int:
     """Issue the whole frame: view-ray set-up, the light planes with the view chunks
     between them, the finish.
 
-    ``after_plane(j)`` (optional, forces a synchronisation) is called after light plane
-    ``j`` was written. Returns the number of launches.
+    ``light_dims[j]`` is the number of threads of light plane ``j`` (at least its
+    rectangle's texels, ``buffers.light.rect[j]``). ``after_plane(j)`` (optional, forces a
+    synchronisation) is called after light plane ``j`` was written. Returns the number of
+    launches.
     """
     pixels = width * height
     view = buffers.view_arrays()
@@ -133,8 +139,8 @@ def sweep_launches(medium: RefractiveMedium, params, buffers: SweepBuffers,
     launches = 2
     k0 = 0  # first view segment not yet crossed
     for j in range(planes):
-        wp.launch(light_k, dim=buffers.capacity, inputs=[medium, params, j, buffers.light],
-                  device=device, block_dim=block)
+        wp.launch(light_k, dim=max(int(light_dims[j]), 1),
+                  inputs=[medium, params, j, buffers.light], device=device, block_dim=block)
         launches += 1
         if after_plane is not None:
             after_plane(j)
@@ -203,14 +209,17 @@ def init_view_kernel(m: RefractiveMedium, params: wp.array(dtype=SweepParams),
 
 def light_kernel_body(m: RefractiveMedium, params: wp.array(dtype=SweepParams), j: int,
                       lb: LightBuffers):
-    """Light plane ``j``: ``wp.tid()`` is the light texel ``b * nx + a`` (texels past
-    ``nx * ny`` idle). Writes layer ``j % ring`` of ``l``, ``v`` and ``j % 2`` of ``g``,
-    ``p``; reads the previous plane's. Camera-frame positions, world units; light colours
-    in irradiance units."""
+    """Light plane ``j``: ``wp.tid()`` is a texel of the plane's rectangle ``lb.rect[j]``,
+    row by row (threads past it idle). Writes layer ``j % ring`` of ``l``, ``v`` and
+    ``j % 2`` of ``g``, ``p``; reads the previous plane's. Camera-frame positions, world
+    units; light colours in irradiance units."""
     t = wp.tid()
     p = params[0]
-    if j < p.planes and t < p.nx * p.ny:
-        propagate_light(m, p, j, t, lb)
+    r = lb.rect[j]
+    w = r[2] - r[0]
+    if j < p.planes and t < w * (r[3] - r[1]):
+        b = t / w
+        propagate_light(m, p, j, r[0] + t - b * w, r[1] + b, lb)
 
 
 def view_kernel_body(m: RefractiveMedium, params: wp.array(dtype=SweepParams), k0: int,
