@@ -12,15 +12,17 @@ the caches of :class:`~vtkillum.core.ambient.cache.AmbientScatteringCache`:
 
 and prints them next to the paper's GTX 560 numbers of the same data set size
 and radius, with the speed-up. Needs only numpy, warp and vtkillum (no vtk).
-``--hardware-filtering`` prints two rows per data set: the exact software
-trilinear sampling ("sw") and CUDA texture filtering of σ̃t, the radiance cache and
-the scalars ("hw", :mod:`vtkillum.core.ambient.textures`; texture copies included
-in the timings).
+``--sampling`` picks how the gather samples, a row each: ``default`` (the cache's
+default, "data textures": on CUDA the scalars, σ̃t and the transfer function through
+textures, the radiance cache and the table from arrays), ``exact`` (software trilinear
+everywhere, "sw trilinear"; the CPU's path) and ``hw`` (``hardware_filtering``: σ̃t, the
+radiance cache and the scalars as textures too, "hw texture",
+:mod:`vtkillum.core.ambient.textures`; texture copies included in the timings).
 
 Examples
 --------
 python benchmarks/bench_ambient.py --device cuda
-python benchmarks/bench_ambient.py --device cuda --hardware-filtering
+python benchmarks/bench_ambient.py --device cuda --sampling default exact hw
 python benchmarks/bench_ambient.py --device cpu --sizes 0.25 --image 128 --frames 2
 """
 
@@ -102,6 +104,10 @@ def lights_for(name: str, volume: Volume, shift: float = 0.0):
     return [DirectionalLight((1.0, -1.0 + shift, -1.0), (1.0, 1.0, 1.0))]
 
 
+#: Row labels of the gather's sampling modes (``--sampling``).
+SAMPLING_LABELS = {"default": "data textures", "exact": "sw trilinear", "hw": "hw texture"}
+
+
 def median_ms(fn, repeats: int) -> float:
     times = []
     for _ in range(repeats):
@@ -112,7 +118,7 @@ def median_ms(fn, repeats: int) -> float:
 
 
 def bench(name: str, scale: float, image: int, frames: int, repeats: int, device: str,
-          step_voxels: float, stop: float, hardware: bool = False, mode: str = "centred",
+          step_voxels: float, stop: float, sampling: str = "default", mode: str = "centred",
           tube_sampling: str = "field", step_samples: int = STEP_SAMPLES):
     spec = DATASETS[name]
     dims = tuple(max(8, int(round(n * scale))) for n in spec["dims"])
@@ -120,15 +126,19 @@ def bench(name: str, scale: float, image: int, frames: int, repeats: int, device
     volume = stand_in(name, dims)
     tf_a, tf_b = transfer_functions()
     table = load_table(0.9, progress=False)
+    hardware = sampling == "hw"
     cache = AmbientScatteringCache(device, hardware_filtering=hardware,
-                                   tube_sampling=tube_sampling, step_samples=step_samples)
+                                   tube_sampling=tube_sampling, step_samples=step_samples,
+                                   data_textures=False if sampling == "exact" else None)
     u = 1.0
     state = {"tf": tf_a, "g": 0.6, "shift": 0.0}
 
+    # The two light set-ups are built once: an edit of g does not make new light objects.
+    lights = {shift: lights_for(name, volume, shift) for shift in (0.0, 0.1)}
+
     def update():
-        return cache.update(volume, state["tf"], u, 0.9, state["g"],
-                            lights_for(name, volume, state["shift"]), radius, "voxels", 0.5,
-                            table)
+        return cache.update(volume, state["tf"], u, 0.9, state["g"], lights[state["shift"]],
+                            radius, "voxels", 0.5, table)
 
     s = update()  # first build, compiles the kernels
     cam0 = Camera.looking_at_bounds(volume.bounds, direction=(-0.4, -0.3, -1.0))
@@ -202,8 +212,13 @@ def main(argv=None) -> None:
                     help="opacity at which rays stop (paper: 0.98)")
     ap.add_argument("--gather", default="centred", choices=["centred", "paper"],
                     help="gather estimator (default centred; paper: Algorithm 1 as published)")
+    ap.add_argument("--sampling", nargs="+", default=["default"],
+                    choices=list(SAMPLING_LABELS),
+                    help="how the gather samples (a row each): default (the cache's: on CUDA "
+                         "the data and transfer function through textures), exact (software "
+                         "trilinear everywhere), hw (hardware_filtering: every grid a texture)")
     ap.add_argument("--hardware-filtering", action="store_true",
-                    help="also time CUDA texture filtering (a second row per data set, 'hw')")
+                    help="also time CUDA texture filtering (adds --sampling hw)")
     ap.add_argument("--tube-sampling", nargs="+", default=["field"], choices=list(TUBE_SAMPLING),
                     help="how the tube march measures a step's extinction (a row each; "
                          "default field, the cache's default)")
@@ -219,16 +234,16 @@ def main(argv=None) -> None:
           f"step {args.step} voxel, "
           f"early termination {args.early_termination}, volume scale {args.sizes}; "
           "paper: GTX 560")
-    modes = [False, True] if args.hardware_filtering else [False]
+    modes = list(dict.fromkeys(args.sampling + (["hw"] if args.hardware_filtering else [])))
     samplings = [(t, k) for t in args.tube_sampling
                  for k in (args.step_samples if t == "field" else [None])]
     print("| data set | sampling | size | r [vox] | TF [ms] (σt+SAT / σ̃t and σ̂ / radiance) | g [ms] | light [ms] "
           "| fps | paper TF / g / light [ms], fps | speed-up TF / g / light / fps |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for ds, hardware, (tube, k) in ((ds, hw, ts) for ds in args.datasets for hw in modes
+    for ds, sampling, (tube, k) in ((ds, sm, ts) for ds in args.datasets for sm in modes
                                     for ts in samplings):
         r = bench(ds, args.sizes, args.image, args.frames, args.repeats, device, args.step,
-                  args.early_termination, hardware, args.gather, tube, k or STEP_SAMPLES)
+                  args.early_termination, sampling, args.gather, tube, k or STEP_SAMPLES)
         p_tf, p_g, p_l, p_fps = DATASETS[ds]["paper"]
         size = "×".join(str(n) for n in r["dims"])
         speed = (p_tf / r["tf"], p_g / r["g"], p_l / r["light"], r["fps"] / p_fps)
@@ -236,7 +251,7 @@ def main(argv=None) -> None:
         ratios = (f"{speed[0]:.1f} / {speed[1]:.1f} / {speed[2]:.1f} / {speed[3]:.1f}{flag}"
                   if args.sizes == 1.0 and args.image == 512 else "— (not the paper's sizes)")
         a, b, c = r["split"]
-        mode = ("hw texture" if hardware else "sw trilinear") + ", tube " + (
+        mode = SAMPLING_LABELS[sampling if device != "cpu" else "exact"] + ", tube " + (
             f"field ×{k}" if tube == "field" else tube)
         print(f"| {ds} | {mode} | {size} | {r['radius']:.1f} | {r['tf']:.1f} ({a:.1f} / {b:.1f} / {c:.1f}) "
               f"| {r['g']:.2f} | "

@@ -62,7 +62,7 @@ def test_hardware_filtering_matches_software(device):
     if device == "cpu":
         pytest.skip("hardware texture filtering needs a CUDA device")
     vol, tf, scene = blobby()
-    soft = AmbientScatteringCache(device)
+    soft = AmbientScatteringCache(device, data_textures=False)
     hard = AmbientScatteringCache(device, hardware_filtering=True)
     assert hard.hardware_filtering
     a = soft.update(vol, tf, 1.0, 0.9, 0.4, scene.lights, 2.0)
@@ -94,11 +94,54 @@ def test_hardware_filtering_matches_software(device):
         ra = render(vol, scene, "ambient-scattering", 40, 32, device=device, cache=soft, **opts)
         rb = render(vol, scene, "ambient-scattering", 40, 32, device=device, cache=hard, **opts)
         assert rb.info["hardware_filtering"] and not ra.info["hardware_filtering"]
+        assert rb.info["data_textures"] and not ra.info["data_textures"]
         scale = ra.radiance.max()
         assert scale > 0
         diff = np.abs(ra.radiance - rb.radiance) / scale
         assert diff.mean() < MEAN_TOL and diff.max() < MAX_TOL
         assert np.abs(ra.alpha - rb.alpha).mean() < MEAN_TOL
+
+
+def test_data_textures_are_the_cuda_default_and_match_software(device):
+    """On CUDA the gather reads the scalars, σ̃t and the transfer function through textures by
+    default, the radiance cache and the table from their arrays: images within the texture
+    tolerance of the exact path, and a g or light edit copies nothing into a texture."""
+    cuda = device != "cpu"
+    assert METHOD_OPTIONS["ambient_scattering"]["data_textures"] is True
+    assert AmbientScatteringCache(device).data_textures is cuda
+    assert AmbientScatteringCache(device, data_textures=False).data_textures is False
+    with pytest.raises(ValueError, match="data_textures"):
+        AmbientScatteringCache(device, data_textures="yes")
+    vol, tf, scene = blobby()
+    with pytest.raises(ValueError, match="ambient_scattering.data_textures must be true or false"):
+        parse_options({"data_textures": 1}, vol, scene)
+    if not cuda:
+        res = render(vol, scene, "ambient-scattering", 12, 10, device="cpu", jitter=False)
+        assert res.info["data_textures"] is False
+        return
+    fast = AmbientScatteringCache(device)
+    exact = AmbientScatteringCache(device, data_textures=False)
+    st = fast.update(vol, tf, 1.0, 0.9, 0.4, scene.lights, 2.0)
+    assert st.textures is not None and st.textures.radiance is None
+    scalars = st.textures.scalars
+    st = fast.update(vol, tf, 1.0, 0.9, 0.5, scene.lights, 2.0)  # a g edit
+    assert st.recomputed == ["radiance"] and st.textures.scalars is scalars
+    assert st.radiance.texture is None  # the cache stays an array
+    for opts in ({"radius": 2.0}, {"radius": 2.0, "step_size": 0.37}):
+        a = render(vol, scene, "ambient-scattering", 40, 32, device=device, jitter=False,
+                   cache=exact, **opts)
+        b = render(vol, scene, "ambient-scattering", 40, 32, device=device, jitter=False,
+                   cache=fast, **opts)
+        assert b.info["data_textures"] and not b.info["hardware_filtering"]
+        assert not a.info["data_textures"]
+        scale = a.radiance.max()
+        diff = np.abs(a.radiance - b.radiance) / scale
+        assert 0 < diff.max() < MAX_TOL and diff.mean() < MEAN_TOL
+        assert np.abs(a.alpha - b.alpha).mean() < MEAN_TOL
+    # the render option turns them off
+    off = render(vol, scene, "ambient-scattering", 40, 32, device=device, jitter=False,
+                 radius=2.0, data_textures=False)
+    assert not off.info["data_textures"]
 
 
 def test_step_field_texture_is_the_cuda_default_and_matches_software(device):

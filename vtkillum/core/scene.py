@@ -53,6 +53,7 @@ METHOD_OPTIONS: dict[str, dict] = {
         "ambient_occlusion": False,    # add the SAT-based ambient-occlusion term
         "ambient_occlusion_strength": 0.25,  # its ambient fluence / sum of light irradiances
         "hardware_filtering": False,   # CUDA texture filtering of the grids (faster, ~1e-3 off)
+        "data_textures": True,         # CUDA: the gather's data and TF through textures (~1e-3)
         "gather": "centred",           # "centred" or the paper's Algorithm 1 ("paper")
     },
     "photon": {  # photon mapping with Historygrams (Jönsson et al. 2012), core/photon/render.py

@@ -105,7 +105,8 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
 
     def compute(self, volume, params):
         if self._ambient is None or self._ambient.device != params.device:
-            self._ambient = AmbientScatteringCache(params.device)
+            # the filter outputs grids; no gather here, so no gather textures
+            self._ambient = AmbientScatteringCache(params.device, data_textures=False)
         lights = list(params.lights) if self._compute_radiance else []
         if self._compute_radiance and not lights:
             raise ValueError("AmbientExtinctionFilter has no lights for the radiance cache; add "

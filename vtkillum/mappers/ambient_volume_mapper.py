@@ -622,7 +622,7 @@ class AmbientScatteringInputs(VTKPythonAlgorithmBase):
         VTKPythonAlgorithmBase.__init__(self, nInputPorts=1, inputType="vtkImageData",
                                         nOutputPorts=1, outputType="vtkImageData")
         if cache is None:
-            cache = AmbientScatteringCache(device)
+            cache = AmbientScatteringCache(device, data_textures=False)  # OpenGL gathers
         elif not isinstance(cache, AmbientScatteringCache):
             raise TypeError("cache must be an AmbientScatteringCache")
         self.cache = cache

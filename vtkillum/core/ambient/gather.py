@@ -63,15 +63,19 @@ Speed without changing the result
   of the last :data:`DELAY` samples instead of a second trilinear look-up (samples leapt
   over as empty, or before the box, count as 0, as the look-up would give).
 
-Hardware filtering (optional, CUDA)
------------------------------------
+Hardware filtering (CUDA)
+-------------------------
 With ``textures`` (:class:`~vtkillum.core.ambient.textures.AmbientTextures`) the data
 scalars, ``σ̃t``, the (half-precision) radiance cache, the table slice (``M`` or ``L̃o``) and
 the transfer function's colour/``σt`` tables (one RGBA 1D texture) are sampled by the GPU's texture units (one fetch per sample instead of eight, or four, loads;
 see :mod:`~vtkillum.core.ambient.textures` for the accuracy: within 2e-3 of the maximum on
-average). The gradient of the optional specular term is
-still taken from the scalar array. Without ``textures`` (and always on the CPU) every
-sample is the exact software trilinear interpolation.
+average). When ``textures.radiance`` is None (the cache's default on CUDA, ``data_textures``)
+only the scalars, ``σ̃t`` and the transfer function come from textures -- the loads of the
+primary and the short shadow rays -- while the radiance cache and the table slice are read
+from their arrays as computed, so that a ``g`` or light edit copies nothing into a texture.
+The gradient of the optional specular term is still taken from the scalar array. Without
+``textures`` (and always on the CPU) every sample is the exact software trilinear
+interpolation.
 
 Optional terms, as in the paper's comparisons (Figs. 6d, 6e)
 ------------------------------------------------------------
@@ -137,7 +141,8 @@ GATHER_MODES = {"centred": 0, "paper": 1}
 #: stand-ins): blocks of 128 instead of 256 threads 7.7 → 7.2 ms / 2.3 → 2.0 ms (software),
 #: a cap of 96 registers 3.6 → 3.0 / 1.3 → 1.2 ms (textures); capping the software kernel
 #: at 64-128 registers was slower or no faster (it is bound by its loads, 95 % L1 hits).
-GATHER_REGISTERS = {False: 0, True: 96}
+#: Keys: the sources of :func:`gather_kernel`.
+GATHER_REGISTERS = {"arrays": 0, "textures": 96, "data_textures": 0}
 GATHER_BLOCK = 128
 
 
@@ -241,19 +246,25 @@ def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Ligh
     if not isinstance(table, wp.array):
         table = wp.array(np.asarray(table, dtype=np.float32), dtype=wp.float32, device=device)
     table_size = wp.vec2i(*table.shape)
-    registers = 0 if device == "cpu" else GATHER_REGISTERS[textures is not None]
-    kernel = gather_kernel(mode, textures is not None, registers)
     if textures is None:
+        kind = "arrays"
         sources = [medium.scalars, sigma_tilde, cache.data, medium.sigma_table]
     else:
         if not wp.get_device(device).is_cuda:
             raise ValueError("gather: hardware-filtered textures need a CUDA device; on the CPU "
                              "pass textures=None (the exact software path)")
-        given = textures.scattered if mode == "centred" else textures.table
-        table = given if given is not None else texture_from(table)
         optics = textures.optics if textures.optics is not None else optics_texture(medium)
-        # textures.scalars holds σ̃t too (sigma_tilde=0 selects that overload)
-        sources = [textures.scalars, 0, textures.radiance, optics]
+        if textures.radiance is None:  # the data and the transfer function only
+            kind = "data_textures"
+            sources = [textures.scalars, 0, cache.data, optics]
+        else:
+            kind = "textures"
+            given = textures.scattered if mode == "centred" else textures.table
+            table = given if given is not None else texture_from(table)
+            # textures.scalars holds σ̃t too (sigma_tilde=0 selects that overload)
+            sources = [textures.scalars, 0, textures.radiance, optics]
+    registers = 0 if device == "cpu" else GATHER_REGISTERS[kind]
+    kernel = gather_kernel(mode, kind, registers)
     inputs = [medium, *sources, cache, lights, camera, table, table_size, float(sigma_max),
               float(radius),
               float(step), int(bool(jitter)), int(seed), float(early_termination),
@@ -383,12 +394,14 @@ def block_exit(o: wp.vec3, d: wp.vec3, lo: wp.vec3, hi: wp.vec3):
 
 # --- kernel ---------------------------------------------------------------------------------------
 @functools.cache
-def gather_kernel(mode: str, texture: bool, registers: int = 0):
+def gather_kernel(mode: str, sources: str, registers: int = 0):
     """The gather kernel of estimator ``mode``, made on first use.
 
     The estimator is compiled in (``wp.static``: the centred kernel has no branches for the
-    ``x_o`` attenuation and delay line of ``"paper"``, and its registers show it). ``texture``: the overload sampling textures
-    (hardware filtering), else the exact software one. ``registers`` caps the registers per
+    ``x_o`` attenuation and delay line of ``"paper"``, and its registers show it).
+    ``sources``: ``"arrays"``, the exact software overload; ``"textures"``, everything
+    through textures (hardware filtering); ``"data_textures"``, the scalars, ``σ̃t`` and the
+    transfer function through textures, the radiance cache and the table from arrays. ``registers`` caps the registers per
     thread on CUDA (0: none): uncapped, the kernel took 147 registers, one block of 256
     threads per multiprocessor (12.5 % occupancy) and stalled on its chains of dependent
     loads (H100, Nsight Compute), but it is bound by the number of its loads rather than by
@@ -561,10 +574,11 @@ def gather_kernel(mode: str, texture: bool, registers: int = 0):
         alpha[row, c] = 1.0 - trans
         samples[row, c] = count
 
-    types = ({"scalars": wp.Texture3D, "sigma_tilde": int, "radiance_src": wp.Texture3D,
-              "optics": wp.Texture1D, "table": wp.Texture2D} if texture else
-             {"scalars": wp.array3d(dtype=wp.float32),
+    arrays = {"scalars": wp.array3d(dtype=wp.float32),
               "sigma_tilde": wp.array3d(dtype=wp.float32),
               "radiance_src": wp.array4d(dtype=wp.vec3), "optics": wp.array(dtype=wp.float32),
-              "table": wp.array2d(dtype=wp.float32)})
+              "table": wp.array2d(dtype=wp.float32)}
+    data = {"scalars": wp.Texture3D, "sigma_tilde": int, "optics": wp.Texture1D}
+    types = {"arrays": arrays, "data_textures": {**arrays, **data},
+             "textures": {**data, "radiance_src": wp.Texture3D, "table": wp.Texture2D}}[sources]
     return wp.overload(ambient_gather_kernel, types)

@@ -24,16 +24,21 @@ Options (keyword arguments; the ambient ones default to the scene's
                          transmittance from ``x' + r ω``; its energy grows like
                          ``1 + r σt`` and it bands on shells thinner than ``r``); see
                          :mod:`~vtkillum.core.ambient.gather`
-``hardware_filtering``   sample σ̃t, the radiance cache and the scalars through CUDA
-                         textures (hardware trilinear filtering: faster, on average
-                         within 2e-3 of the maximum of the exact path; False). Ignored on the
-                         CPU, which always runs the exact software path
+``data_textures``        on CUDA, the gather reads the scalars, σ̃t and the transfer
+                         function through textures (hardware trilinear filtering of the
+                         loads of its primary and shadow rays: about twice the frame rate
+                         on large data, images on average within 2e-3 of the maximum of the
+                         exact path; True). False: the exact software path, as on the CPU
+``hardware_filtering``   also sample the radiance cache, the table and σ̃t of the tube
+                         march through CUDA textures (False; faster gathers, slower ``g``
+                         and light edits: the cache is copied into a texture). Both are
+                         ignored on the CPU, which always runs the exact software path
 ``step_size``            ray-marching step, world units (default: the scene's)
 ``jitter``, ``seed``     per-pixel sample offset and its seed (True, 0)
 ``early_termination``    opacity at which rays stop (0.999; the paper used 0.98)
 ``cache``                an :class:`AmbientScatteringCache` to use (its own
-                         ``hardware_filtering`` applies); by default one cache per
-                         device and filtering mode is kept between calls
+                         ``hardware_filtering`` and ``data_textures`` apply); by default one
+                         cache per device and filtering mode is kept between calls
 ``table``                a :class:`~vtkillum.core.ambient.table.PreintegrationTable`;
                          by default the one for the scene's albedo (generated on
                          demand if it is not shipped)
@@ -61,7 +66,7 @@ from vtkillum.core.warp_common import make_camera
 
 AMBIENT_KEYS = ("radius", "radius_units", "radiance_cache_scale", "specular",
                 "ambient_occlusion", "ambient_occlusion_strength", "hardware_filtering",
-                "gather")
+                "data_textures", "gather")
 RAY_OPTIONS = {**MARCH_OPTIONS, "cache": None, "table": None}
 
 _DEFAULT_CACHES: dict[tuple, AmbientScatteringCache] = {}
@@ -93,7 +98,8 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
     t_start = time.perf_counter()
     device = resolve_device(device)
     opts = parse_options(options, volume, scene)
-    cache = opts["cache"] or default_cache(device, opts["hardware_filtering"])
+    cache = opts["cache"] or default_cache(device, opts["hardware_filtering"],
+                                           opts["data_textures"])
     if cache.device != device:
         raise ValueError(f"the ambient cache lives on {cache.device}, the render asks for "
                          f"{device}; pass a cache made for {device}")
@@ -124,7 +130,8 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
         "radiance_cache_shape": state.radiance.shape,
         "gather": opts["gather"],
         "recomputed": list(state.recomputed),
-        "hardware_filtering": state.textures is not None,
+        "hardware_filtering": state.textures is not None and state.textures.radiance is not None,
+        "data_textures": state.textures is not None,
         "timings_ms": {"sat": state.timings["sat_ms"],
                        "extinction": state.timings["extinction_ms"],
                        "radiance": state.timings["radiance_ms"],
@@ -138,12 +145,14 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
     return RenderResult(radiance, alpha, info)
 
 
-def default_cache(device: str, hardware_filtering: bool = False) -> AmbientScatteringCache:
+def default_cache(device: str, hardware_filtering: bool = False,
+                  data_textures: bool = True) -> AmbientScatteringCache:
     """The cache kept between calls on ``device`` with that filtering mode (holds the last
     volume's arrays)."""
-    key = (device, bool(hardware_filtering))
+    key = (device, bool(hardware_filtering), bool(data_textures))
     if key not in _DEFAULT_CACHES:
-        _DEFAULT_CACHES[key] = AmbientScatteringCache(device, bool(hardware_filtering))
+        _DEFAULT_CACHES[key] = AmbientScatteringCache(device, bool(hardware_filtering),
+                                                      data_textures=bool(data_textures))
     return _DEFAULT_CACHES[key]
 
 
@@ -166,7 +175,8 @@ def parse_options(options: dict, volume, scene) -> dict:
     for key, default in (("radius", 4.0), ("radius_units", "voxels"),
                          ("radiance_cache_scale", 0.5), ("specular", 0.0),
                          ("ambient_occlusion", False), ("ambient_occlusion_strength", 0.25),
-                         ("hardware_filtering", False), ("gather", "centred")):
+                         ("hardware_filtering", False), ("data_textures", True),
+                         ("gather", "centred")):
         opts.setdefault(key, default)
     opts.update(ray_options(opts, volume, scene))
     spec = opts["specular"]
@@ -181,10 +191,11 @@ def parse_options(options: dict, volume, scene) -> dict:
         raise ValueError("ambient_scattering.ambient_occlusion_strength must be a number >= 0, "
                          f"got {strength!r}")
     opts["ambient_occlusion"] = float(strength) if ao else 0.0
-    if not isinstance(opts["hardware_filtering"], (bool, np.bool_)):
-        raise ValueError("ambient_scattering.hardware_filtering must be true or false, got "
-                         f"{opts['hardware_filtering']!r}")
-    opts["hardware_filtering"] = bool(opts["hardware_filtering"])
+    for name in ("hardware_filtering", "data_textures"):
+        if not isinstance(opts[name], (bool, np.bool_)):
+            raise ValueError(f"ambient_scattering.{name} must be true or false, got "
+                             f"{opts[name]!r}")
+        opts[name] = bool(opts[name])
     if opts["gather"] not in GATHER_MODES:
         raise ValueError(f"ambient_scattering.gather must be one of {sorted(GATHER_MODES)}, "
                          f"got {opts['gather']!r}")
