@@ -230,3 +230,26 @@ def test_light_culling_changes_strong_caustics_less_than_the_blur_seed(device):
     culled = render_refraction(volume, scene, 40, 40, device, **kw).radiance
     seed = render_refraction(volume, scene, 40, 40, device, cull_light=False, seed=1, **kw).radiance
     assert np.abs(culled - whole).mean() < 0.25 * np.abs(seed - whole).mean()
+
+
+def test_padded_plane_count_renders_the_same(device, monkeypatch):
+    """A graph runs a whole number of plane buckets (the planes past the frame's return at
+    once), so that a moving camera replays it: the padded sweep gives the same image. On
+    the CPU the capture fails and the padded launches run directly, the path tested here."""
+    from vtkillum.core.refraction import render as module
+    from vtkillum.core.refraction.render import RefractionRenderer, graph_planes
+
+    assert graph_planes(1) == module.PLANE_BUCKET and graph_planes(module.PLANE_BUCKET) == 32
+    assert graph_planes(module.PLANE_BUCKET + 1) == 2 * module.PLANE_BUCKET
+    volume, scene = oblique_scene()
+    optics = RefractiveOptics([0.0, 1.0], [1.0, 1.3])
+    plain = render_refraction(volume, scene, 24, 20, device, optics=optics, softness=0.2,
+                              graph=False)
+    assert plain.info["planes"] % module.PLANE_BUCKET != 0
+    renderer = RefractionRenderer(device)
+    if device == "cpu":
+        monkeypatch.setattr(renderer, "_use_graph", lambda opts: True)
+    padded = renderer.render(volume, scene, 24, 20, optics=optics, softness=0.2)
+    assert padded.info["launches"] > plain.info["launches"]
+    np.testing.assert_allclose(padded.radiance, plain.radiance, atol=1e-6)
+    np.testing.assert_allclose(padded.alpha, plain.alpha, atol=1e-6)

@@ -47,6 +47,7 @@ per steradian (the project's convention, ``single`` for η ≡ 1, m ≡ white).
 
 from __future__ import annotations
 
+import ctypes
 import time
 
 import numpy as np
@@ -87,6 +88,21 @@ REFRACTION_OPTIONS = {
 #: Keyword-only options (not in the scene file).
 EXTRA_OPTIONS = {"optics": None, "step_size": None, "composite_background": None,
                  "graph": True, "record_light": None, "cull_light": True}
+
+#: Threads of a light-plane launch in a captured graph, as a fraction of the light grid's
+#: capacity (they stride over the plane's rectangle, on average 0.3-0.5 of the grid; 0.35,
+#: 0.5, 1 and the largest rectangle were within run-to-run noise on an H100).
+LIGHT_THREADS = 0.5
+#: A captured graph covers a multiple of this many planes (see :func:`graph_planes`).
+PLANE_BUCKET = 32
+
+
+def graph_planes(planes: int) -> int:
+    """Planes of the graph that renders ``planes``: rounded up to :data:`PLANE_BUCKET`, so
+    that a camera that moves (and changes the plane count by a few) replays the same graph
+    instead of capturing a new one (~100 ms); the extra planes cost a launch each that
+    returns at once."""
+    return -(-int(planes) // PLANE_BUCKET) * PLANE_BUCKET
 
 _RENDERERS: dict[str, "RefractionRenderer"] = {}
 
@@ -229,6 +245,8 @@ class RefractionRenderer:
         self._params = wp.zeros(1, dtype=SweepParams, device=device)
         self._graphs: dict = {}
         self._graph_error = None  # why graph capture failed on this device, if it did
+        self._staging: dict = {}  # pinned host arrays of the image download (CUDA)
+        self._params_host = None  # pinned host copy of the frame record (CUDA)
 
     def render(self, volume, scene, width: int, height: int, progress=None,
                **options) -> RenderResult:
@@ -247,12 +265,13 @@ class RefractionRenderer:
         geometry = sweep_geometry(volume, camera, width, height, light.direction,
                                   opts["step_size"], opts["light_buffer_scale"],
                                   max(opts["softness"], opts["direction_blur"]))
-        replaced = self.buffers.ensure(geometry.texels, width * height, geometry.planes)
+        replaced = self.buffers.ensure(geometry.texels, width * height,
+                                       graph_planes(geometry.planes))
         if replaced:
             self._graphs.clear()
         params = make_params(volume, camera, width, height, geometry, light.irradiance, opts,
                              scene.background)
-        self._params.assign(wp.array([params], dtype=SweepParams, device="cpu"))
+        self._upload_params(params)
         record = opts["record_light"]
         if opts["cull_light"] and record is None:
             rects = plane_rects(camera_corners(volume, camera)[2], geometry, 2 * geometry.reach)
@@ -292,10 +311,9 @@ class RefractionRenderer:
                              light_dims, after)
         wp.synchronize_device(self.device)
         t_sweep = time.perf_counter()
-        radiance = self.buffers.view["radiance"].numpy()[: width * height]
-        alpha = self.buffers.view["alpha"].numpy()[: width * height]
-        rad = radiance.reshape(height, width, 3).astype(np.float32)
-        alp = alpha.reshape(height, width).astype(np.float32)
+        n = width * height
+        rad = self._download("radiance", n).reshape(height, width, 3)
+        alp = self._download("alpha", n).reshape(height, width)
         t_end = time.perf_counter()
         if progress is not None:
             progress(1.0)
@@ -324,6 +342,35 @@ class RefractionRenderer:
         return RenderResult(rad, alp, info)
 
     # --- internals ---------------------------------------------------------------------------
+    def _upload_params(self, params: SweepParams) -> None:
+        """Copy the frame record into the device array the kernels (and a captured graph)
+        read: its bytes through a pinned host record on CUDA (building a one-element
+        structured array per frame cost more than the copy)."""
+        value = params.__ctype__()
+        size = ctypes.sizeof(value)
+        if not self._params.device.is_cuda:
+            ctypes.memmove(self._params.ptr, ctypes.addressof(value), size)
+            return
+        if self._params_host is None:
+            self._params_host = wp.empty(1, dtype=SweepParams, device="cpu", pinned=True)
+        ctypes.memmove(self._params_host.ptr, ctypes.addressof(value), size)
+        wp.copy(self._params, self._params_host)
+
+    def _download(self, name: str, n: int) -> np.ndarray:
+        """A host copy of the first ``n`` entries of view buffer ``name`` (float32; on CUDA
+        through a pinned staging array kept between frames: an asynchronous-capable copy at
+        full bus speed instead of a pageable one into a fresh array)."""
+        src = self.buffers.view[name]
+        if not src.device.is_cuda:
+            return np.array(src.numpy()[:n], dtype=np.float32)
+        staging = self._staging.get(name)
+        if staging is None or staging.shape[0] < n:
+            staging = self._staging[name] = wp.empty(src.shape[0], dtype=src.dtype,
+                                                     device="cpu", pinned=True)
+        wp.copy(staging, src, count=n)
+        wp.synchronize_device(self.device)
+        return np.array(staging.numpy()[:n], dtype=np.float32)
+
     def _use_graph(self, opts) -> bool:
         return bool(opts["graph"]) and self.device.startswith("cuda") \
             and opts["record_light"] is None and self._graph_error is None
@@ -334,13 +381,15 @@ class RefractionRenderer:
                 self.device)
         if not self._use_graph(opts):
             return sweep_launches(*args, light_dims, after_plane=after)
-        # A graph fixes its launch sizes: every light plane gets the largest rectangle,
-        # rounded up to a sixteenth of the grid so that a moving camera seldom recaptures.
-        step = -(-self.buffers.capacity // 16)
-        dim = min(self.buffers.capacity, -(-int(light_dims.max()) // step) * step)
-        light_dims = [dim] * planes
-        args = (*args, light_dims)
-        key = (planes, width, height, self.buffers.capacity, dim, self._medium_key,
+        # A graph fixes its launch sizes, the rectangles change with the camera: every light
+        # plane gets a fixed share of the grid's capacity, whose threads stride over the
+        # plane's rectangle (no recapture when the camera moves).
+        # The plane count changes with the camera too: the graph runs a whole number of
+        # PLANE_BUCKETs, the planes past the frame's own return at once.
+        planes = graph_planes(planes)
+        dim = -(-int(self.buffers.capacity * LIGHT_THREADS) // 128) * 128
+        args = (*args[:4], planes, *args[5:], [dim] * planes)
+        key = (planes, width, height, self.buffers.capacity, self._medium_key,
                self._environment_key)
         entry = self._graphs.get(key)
         if entry is None:

@@ -125,8 +125,8 @@ def sweep_launches(medium: RefractiveMedium, params, buffers: SweepBuffers,
     """Issue the whole frame: view-ray set-up, the light planes with the view chunks
     between them, the finish.
 
-    ``light_dims[j]`` is the number of threads of light plane ``j`` (at least its
-    rectangle's texels, ``buffers.light.rect[j]``). ``after_plane(j)`` (optional, forces a
+    ``light_dims[j]`` is the number of threads of light plane ``j``; they stride over its
+    rectangle's texels (``buffers.light.rect[j]``). ``after_plane(j)`` (optional, forces a
     synchronisation) is called after light plane ``j`` was written. Returns the number of
     launches.
     """
@@ -139,8 +139,9 @@ def sweep_launches(medium: RefractiveMedium, params, buffers: SweepBuffers,
     launches = 2
     k0 = 0  # first view segment not yet crossed
     for j in range(planes):
-        wp.launch(light_k, dim=max(int(light_dims[j]), 1),
-                  inputs=[medium, params, j, buffers.light], device=device, block_dim=block)
+        dim = max(int(light_dims[j]), 1)
+        wp.launch(light_k, dim=dim, inputs=[medium, params, j, dim, buffers.light],
+                  device=device, block_dim=block)
         launches += 1
         if after_plane is not None:
             after_plane(j)
@@ -208,18 +209,24 @@ def init_view_kernel(m: RefractiveMedium, params: wp.array(dtype=SweepParams),
     state[i] = ACTIVE
 
 def light_kernel_body(m: RefractiveMedium, params: wp.array(dtype=SweepParams), j: int,
-                      lb: LightBuffers):
-    """Light plane ``j``: ``wp.tid()`` is a texel of the plane's rectangle ``lb.rect[j]``,
-    row by row (threads past it idle). Writes layer ``j % ring`` of ``l``, ``v`` and
-    ``j % 2`` of ``g``, ``p``; reads the previous plane's. Camera-frame positions, world
-    units; light colours in irradiance units."""
+                      stride: int, lb: LightBuffers):
+    """Light plane ``j``: thread ``wp.tid()`` computes the texels ``tid``, ``tid + stride``,
+    ... of the plane's rectangle ``lb.rect[j]``, counted row by row (``stride`` the launch
+    size: a captured graph keeps its launch size while the rectangles change with the
+    camera). Writes layer ``j % ring`` of ``l``, ``v`` and ``j % 2`` of ``g``, ``p``; reads
+    the previous plane's. Camera-frame positions, world units; light colours in
+    irradiance units."""
     t = wp.tid()
     p = params[0]
     r = lb.rect[j]
     w = r[2] - r[0]
-    if j < p.planes and t < w * (r[3] - r[1]):
+    n = w * (r[3] - r[1])
+    if j >= p.planes:
+        return
+    while t < n:
         b = t / w
         propagate_light(m, p, j, r[0] + t - b * w, r[1] + b, lb)
+        t += stride
 
 
 def view_kernel_body(m: RefractiveMedium, params: wp.array(dtype=SweepParams), k0: int,
