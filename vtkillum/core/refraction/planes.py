@@ -122,21 +122,30 @@ def plane_rects(corners: np.ndarray, geometry: SweepGeometry, margin: int) -> np
     covers what a texel inside reads around it: its neighbours, the bilinear and blur
     footprints and the bending of one plane.
     """
-    j = np.arange(geometry.planes)
-    z = geometry.z0 + j * geometry.dz
-    a, b = corners[BOX_EDGES[:, 0]], corners[BOX_EDGES[:, 1]]
-    dzab = b[:, 2] - a[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = (z[:, None] - a[None, :, 2]) / dzab[None, :]
-    hit = (t >= 0.0) & (t <= 1.0) & (dzab[None, :] != 0.0)
-    t = np.where(hit, t, 0.0)
-    pts = a[None, :, :2] + t[..., None] * (b - a)[None, :, :2]  # (planes, 12, 2)
-    tex = (pts - geometry.grid_origin - j[:, None, None] * geometry.shift) / geometry.texel
-    big = np.float64(1e30)
-    lo = np.where(hit[..., None], tex, big).min(1)
-    hi = np.where(hit[..., None], tex, -big).max(1)
+    planes = geometry.planes
+    lo = np.full((planes, 2), np.inf)
+    hi = np.full((planes, 2), -np.inf)
+    origin = np.asarray(geometry.grid_origin, np.float64)
+    shift = np.asarray(geometry.shift, np.float64)
+    # Each edge crosses a contiguous run of planes; along it the crossing point (in texels)
+    # moves linearly with the plane index.
+    for e0, e1 in BOX_EDGES:
+        a, b = corners[e0], corners[e1]
+        if a[2] == b[2]:
+            continue  # parallel to the planes: its end points are crossings of other edges
+        z_lo, z_hi = min(a[2], b[2]), max(a[2], b[2])
+        first = max(int(np.ceil((z_lo - geometry.z0) / geometry.dz)), 0)
+        last = min(int(np.floor((z_hi - geometry.z0) / geometry.dz)), planes - 1)
+        if first > last:
+            continue
+        j = np.arange(first, last + 1)
+        t = (geometry.z0 + j * geometry.dz - a[2]) / (b[2] - a[2])
+        tex = (a[:2] + t[:, None] * (b[:2] - a[:2]) - origin - j[:, None] * shift) \
+            / geometry.texel
+        np.minimum(lo[first:last + 1], tex, out=lo[first:last + 1])
+        np.maximum(hi[first:last + 1], tex, out=hi[first:last + 1])
     n = np.array([geometry.nx, geometry.ny])
-    empty = ~hit.any(1)[:, None]
+    empty = ~np.isfinite(lo[:, :1])
     lo = np.where(empty, 0, np.clip(np.floor(np.where(empty, 0.0, lo)) - margin, 0, n))
     hi = np.where(empty, 0, np.clip(np.ceil(np.where(empty, 0.0, hi)) + margin + 1, 0, n))
     hi = np.maximum(hi, lo)
