@@ -7,6 +7,8 @@ sample distance 1 (the paper's setting), a refractive-index transfer function
 that varies (so ∇η is evaluated everywhere), a coloured medium and soft light
 (softness 0.2, direction filter on), and prints
 
+* **texels / plane** — light texels computed per plane on average (each plane's
+  cross-section with the box, ``cull_light``; ``--no-cull``: the whole sheared grid);
 * **first** — the first frame (ms): tables, buffers and, on CUDA, the capture of the
   plane launches as a graph;
 * **frame** — the mean time per frame over ``--frames`` frames (ms) with the camera
