@@ -314,7 +314,7 @@ class RadiativeDiffusion:
                 wp.launch(restrict_kernel, dim=level.shape, device=self.device,
                           inputs=[phi, level.phi, self._ratio(fine, level)])
                 phi = level.phi
-            wp.launch(coefficients_kernel, dim=level.shape, device=self.device,
+            wp.launch(coefficients_kernel, dim=(4, *level.shape), device=self.device,
                       inputs=[phi, level.sigma_tr, level.kx, level.ky, level.kz, level.leak,
                               level.h, self.d_max, lim])
 
@@ -885,17 +885,24 @@ def coefficients_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dty
                         kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
                         kz: wp.array3d(dtype=wp.vec3), leak: wp.array3d(dtype=wp.vec3),
                         h: wp.vec3, d_max: float, limiter: int):
-    """The lagged coefficients of cell ``wp.tid()``: its +x, +y and +z faces (where the
-    neighbour exists) and its box-face leakage, in one pass over ``phi``."""
-    i, j, k = wp.tid()
+    """One lagged coefficient per thread, ``wp.tid() = (what, i, j, k)``: ``what`` 0-2 the
+    cell's +x, +y, +z face (where the neighbour exists), 3 its box-face leakage.
+
+    A thread per face rather than per cell: the per-cell kernel (three faces and the leakage
+    inlined) took 184 registers and ran at 12.5 % occupancy, latency bound (H100).
+    """
+    what, i, j, k = wp.tid()
     p = wp.vec3i(i, j, k)
-    if i < phi.shape[0] - 1:
-        kx[i, j, k] = face_coefficient(phi, sigma_tr, p, 0, h, d_max, limiter)
-    if j < phi.shape[1] - 1:
-        ky[i, j, k] = face_coefficient(phi, sigma_tr, p, 1, h, d_max, limiter)
-    if k < phi.shape[2] - 1:
-        kz[i, j, k] = face_coefficient(phi, sigma_tr, p, 2, h, d_max, limiter)
-    leak[i, j, k] = leak_at(phi, sigma_tr, p, h, d_max, limiter)
+    if what == 3:
+        leak[i, j, k] = leak_at(phi, sigma_tr, p, h, d_max, limiter)
+    elif p[what] < phi.shape[what] - 1:
+        c = face_coefficient(phi, sigma_tr, p, what, h, d_max, limiter)
+        if what == 0:
+            kx[i, j, k] = c
+        elif what == 1:
+            ky[i, j, k] = c
+        else:
+            kz[i, j, k] = c
 
 
 @wp.kernel
