@@ -313,3 +313,69 @@ def test_anderson_acceleration_converges_where_the_plain_iteration_stalls():
     assert mixed.converged and mixed.residuals[-1] <= 1e-4
     assert mixed.iterations < plain.iterations
     assert rms(b) <= 0.005 < rms(a)  # the stalled cycle is 2 % off the solution
+
+
+def _host_weights(gram, valid, slot, max_weight):
+    """The Anderson weights as the host computed them before (numpy, float64)."""
+    filled = [j for j in range(len(valid)) if valid[j]]
+    alpha = np.zeros(len(valid))
+    alpha[slot] = 1.0
+    if len(filled) > 1 and np.all(np.isfinite(gram)):
+        sub = gram[np.ix_(filled, filled)]
+        sub = sub + 1e-10 * max(np.trace(sub), 1e-300) * np.eye(len(filled))
+        w = np.linalg.solve(sub, np.ones(len(filled)))
+        weights = w / w.sum()
+        if np.all(np.isfinite(weights)) and np.abs(weights).max() <= max_weight:
+            alpha[:] = 0.0
+            alpha[filled] = weights
+            return alpha, valid
+        valid = np.zeros_like(valid)
+        valid[slot] = 1
+    return alpha, valid
+
+
+@pytest.mark.parametrize("case", ["mixing", "first step", "ill-conditioned", "nan"])
+def test_anderson_weights_on_the_device_match_the_least_squares(device, case):
+    """The device's Anderson weights (one thread, Gaussian elimination with pivoting) are
+    those of the normal equations solved in numpy; an ill-conditioned or non-finite history
+    falls back to the plain step and restarts from the new slot."""
+    from vtkillum.core.convection_diffusion.radiative import (
+        ANDERSON_SLOTS,
+        anderson_weights_kernel,
+    )
+
+    rng = np.random.default_rng(3)
+    n = ANDERSON_SLOTS
+    f = rng.normal(size=(n, 50))
+    if case == "ill-conditioned":
+        # two nearly parallel residuals: their difference nearly vanishes, so the least
+        # squares take it with huge opposite weights
+        f[1] = f[0] * (1 + 1e-3) + 1e-6 * rng.normal(size=50)
+    gram = f @ f.T
+    slot = 2
+    valid = np.ones(n, np.int32) if case != "first step" else np.eye(n, dtype=np.int32)[slot]
+    dots = gram[slot].copy()
+    if case == "nan":
+        dots[1] = np.nan
+    start = gram.copy()
+    start[slot, :] = start[:, slot] = 0.0  # the kernel enters the new row itself
+    g = wp.array(start, dtype=wp.float64, device=device)
+    v = wp.array(valid, dtype=wp.int32, device=device)
+    alpha = wp.zeros(n, dtype=wp.float32, device=device)
+    work = wp.zeros((n + 1, n + 1), dtype=wp.float64, device=device)
+    wp.launch(anderson_weights_kernel, dim=1, device=device,
+              inputs=[wp.array(dots, dtype=wp.float64, device=device), g, v, slot, 20.0, alpha,
+                      work])
+    full = gram.copy()
+    full[slot, :] = full[:, slot] = dots
+    want, want_valid = _host_weights(full, valid.copy(), slot, 20.0)
+    np.testing.assert_allclose(alpha.numpy(), want, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(v.numpy(), want_valid)
+    if case == "mixing":
+        assert np.count_nonzero(want) == n and abs(want.sum() - 1.0) < 1e-9
+    elif case in ("ill-conditioned", "nan", "first step"):
+        assert want[slot] == 1.0 and np.count_nonzero(want) == 1
+    if case == "ill-conditioned":
+        assert list(v.numpy()) == [0, 0, 1, 0]  # the history restarts from the new slot
+    if case == "nan":
+        assert list(v.numpy()) == [1, 1, 1, 1]  # a plain step, the history kept

@@ -419,7 +419,7 @@ class RadiativeDiffusion:
     def _anderson_start(self, x: wp.array3d) -> dict:
         """History of Anderson acceleration (:meth:`_anderson_iteration`) for iterate ``x``:
         :data:`ANDERSON_SLOTS` slots of ``G(x_k)`` and ``F_k = G(x_k) - x_k`` on the device,
-        their Gram matrix on the host."""
+        their Gram matrix and which slots are in the history, on the device too."""
         if self._aa is None or tuple(self._aa["prev"].shape) != tuple(x.shape):
             def field():
                 return wp.zeros(x.shape, dtype=wp.vec3, device=self.device)
@@ -427,9 +427,14 @@ class RadiativeDiffusion:
             self._aa = {"G": [field() for _ in range(ANDERSON_SLOTS)],
                         "F": [field() for _ in range(ANDERSON_SLOTS)], "prev": field(),
                         "dots": wp.zeros(ANDERSON_SLOTS, dtype=wp.float64, device=self.device),
-                        "alpha": wp.zeros(ANDERSON_SLOTS, dtype=wp.float32, device=self.device)}
-        self._aa["gram"] = np.zeros((ANDERSON_SLOTS, ANDERSON_SLOTS))
-        self._aa["filled"] = []  # slots in the history, oldest first
+                        "alpha": wp.zeros(ANDERSON_SLOTS, dtype=wp.float32, device=self.device),
+                        "gram": wp.zeros((ANDERSON_SLOTS, ANDERSON_SLOTS), dtype=wp.float64,
+                                         device=self.device),
+                        "valid": wp.zeros(ANDERSON_SLOTS, dtype=wp.int32, device=self.device),
+                        "work": wp.zeros((ANDERSON_SLOTS + 1, ANDERSON_SLOTS + 1),
+                                         dtype=wp.float64, device=self.device)}
+        self._aa["gram"].zero_()
+        self._aa["valid"].zero_()  # slots in the history
         self._aa["k"] = 0
         return self._aa
 
@@ -446,12 +451,16 @@ class RadiativeDiffusion:
         11 outer iterations to 8, and it converged the Foot grid, whose plain iteration
         stalls at 3.8e-4, to 9e-5 in 8. Weights beyond :data:`ANDERSON_MAX_WEIGHT` (an
         ill-conditioned history) fall back to the plain step and restart the history.
+        The weights are solved on the device (:func:`anderson_weights_kernel`), so that an
+        iteration is one replayed graph and one read of the residual norms: the host's
+        solve between two graphs cost a synchronisation and left the GPU idle.
         """
         slot = aa["k"] % ANDERSON_SLOTS
         aa["k"] += 1
         G, F = aa["G"], aa["F"]
 
-        def image():  # G(x) into slot, F = G(x) - x, <F_slot, F_j> for every slot
+        def record():
+            # G(x) into slot, F = G(x) - x, <F_slot, F_j> for every slot
             wp.copy(aa["prev"], x)
             self.vcycle(x, rhs)
             wp.copy(G[slot], x)
@@ -463,39 +472,17 @@ class RadiativeDiffusion:
             wp.launch_tiled(anderson_dots_kernel, dim=[-(-n // (block * NORM_CHUNK))],
                             block_dim=block, device=self.device,
                             inputs=[F[slot], *F, aa["dots"], block])
-
-        self.graphs.run(("anderson-image", slot) + array_key(x, rhs), image)
-        dots = aa["dots"].numpy()
-        filled = [j for j in aa["filled"] if j != slot] + [slot]
-        aa["filled"] = filled
-        gram = aa["gram"]
-        gram[slot, :] = dots
-        gram[:, slot] = dots
-        alpha = np.zeros(ANDERSON_SLOTS)
-        alpha[slot] = 1.0
-        if len(filled) > 1 and np.all(np.isfinite(dots)):
-            sub = gram[np.ix_(filled, filled)]
-            sub = sub + 1e-10 * max(np.trace(sub), 1e-300) * np.eye(len(filled))
-            try:
-                w = np.linalg.solve(sub, np.ones(len(filled)))
-                weights = w / w.sum()
-            except (np.linalg.LinAlgError, FloatingPointError, ZeroDivisionError):
-                weights = None
-            if weights is not None and np.all(np.isfinite(weights)) and \
-                    np.abs(weights).max() <= ANDERSON_MAX_WEIGHT:
-                alpha[:] = 0.0
-                alpha[filled] = weights
-            else:
-                aa["filled"] = [slot]  # restart the history from this step
-        aa["alpha"].assign(alpha.astype(np.float32))
-
-        def mix():  # x = sum_j alpha_j G_j, its coefficients and residual norms
+            # the weights from the Gram matrix, on the device (no round trip to the host)
+            wp.launch(anderson_weights_kernel, dim=1, device=self.device,
+                      inputs=[aa["dots"], aa["gram"], aa["valid"], slot, ANDERSON_MAX_WEIGHT,
+                              aa["alpha"], aa["work"]])
+            # x = sum_j alpha_j G_j, its coefficients and residual norms
             wp.launch(anderson_mix_kernel, dim=x.shape, device=self.device,
                       inputs=[*G, aa["alpha"], x])
             self.update_coefficients(x)
             self._launch_residual(x, rhs)
 
-        self.graphs.run(("anderson-mix",) + array_key(x, rhs), mix)
+        self.graphs.run(("anderson", slot) + array_key(x, rhs), record)
 
     def _outer_iteration(self, x: wp.array3d, rhs: wp.array3d, smoothing_only: bool) -> None:
         """One outer iteration, replayed from a captured graph: a V-cycle (or one red-black
@@ -1035,6 +1022,95 @@ def anderson_dots_kernel(f: wp.array3d(dtype=wp.vec3), f0: wp.array3d(dtype=wp.v
         wp.atomic_add(acc, 1, wp.float64(d1[0]))
         wp.atomic_add(acc, 2, wp.float64(d2[0]))
         wp.atomic_add(acc, 3, wp.float64(d3[0]))
+
+
+@wp.kernel
+def anderson_weights_kernel(dots: wp.array(dtype=wp.float64), gram: wp.array2d(dtype=wp.float64),
+                            valid: wp.array(dtype=wp.int32), slot: int, max_weight: float,
+                            alpha: wp.array(dtype=wp.float32),
+                            work: wp.array2d(dtype=wp.float64)):
+    """Anderson mixing weights (one thread): enter ``dots = <F_slot, F_j>`` into the Gram
+    matrix, then ``alpha`` over the slots in the history (``valid``) minimising
+    ``||sum_j alpha_j F_j||`` with ``sum_j alpha_j = 1``: ``alpha = w / sum(w)`` with
+    ``(Gram + 1e-10 tr(Gram) I) w = 1`` (Gaussian elimination with partial pivoting, in
+    float64). A singular or non-finite system, or a weight beyond ``max_weight`` (an
+    ill-conditioned history), gives the plain step (``alpha = e_slot``) and restarts the
+    history from ``slot``. ``work`` is scratch of ``(slots + 1, slots + 1)``: the history's
+    slots in row 0, the augmented system below.
+    """
+    nslots = gram.shape[0]
+    finite = int(1)
+    for j in range(nslots):
+        d = dots[j]
+        gram[slot, j] = d
+        gram[j, slot] = d
+        if not wp.isfinite(d):
+            finite = 0
+        alpha[j] = wp.float32(0.0)
+    alpha[slot] = wp.float32(1.0)
+    valid[slot] = 1
+    # slots in the history: work[0, 0 .. n-1] (their order does not change the solution)
+    n = int(0)
+    trace = wp.float64(0.0)
+    for j in range(nslots):
+        if valid[j] != 0:
+            work[0, n] = wp.float64(j)
+            trace += gram[j, j]
+            n += 1
+    if n < 2 or finite == 0:
+        return
+    reg = wp.float64(1.0e-10) * wp.max(trace, wp.float64(1.0e-300))
+    # the augmented system [A | 1] in work[1 ..][0 .. n], row a of A in work[1 + a]
+    for a in range(n):
+        ja = int(work[0, a])
+        for b in range(n):
+            v = gram[ja, int(work[0, b])]
+            if a == b:
+                v += reg
+            work[1 + a, b] = v
+        work[1 + a, n] = wp.float64(1.0)
+    ok = int(1)
+    for c in range(n):
+        pivot = c
+        for r in range(c + 1, n):
+            if wp.abs(work[1 + r, c]) > wp.abs(work[1 + pivot, c]):
+                pivot = r
+        if work[1 + pivot, c] == wp.float64(0.0) or not wp.isfinite(work[1 + pivot, c]):
+            ok = 0
+        if ok != 0:
+            if pivot != c:
+                for b in range(n + 1):
+                    t = work[1 + c, b]
+                    work[1 + c, b] = work[1 + pivot, b]
+                    work[1 + pivot, b] = t
+            for r in range(c + 1, n):
+                f = work[1 + r, c] / work[1 + c, c]
+                for b in range(c, n + 1):
+                    work[1 + r, b] = work[1 + r, b] - f * work[1 + c, b]
+    total = wp.float64(0.0)
+    if ok != 0:
+        for cc in range(n):  # back substitution, w into column n
+            c = n - 1 - cc
+            v = work[1 + c, n]
+            for b in range(c + 1, n):
+                v -= work[1 + c, b] * work[1 + b, n]
+            work[1 + c, n] = v / work[1 + c, c]
+            total += work[1 + c, n]
+        if total == wp.float64(0.0) or not wp.isfinite(total):
+            ok = 0
+    if ok != 0:
+        for a in range(n):
+            wa = work[1 + a, n] / total
+            if not wp.isfinite(wa) or wp.abs(wa) > wp.float64(max_weight):
+                ok = 0
+    if ok != 0:
+        alpha[slot] = wp.float32(0.0)
+        for a in range(n):
+            alpha[int(work[0, a])] = wp.float32(work[1 + a, n] / total)
+    else:
+        for j in range(nslots):  # restart the history from this step
+            valid[j] = 0
+        valid[slot] = 1
 
 
 @wp.kernel
