@@ -33,8 +33,8 @@ once registered in :data:`vtkillum.core.scene.METHOD_OPTIONS`):
                          black (then alpha is 1)
 ``early_termination``    view rays stop computing past this opacity (0.999)
 ``seed``                 seed of the blur's random rotations
-``graph``                on CUDA, capture the launches once per plane count and replay
-                         them (True)
+``graph``                on CUDA, capture the launches once per 32 planes of depth and
+                         replay them (True)
 ``cull_light``           propagate the light only over each plane's cross-section with the
                          box (plus a margin), as the paper's slice polygons do (True; off,
                          and with ``record_light``, the whole sheared grid)
@@ -68,7 +68,12 @@ from vtkillum.core.refraction.planes import (
     plane_rects,
     sweep_geometry,
 )
-from vtkillum.core.refraction.sweep import SweepBuffers, sweep_kernels, sweep_launches
+from vtkillum.core.refraction.sweep import (
+    BLOCK_DIM,
+    SweepBuffers,
+    sweep_kernels,
+    sweep_launches,
+)
 from vtkillum.core.render import RenderResult
 
 #: Method options and their defaults (also the scene file's ``refraction`` section).
@@ -377,18 +382,17 @@ class RefractionRenderer:
 
     def _run(self, medium, environment, planes, width, height, opts, light_dims,
              after) -> int:
-        args = (medium, self._params, self.buffers, environment, planes, width, height,
-                self.device)
         if not self._use_graph(opts):
-            return sweep_launches(*args, light_dims, after_plane=after)
-        # A graph fixes its launch sizes, the rectangles change with the camera: every light
-        # plane gets a fixed share of the grid's capacity, whose threads stride over the
-        # plane's rectangle (no recapture when the camera moves).
-        # The plane count changes with the camera too: the graph runs a whole number of
-        # PLANE_BUCKETs, the planes past the frame's own return at once.
+            return sweep_launches(medium, self._params, self.buffers, environment, planes,
+                                  width, height, self.device, light_dims, after_plane=after)
+        # A graph fixes its launch sizes while the camera changes the plane count and the
+        # rectangles: it runs a whole number of PLANE_BUCKETs (the planes past the frame's
+        # own return at once), and every light plane gets a fixed share of the grid's
+        # capacity, whose threads stride over the plane's rectangle.
         planes = graph_planes(planes)
-        dim = -(-int(self.buffers.capacity * LIGHT_THREADS) // 128) * 128
-        args = (*args[:4], planes, *args[5:], [dim] * planes)
+        dim = -(-int(self.buffers.capacity * LIGHT_THREADS) // BLOCK_DIM) * BLOCK_DIM
+        args = (medium, self._params, self.buffers, environment, planes, width, height,
+                self.device, [dim] * planes)
         key = (planes, width, height, self.buffers.capacity, self._medium_key,
                self._environment_key)
         entry = self._graphs.get(key)
