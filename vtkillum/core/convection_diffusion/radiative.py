@@ -882,18 +882,16 @@ def coefficients_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dty
     """
     what, i, j, k = wp.tid()
     p = wp.vec3i(i, j, k)
-    # the axis as a literal in each branch: the compiler folds the axis indexing
-    if what == 0:
-        if i < phi.shape[0] - 1:
-            kx[i, j, k] = face_coefficient(phi, sigma_tr, p, 0, h, d_max, limiter)
-    elif what == 1:
-        if j < phi.shape[1] - 1:
-            ky[i, j, k] = face_coefficient(phi, sigma_tr, p, 1, h, d_max, limiter)
-    elif what == 2:
-        if k < phi.shape[2] - 1:
-            kz[i, j, k] = face_coefficient(phi, sigma_tr, p, 2, h, d_max, limiter)
-    else:
+    if what == 3:
         leak[i, j, k] = leak_at(phi, sigma_tr, p, h, d_max, limiter)
+    elif p[what] < phi.shape[what] - 1:
+        c = face_coefficient(phi, sigma_tr, p, what, h, d_max, limiter)
+        if what == 0:
+            kx[i, j, k] = c
+        elif what == 1:
+            ky[i, j, k] = c
+        else:
+            kz[i, j, k] = c
 
 
 @wp.kernel
