@@ -253,3 +253,25 @@ def test_padded_plane_count_renders_the_same(device, monkeypatch):
     assert padded.info["launches"] > plain.info["launches"]
     np.testing.assert_allclose(padded.radiance, plain.radiance, atol=1e-6)
     np.testing.assert_allclose(padded.alpha, plain.alpha, atol=1e-6)
+
+
+def test_moving_camera_replays_the_captured_graph(device):
+    """On CUDA a camera that moves (changing the plane count and the light rectangles a
+    little) replays the graph captured for the first frame instead of capturing another."""
+    if device == "cpu":
+        pytest.skip("launch graphs need a CUDA device")
+    from vtkillum.core.refraction.render import RefractionRenderer
+
+    volume, scene = oblique_scene()
+    optics = RefractiveOptics([0.0, 1.0], [1.0, 1.3])
+    renderer = RefractionRenderer(device)
+    planes = []
+    for degrees in (0, 5, 10, 15):  # 26, 26, 27, 27 planes; 560-740 light texels
+        a = np.radians(degrees) + 0.55
+        scene.camera = Camera((5.0 * np.sin(a), 1.8, -5.0 * np.cos(a)), (0.0, 0.0, 0.0),
+                              (0.0, 1.0, 0.0), view_angle=35.0)
+        r = renderer.render(volume, scene, 24, 20, optics=optics, softness=0.2)
+        assert r.info["graph"] and r.info["graph_error"] is None
+        planes.append(r.info["planes"])
+    assert len(set(planes)) > 1  # the plane count did change
+    assert len(renderer._graphs) == 1
