@@ -189,8 +189,8 @@ def test_plane_rects_hold_the_cross_sections():
     volume, scene = oblique_scene()
     camera = scene.resolved_camera(volume)
     g = sweep_geometry(volume, camera, 40, 40, scene.lights[0].direction, 0.1)
-    R, cam, corners = camera_corners(volume, camera)
-    rects = plane_rects(corners, g, 3)
+    R, cam, _ = camera_corners(volume, camera)
+    rects = plane_rects(g, 3)
     rng = np.random.default_rng(1)
     pts = (rng.random((20000, 3)) * volume.extent - cam) @ R.T  # camera frame
     j = np.round((pts[:, 2] - g.z0) / g.dz).astype(int)

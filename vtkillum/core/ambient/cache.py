@@ -193,8 +193,7 @@ class AmbientScatteringCache:
         cuda = hardware_filtering_available(self.device)
         self.field_texture = cuda if field_texture is None else bool(field_texture) and cuda
         self.data_textures = cuda if data_textures is None else bool(data_textures) and cuda
-        self.hardware_filtering = bool(hardware_filtering) and hardware_filtering_available(
-            self.device)
+        self.hardware_filtering = bool(hardware_filtering) and cuda
         self.stats = {"sat": 0, "extinction": 0, "radiance": 0}
         self.invalidate()
 
@@ -350,8 +349,8 @@ class AmbientScatteringCache:
                 self._scalars = to_device(volume.scalars, wp.float32, device)
                 # hardware filtering of this data (its textures follow with σ̃t)
                 self._textured = self.hardware_filtering and fits_texture(self._scalars.shape)
-                self._data_textured = (self._textured or self.data_textures) and fits_texture(
-                    self._scalars.shape)
+                self._data_textured = self._textured or (
+                    self.data_textures and fits_texture(self._scalars.shape))
                 self._data_key = data_key
             self._data_identity = identity
             self._data_sample = sample

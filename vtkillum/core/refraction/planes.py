@@ -90,6 +90,7 @@ class SweepGeometry:
     nx: int
     ny: int
     reach: int = 0  # texels a light texel reads around its straight predecessor (a bound)
+    corners: np.ndarray | None = None  # the box's 8 corners, camera frame (camera_corners)
 
     @property
     def texels(self) -> int:
@@ -111,7 +112,7 @@ def camera_corners(volume, camera):
     return R, cam, (corners - cam) @ R.T
 
 
-def plane_rects(corners: np.ndarray, geometry: SweepGeometry, margin: int) -> np.ndarray:
+def plane_rects(geometry: SweepGeometry, margin: int) -> np.ndarray:
     """Per plane, the texel rectangle ``(a0, b0, a1, b1)`` (ends exclusive) that holds the
     box's cross-section with the plane, widened by ``margin`` texels and clipped to the grid.
 
@@ -123,6 +124,7 @@ def plane_rects(corners: np.ndarray, geometry: SweepGeometry, margin: int) -> np
     footprints and the bending of one plane.
     """
     planes = geometry.planes
+    corners = geometry.corners
     lo = np.full((planes, 2), np.inf)
     hi = np.full((planes, 2), -np.inf)
     origin = np.asarray(geometry.grid_origin, np.float64)
@@ -213,7 +215,7 @@ def sweep_geometry(volume, camera, width: int, height: int, light_direction, dz:
     # Newton neighbours and bilinear footprint (2), the blur, one plane's bending (<= 45°).
     reach = 2 + int(np.ceil((radius + dz) / h))
     return SweepGeometry(z0, float(dz), planes, w, shift, origin, h, int(n[0]), int(n[1]),
-                         reach)
+                         reach, c)
 
 def make_params(volume, camera, width: int, height: int, geometry: SweepGeometry, light_rgb,
                 opts: dict, background) -> SweepParams:

@@ -62,7 +62,6 @@ from vtkillum.core.refraction.preintegration import make_refractive_medium
 from vtkillum.core.refraction.planes import (
     MAX_LIGHT_ANGLE,
     SweepParams,
-    camera_corners,
     light_angle,
     make_params,
     plane_rects,
@@ -279,7 +278,7 @@ class RefractionRenderer:
         self._upload_params(params)
         record = opts["record_light"]
         if opts["cull_light"] and record is None:
-            rects = plane_rects(camera_corners(volume, camera)[2], geometry, 2 * geometry.reach)
+            rects = plane_rects(geometry, 2 * geometry.reach)
         else:
             rects = np.tile(np.array([0, 0, geometry.nx, geometry.ny], np.int32),
                             (geometry.planes, 1))
