@@ -283,11 +283,13 @@ def _cellular(n):
     return Volume(s.astype(np.float32), spacing=(h, h, h))
 
 
-def test_anderson_acceleration_converges_where_the_plain_iteration_stalls():
-    """The benchmark's Foot grid (128^3 data, 64^3 light grid, one light): the lagged
-    limiter's plain iteration settles into a two-cycle at a residual of ~3.8e-4 and stops
-    as stalled, 2 % (RMS) from the solution; with Anderson mixing the same solve reaches
-    the tolerance 1e-4 in fewer iterations, within 0.5 % of a solve to 1e-6."""
+def test_the_lagged_iteration_converges_on_the_foot_grid_with_and_without_anderson():
+    """The benchmark's Foot grid (128^3 data, 64^3 light grid, one light). With the
+    re-discretized coarse operators the plain lagged iteration settled into a two-cycle at
+    a residual of ~3.8e-4 and stopped as stalled, 2 % (RMS) from the solution (their
+    V-cycle amplified what the coefficient update then undid); with the homogenized ones
+    it reaches the tolerance 1e-4, and Anderson mixing takes no more iterations. Both
+    within 0.5 % of a solve to 1e-6."""
     from vtkillum.core.convection_diffusion.solver import ConvectionDiffusionSolver
     from vtkillum.core.lights import DirectionalLight
     from vtkillum.core.transfer_function import TransferFunction
@@ -309,10 +311,10 @@ def test_anderson_acceleration_converges_where_the_plain_iteration_stalls():
 
     print(f"plain {plain.iterations} its, {plain.residuals[-1]:.2e}, {rms(a):.4f} from a "
           f"1e-6 solve; anderson {mixed.iterations} its, {mixed.residuals[-1]:.2e}, {rms(b):.4f}")
-    assert plain.stalled and not plain.converged and plain.residuals[-1] > 3e-4
+    assert plain.converged and not plain.stalled and plain.residuals[-1] <= 1e-4
     assert mixed.converged and mixed.residuals[-1] <= 1e-4
-    assert mixed.iterations < plain.iterations
-    assert rms(b) <= 0.005 < rms(a)  # the stalled cycle is 2 % off the solution
+    assert mixed.iterations <= plain.iterations
+    assert max(rms(a), rms(b)) <= 0.005
 
 
 def _host_weights(gram, valid, slot, max_weight):
@@ -379,3 +381,123 @@ def test_anderson_weights_on_the_device_match_the_least_squares(device, case):
         assert list(v.numpy()) == [0, 0, 1, 0]  # the history restarts from the new slot
     if case == "nan":
         assert list(v.numpy()) == [1, 1, 1, 1]  # a plain step, the history kept
+
+
+# --- coarse operators (coarsening.py) -------------------------------------------------------------
+def _levels(fine_shape, coarse_shape, device, rng=None, k=1.0):
+    """Fine and coarse coefficient holders (what ``coarse_coefficients`` reads and writes):
+    constant ``k`` or, with ``rng``, log-uniform random coefficients over 1e-3 .. 1e3."""
+    from types import SimpleNamespace
+
+    def arrays(shape):
+        nx, ny, nz = shape
+        out = {}
+        for name, s in (("kx", (nx - 1, ny, nz)), ("ky", (nx, ny - 1, nz)),
+                        ("kz", (nx, ny, nz - 1)), ("leak", shape)):
+            v = (np.full(s + (3,), k, np.float32) if rng is None
+                 else 10.0 ** rng.uniform(-3, 3, s + (3,)).astype(np.float32))
+            out[name] = vec3(v, device)
+        return SimpleNamespace(shape=tuple(shape), **out)
+
+    return arrays(fine_shape), arrays(coarse_shape)
+
+
+def _host_coarse(fine, ratio, coarse_shape):
+    """Series (along the axis) and parallel (across it) conductances, by loops (float64)."""
+    ks = [fine.kx.numpy().astype(np.float64), fine.ky.numpy().astype(np.float64),
+          fine.kz.numpy().astype(np.float64)]
+    nf = fine.shape
+    out = []
+    for a in range(3):
+        shape = list(coarse_shape)
+        shape[a] -= 1
+        res = np.zeros(tuple(shape) + (3,))
+        for c in np.ndindex(*shape):
+            total, channels = np.zeros(3), 0
+            span = [range(c[b] * ratio[b], min(c[b] * ratio[b] + ratio[b], nf[b])) for b in range(3)]
+            last = c[a] * ratio[a] + ratio[a] - 1
+            span[a] = [last]
+            for p in np.ndindex(*[len(s) for s in span]):
+                q = [span[b][p[b]] for b in range(3)]
+                r = 1.0 / ks[a][tuple(q)]
+                if ratio[a] == 2:
+                    left = list(q)
+                    left[a] -= 1
+                    r = r + 0.5 / ks[a][tuple(left)]
+                    if q[a] + 2 < nf[a]:
+                        right = list(q)
+                        right[a] += 1
+                        r = r + 0.5 / ks[a][tuple(right)]
+                total += 1.0 / r
+                channels += 1
+            res[c] = total / (channels * ratio[a])
+        out.append(res)
+    leak = fine.leak.numpy().astype(np.float64)
+    lc = np.zeros(tuple(coarse_shape) + (3,))
+    for c in np.ndindex(*coarse_shape):
+        sl = tuple(slice(c[b] * ratio[b], min(c[b] * ratio[b] + ratio[b], nf[b])) for b in range(3))
+        lc[c] = leak[sl].reshape(-1, 3).mean(axis=0)
+    return out + [lc]
+
+
+@pytest.mark.parametrize("fine_shape, ratio", [((9, 8, 5), (2, 2, 2)), ((7, 3, 6), (2, 1, 2))])
+def test_coarse_coefficients_are_conductances_in_series_and_in_parallel(device, fine_shape, ratio):
+    """Against a host loop over channels, on random coefficients spanning six decades
+    (odd sizes: the last coarse cell has one child), and exactly the re-discretized
+    ``D / H^2`` for a constant ``k`` (an interior face: ``k / r_a^2``)."""
+    from vtkillum.core.convection_diffusion.coarsening import coarse_coefficients
+
+    coarse_shape = tuple((n + 1) // 2 if r == 2 else n for n, r in zip(fine_shape, ratio))
+    fine, coarse = _levels(fine_shape, coarse_shape, device, rng=np.random.default_rng(5))
+    coarse_coefficients(fine, coarse, wp.vec3i(*ratio), device)
+    expected = _host_coarse(fine, ratio, coarse_shape)
+    for got, want in zip((coarse.kx, coarse.ky, coarse.kz, coarse.leak), expected):
+        np.testing.assert_allclose(got.numpy(), want, rtol=2e-5)
+
+    fine, coarse = _levels(fine_shape, coarse_shape, device, k=3.0)
+    coarse_coefficients(fine, coarse, wp.vec3i(*ratio), device)
+    for a, got in enumerate((coarse.kx, coarse.ky, coarse.kz)):
+        interior = got.numpy()[(slice(0, 1),) * 3]  # between two cells with all children
+        np.testing.assert_allclose(interior, 3.0 / ratio[a] ** 2, rtol=1e-6)
+
+
+def test_coarse_coefficients_see_a_blocking_sheet():
+    """A sheet of zero coefficients inside a coarse cell blocks the channels that cross it
+    (re-discretization from the mean medium cannot tell a sheet from a blob)."""
+    from vtkillum.core.convection_diffusion.coarsening import coarse_coefficients
+
+    fine, coarse = _levels((4, 4, 4), (2, 2, 2), "cpu", k=1.0)
+    kx = fine.kx.numpy()
+    kx[0] = 0.0  # the face through the centre of coarse cells (0, *, *)
+    fine.kx = vec3(kx, "cpu")
+    coarse_coefficients(fine, coarse, wp.vec3i(2, 2, 2), "cpu")
+    np.testing.assert_allclose(coarse.kx.numpy(), 0.0, atol=1e-20)
+    np.testing.assert_allclose(coarse.ky.numpy(), 0.25, rtol=1e-6)  # across: untouched
+
+
+def test_frozen_v_cycle_converges_on_the_benchmark_grid():
+    """With the coefficients of a converged solve frozen, V(2,2) cycles from zero reduce the
+    solver's relative correction steadily. Before the homogenized coarse operators, on this
+    grid (the benchmark's cellular field, 64^3 data, 32^3 light grid, one light) it fell
+    to 2.4e-4 and then grew (re-discretized coarse operators over-corrected)."""
+    from vtkillum.core.convection_diffusion.solver import ConvectionDiffusionSolver
+    from vtkillum.core.lights import DirectionalLight
+    from vtkillum.core.transfer_function import TransferFunction
+
+    vol = _cellular(64)
+    tf = TransferFunction([0.0, 0.45, 1.0], [0.0, 0.0, 0.6], [[1, 1, 1], [1, 0.9, 0.7], [1, 1, 1]])
+    light = [DirectionalLight((1.0, -0.7, 0.3), (1.0, 1.0, 0.6))]
+    cd = ConvectionDiffusionSolver(light_volume_shape=(32, 32, 32), device="cpu")
+    cd.update(vol, tf, vol.mean_spacing(), light, albedo=0.9, anisotropy=0.3)
+    rd = cd._radiative[1]
+    rhs = rd._rhs if rd._rhs is not None else cd._q
+    x = wp.zeros(rhs.shape, dtype=wp.vec3, device="cpu")
+    residuals = []
+    for _ in range(12):
+        residuals.append(rd.residual(x, rhs)[0])
+        rd.vcycle(x, rhs)
+    residuals.append(rd.residual(x, rhs)[0])
+    print(" ".join(f"{r:.1e}" for r in residuals))
+    assert residuals[-1] < 1e-6
+    rates = [b / a for a, b in zip(residuals[1:8], residuals[2:9])]
+    assert max(rates) < 0.5, rates

@@ -44,8 +44,9 @@ image energy 0.86 / 0.83 / 0.69 of the path tracer's on the balls (albedo 0.9 /
 without the source moments).
 
 The coefficients depend on the solution; they are *lagged*: every outer iteration
-evaluates them from the current ``phi`` (on every multigrid level, from the restricted
-``phi``) and then runs one multigrid V-cycle of the linear problem (Picard iteration).
+evaluates them from the current ``phi`` on the light grid (the coarser multigrid levels
+get theirs from the finer level's) and then runs one multigrid V-cycle of the linear
+problem (Picard iteration).
 A cold start begins with nested iteration (:meth:`RadiativeDiffusion._nested_start`).
 
 Vacuum boundary
@@ -90,8 +91,11 @@ Multigrid
 ---------
 The hierarchy of :class:`~vtkillum.core.convection_diffusion.multigrid.Multigrid`
 (cell-centred coarsening, mean restriction, trilinear prolongation), with the
-operator *re-discretised* on every level from the restricted (mean) ``sigma_a``,
-``sigma_tr`` and ``phi``; red–black Gauss–Seidel V(2,2) cycles; the coarsest grid
+coarse operators *homogenized* from the finer level's face coefficients (conductances in
+series along each axis and in parallel across it; the mean absorption and leakage:
+:mod:`~vtkillum.core.convection_diffusion.coarsening`, which says why re-discretizing the
+limiter on the restricted ``phi`` and ``sigma_tr`` made the V-cycle diverge on the
+benchmark's grids); red–black Gauss–Seidel V(2,2) cycles; the coarsest grid
 (at most :data:`COARSEST_CELLS` cells) is relaxed with :data:`COARSE_SWEEPS`
 sweeps.
 
@@ -149,6 +153,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
+from vtkillum.core.convection_diffusion.coarsening import coarse_coefficients
 from vtkillum.core.convection_diffusion.diffusion import DiffusionReport
 from vtkillum.core.convection_diffusion.multigrid import (
     child_cell,
@@ -214,7 +219,6 @@ class Level:
         self.kx = vec3((nx - 1, ny, nz))
         self.ky = vec3((nx, ny - 1, nz))
         self.kz = vec3((nx, ny, nz - 1))
-        self.phi = vec3(self.shape)  # restricted solution (coarse levels: for the coefficients)
         self.q = None  # nested iteration: this level's own source and solution
         self.sol = None
         self.x = vec3(self.shape)  # coarse-level correction
@@ -302,21 +306,16 @@ class RadiativeDiffusion:
     def update_coefficients(self, x: wp.array3d, start: int = 0) -> None:
         """Lagged coefficients (face ``D / h^2``, boundary leakage) from the solution ``x``.
 
-        ``x`` lives on level ``start``; the coarser levels get theirs from its restriction.
+        ``x`` lives on level ``start``; the coarser levels get theirs from that level's by
+        homogenization (:mod:`~vtkillum.core.convection_diffusion.coarsening`).
         """
         self._check_medium()
-        lim = LIMITERS[self.limiter]
-        phi = x
-        for index in range(start, len(self.levels)):
-            level = self.levels[index]
-            if index > start:
-                fine = self.levels[index - 1]
-                wp.launch(restrict_kernel, dim=level.shape, device=self.device,
-                          inputs=[phi, level.phi, self._ratio(fine, level)])
-                phi = level.phi
-            wp.launch(coefficients_kernel, dim=(4, *level.shape), device=self.device,
-                      inputs=[phi, level.sigma_tr, level.kx, level.ky, level.kz, level.leak,
-                              level.h, self.d_max, lim])
+        level = self.levels[start]
+        wp.launch(coefficients_kernel, dim=(4, *level.shape), device=self.device,
+                  inputs=[x, level.sigma_tr, level.kx, level.ky, level.kz, level.leak,
+                          level.h, self.d_max, LIMITERS[self.limiter]])
+        for fine, coarse in zip(self.levels[start:], self.levels[start + 1:]):
+            coarse_coefficients(fine, coarse, self._ratio(fine, coarse), self.device)
 
     def solve(self, q: wp.array3d, x: wp.array3d, max_iterations: int = 100,
               tolerance: float = 1e-4, method: str = "multigrid", callback=None,
