@@ -435,6 +435,9 @@ def main(argv=None) -> None:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--tables", nargs="+", default=list(TABLES), choices=list(TABLES),
                     help="which tables to print (default: all)")
+    ap.add_argument("--models", nargs="+", default=["physical", "paper"],
+                    choices=["physical", "paper"],
+                    help="diffusion models of the stages table (default: both)")
     args = ap.parse_args(argv)
     device = resolve_device(args.device)
     # Compile every kernel once so that no table includes compilation.
@@ -444,7 +447,7 @@ def main(argv=None) -> None:
                                   device=device).update(warm, TF_A, warm.mean_spacing(),
                                                         make_lights(warm, 2))
     if "stages" in args.tables:
-        for model in ("physical", "paper"):
+        for model in args.models:
             stage_table(parse_sizes(args.sizes), device, args.repeats, args.render_size, model)
     if "sizes" in args.tables:
         light_size_table(args.light_sizes, device, args.repeats)
