@@ -114,9 +114,9 @@ and its face neighbours: empty cells further away are never rendered (``sigma_s 
 there) and reach the medium only through cells that are counted; left in, their slow
 convergence (the lagged limiter spreads a change by about a cell per iteration through
 empty space) would set the iteration count while the medium has long converged. The
-float32 floor of this measure is ``4 eps32``. With the default tolerance 1e-4 a cold
-start takes 6-16 outer iterations on the suite below (16^3 light grids) and 9-11 at
-32^3; the image then differs from a solve to 1e-6 by 0.15 % (1e-3: 1.5 %).
+float32 floor of this measure is ``4 eps32``. With the default tolerance 1e-4 the
+image differs from a solve to 1e-6 by 0.15 % (1e-3: 1.5 %); after a transfer-function
+edit of the benchmark's grids (32³-128³) a solve takes 4-15 outer iterations.
 
 Accuracy (against the path tracer)
 ----------------------------------
@@ -178,10 +178,12 @@ COARSEST_CELLS = 64
 #: at least two warps, so that the block reduction used as a barrier is block-wide.
 COARSE_BLOCK = 64
 #: A solve stops as stalled when :data:`STALL_WINDOW` outer iterations lower the best
-#: residual by less than :data:`STALL_GAIN` (:func:`stalled`): without Anderson mixing, on
-#: the benchmark's Bonsai, Blood Vessels and Foot grids the lagged limiter settles into a
-#: two-cycle at a residual of ~3.7e-4 after ~8 iterations and the remaining 90 of the
-#: 100-iteration cap changed nothing (with it they converge; the check stays as a guard).
+#: residual by less than :data:`STALL_GAIN` (:func:`stalled`): with the re-discretized
+#: coarse operators and without Anderson mixing, the benchmark's Bonsai, Blood Vessels and
+#: Foot grids settled into a two-cycle at a residual of ~3.7e-4 after ~8 iterations and
+#: the remaining 90 of the 100-iteration cap changed nothing (the homogenized operators of
+#: :mod:`~vtkillum.core.convection_diffusion.coarsening` converge them; the check stays as
+#: a guard).
 STALL_WINDOW = 4
 STALL_GAIN = 0.05
 #: Anderson acceleration: history slots (depth + 1) and the largest mixing weight accepted.
@@ -445,13 +447,14 @@ class RadiativeDiffusion:
 
         The outer (Picard) iteration is a fixed-point map ``x -> G(x)``: a V-cycle with the
         coefficients of ``x``. Its convergence is set by the lagged limiter, not by the
-        V-cycle, and on some grids it settles into a two-cycle above the tolerance.
-        Anderson mixing (Walker & Ni 2011) takes the next iterate as the combination
+        V-cycle (two or three V-cycles per coefficient update take as many outer
+        iterations on the Foot grid, CPU). Anderson mixing (Walker & Ni 2011) takes the
+        next iterate as the combination
         ``sum_j alpha_j G(x_j)`` of the last iterates' images whose residuals
         ``F_j = G(x_j) - x_j`` combine to the smallest ``||sum_j alpha_j F_j||`` with
-        ``sum_j alpha_j = 1``; on the benchmark grids (CPU, 40³-64³ light grids) it cut
-        11 outer iterations to 8, and it converged the Foot grid, whose plain iteration
-        stalls at 3.8e-4, to 9e-5 in 8. Weights beyond :data:`ANDERSON_MAX_WEIGHT` (an
+        ``sum_j alpha_j = 1``; on the Foot grid (CPU, 64³) it cuts the plain iteration's
+        9-11 outer iterations to 7-8 (depth 5 or 8, or weights per channel, gained at most
+        one more). Weights beyond :data:`ANDERSON_MAX_WEIGHT` (an
         ill-conditioned history) fall back to the plain step and restart the history.
         The weights are solved on the device (:func:`anderson_weights_kernel`), so that an
         iteration is one replayed graph and one read of the residual norms: the host's
