@@ -501,3 +501,35 @@ def test_frozen_v_cycle_converges_on_the_benchmark_grid():
     assert residuals[-1] < 1e-6
     rates = [b / a for a, b in zip(residuals[1:8], residuals[2:9])]
     assert max(rates) < 0.5, rates
+
+
+def test_a_far_warm_start_is_corrected_by_nested_iteration(monkeypatch):
+    """After a small transfer-function edit the previous solution is a good start (relative
+    correction < WARM_NESTED_ABOVE): no nested iteration. After a large one (the
+    benchmark's swap) it is corrected coarse to fine first, which saves outer iterations
+    on the finest grid against the plain warm start, and reaches the same solution."""
+    import vtkillum.core.convection_diffusion.solver as solver_module
+    from vtkillum.core.convection_diffusion.solver import ConvectionDiffusionSolver
+    from vtkillum.core.lights import DirectionalLight
+    from vtkillum.core.transfer_function import TransferFunction
+
+    vol = _cellular(96)
+    colours = [[1, 1, 1], [1, 0.9, 0.7], [1, 1, 1]]
+    first = TransferFunction([0.0, 0.45, 1.0], [0.0, 0.0, 0.6], colours)
+    small = TransferFunction([0.0, 0.45, 1.0], [0.0, 0.0, 0.62], colours)
+    swap = TransferFunction([0.0, 0.5, 1.0], [0.0, 0.0, 0.7], [[1, 1, 1], [0.8, 0.9, 1.0], [1, 1, 1]])
+    light = [DirectionalLight((1.0, -0.7, 0.3), (1.0, 1.0, 0.6))]
+    runs = {}
+    for label, above in (("plain", 1e30), ("nested", solver_module.WARM_NESTED_ABOVE)):
+        monkeypatch.setattr(solver_module, "WARM_NESTED_ABOVE", above)
+        cd = ConvectionDiffusionSolver(light_volume_shape=(48, 48, 48), device="cpu")
+        cd.update(vol, first, vol.mean_spacing(), light, albedo=0.9, anisotropy=0.3)
+        edit = cd.update(vol, small, vol.mean_spacing(), light, albedo=0.9, anisotropy=0.3)
+        big = cd.update(vol, swap, vol.mean_spacing(), light, albedo=0.9, anisotropy=0.3)
+        runs[label] = (edit.diffusion, big.diffusion, cd.scattered_fluence)
+    (edit, plain, a), (edit2, nested, b) = runs["plain"], runs["nested"]
+    assert edit.residuals[0] < 1e-2 and not edit2.nested and edit2.iterations == edit.iterations
+    assert plain.residuals[0] > 1e-2 and nested.nested and not plain.nested
+    assert plain.converged and nested.converged
+    assert nested.iterations < plain.iterations, (nested.iterations, plain.iterations)
+    assert np.sqrt(np.mean((a - b) ** 2) / np.mean(b ** 2)) < 5e-3

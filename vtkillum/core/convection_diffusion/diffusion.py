@@ -104,6 +104,9 @@ class DiffusionReport:
         Physical model: the residual stopped falling above the tolerance (the lagged flux
         limiter settles into a cycle whose residual no iteration lowers), so the solve
         stopped early; ``converged`` stays False.
+    nested : bool
+        Physical model: the solve started with nested iteration (a cold start, or a warm
+        start corrected coarse to fine because it was far from the solution).
     """
 
     iterations: int = 0
@@ -111,6 +114,7 @@ class DiffusionReport:
     converged: bool = False
     fallback: bool = False
     stalled: bool = False
+    nested: bool = False
 
 
 def residual_floor(scattering, spacing) -> float:

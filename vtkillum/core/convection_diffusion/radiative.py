@@ -47,7 +47,9 @@ The coefficients depend on the solution; they are *lagged*: every outer iteratio
 evaluates them from the current ``phi`` on the light grid (the coarser multigrid levels
 get theirs from the finer level's) and then runs one multigrid V-cycle of the linear
 problem (Picard iteration).
-A cold start begins with nested iteration (:meth:`RadiativeDiffusion._nested_start`).
+A cold start begins with nested iteration (:meth:`RadiativeDiffusion._nested_start`), and
+so does a warm start (the previous solution after an edit) that is far from the new one:
+nested iteration then corrects it coarse to fine.
 
 Vacuum boundary
 ---------------
@@ -198,12 +200,19 @@ PRE_SMOOTH = 2
 POST_SMOOTH = 2
 #: Optical size ``sigma_tr h`` below which a cell counts as empty for the residual.
 MEDIUM_DEPTH = 1.0e-3
-#: Nested iteration (cold start): outer iterations on the coarsest and on each finer grid.
+#: Nested iteration (cold start, or the correction of a far warm start): outer iterations on
+#: the coarsest and on each finer grid.
 #: With the homogenized coarse operators 15 and 4 start the benchmark's Foot, Pillars,
 #: Buckyball and Bonsai grids as well as 30 and 6 did (the same fine iterations after it,
 #: CPU), at half the launches; 10 and 3 cost an iteration more on two of them.
 COARSEST_ITERATIONS = 15
 NESTED_ITERATIONS = 4
+#: A warm start whose relative correction exceeds this is corrected by nested iteration
+#: first (``solve(nested_above=...)``, the solver's default). Foot grid (CPU, 64³): edits
+#: whose warm start measured 3.5e-3 / 7.5e-3 took 3 / 4 outer iterations from it, while
+#: the benchmark's transfer-function swaps (~2e-2) took 9-15 at 64³-128³ and 6-8 after
+#: the correction, which costs a few finest-grid iterations.
+WARM_NESTED_ABOVE = 1.0e-2
 
 
 class Level:
@@ -224,10 +233,17 @@ class Level:
         self.kx = vec3((nx - 1, ny, nz))
         self.ky = vec3((nx, ny - 1, nz))
         self.kz = vec3((nx, ny, nz - 1))
-        self.q = None  # nested iteration: this level's own source and solution
+        self.q = None  # nested iteration: this level's own source, solution and estimate
         self.sol = None
+        self.estimate = None
         self.x = vec3(self.shape)  # coarse-level correction
         self.b = vec3(self.shape)  # coarse-level right-hand side
+
+    def nested_arrays(self, device) -> None:
+        """Allocate the nested iteration's arrays of a coarse level (once)."""
+        if self.q is None:
+            self.q, self.sol, self.estimate = (wp.zeros(self.shape, dtype=wp.vec3, device=device)
+                                               for _ in range(3))
 
     @property
     def coefficients(self):
@@ -324,7 +340,8 @@ class RadiativeDiffusion:
 
     def solve(self, q: wp.array3d, x: wp.array3d, max_iterations: int = 100,
               tolerance: float = 1e-4, method: str = "multigrid", callback=None,
-              displacement=None, cold: bool = False) -> DiffusionReport:
+              displacement=None, cold: bool = False,
+              nested_above: float | None = None) -> DiffusionReport:
         """Improve ``x`` in place towards the solution for source ``q``.
 
         Parameters
@@ -349,6 +366,12 @@ class RadiativeDiffusion:
             and forward.
         cold : bool
             ``x`` is no estimate (zeros): start with nested iteration (:meth:`_nested_start`).
+        nested_above : float, optional
+            ``x`` is a previous solution (a warm start): when its relative correction
+            exceeds this, correct it by nested iteration before the outer iterations
+            (:meth:`_nested_start`; a large edit of the medium or the source changes the
+            solution at every scale, which the lagged limiter spreads by about a cell per
+            outer iteration on the finest grid).
         """
         if method not in ("multigrid", "gauss-seidel"):
             raise ValueError(f"the physical diffusion model is solved with 'multigrid' or "
@@ -376,11 +399,11 @@ class RadiativeDiffusion:
         if res <= max(tolerance, floor):
             report.converged = True
             return report
-        if cold and method == "multigrid" and len(self.levels) > 1:
+        far = nested_above is not None and res > nested_above
+        if (cold or far) and method == "multigrid" and len(self.levels) > 1:
+            report.nested = True
             for coarse in self.levels[1:]:  # allocated before a capture, kept
-                if coarse.q is None:
-                    coarse.q = wp.zeros(coarse.shape, dtype=wp.vec3, device=self.device)
-                    coarse.sol = wp.zeros(coarse.shape, dtype=wp.vec3, device=self.device)
+                coarse.nested_arrays(self.device)
             self.graphs.run(("nested",) + array_key(rhs, x), lambda: self._nested_start(rhs, x))
             self.update_coefficients(x)
             res, floor = self.residual(x, rhs, q_norm)
@@ -506,36 +529,45 @@ class RadiativeDiffusion:
         self.graphs.run(("outer", smoothing_only) + array_key(x, rhs), record)
 
     def _nested_start(self, q: wp.array3d, x: wp.array3d) -> None:
-        """Initial guess by nested iteration (full multigrid) for a cold start, into ``x``.
+        """Correct the estimate ``x`` (zeros at a cold start) by nested iteration (full
+        multigrid, correction scheme), in place.
 
         The lagged flux limiter spreads a change of the solution by about a cell per outer
-        iteration in optically thin regions, so a cold start on the finest grid needs
-        iterations in proportion to its size. Solving first on the coarsest grid, then
-        :data:`NESTED_ITERATIONS` outer iterations on each finer grid starting from the
-        interpolated coarser solution, leaves the finest grid only its local corrections.
+        iteration in optically thin regions, so a cold start, or an edit that changes the
+        solution everywhere, needs iterations on the finest grid in proportion to its size.
+        The source and ``x`` are restricted to every level; the coarsest grid's problem is
+        iterated from its restricted ``x``, and each finer grid's from its own restricted
+        ``x`` plus the interpolated change its coarser grid made
+        (:data:`COARSEST_ITERATIONS`, then :data:`NESTED_ITERATIONS` outer iterations a
+        level), which leaves the finest grid only its local corrections. From zeros this
+        is plain nested iteration (the interpolated coarser solution).
         """
         levels = self.levels
         for fine, coarse in zip(levels, levels[1:]):
-            src = q if fine is levels[0] else fine.q
-            if coarse.q is None:  # called directly, not through solve()
-                coarse.q = wp.zeros(coarse.shape, dtype=wp.vec3, device=self.device)
-                coarse.sol = wp.zeros(coarse.shape, dtype=wp.vec3, device=self.device)
+            coarse.nested_arrays(self.device)  # no-op when solve() allocated them
+            ratio = self._ratio(fine, coarse)
+            src_q, src_x = (q, x) if fine is levels[0] else (fine.q, fine.estimate)
             wp.launch(restrict_kernel, dim=coarse.shape, device=self.device,
-                      inputs=[src, coarse.q, self._ratio(fine, coarse)])
+                      inputs=[src_q, coarse.q, ratio])
+            wp.launch(restrict_kernel, dim=coarse.shape, device=self.device,
+                      inputs=[src_x, coarse.estimate, ratio])
         last = len(levels) - 1
+        wp.copy(levels[last].sol, levels[last].estimate)
         for index in range(last, 0, -1):
             lv = levels[index]
-            if index == last:
-                lv.sol.zero_()
             iterations = COARSEST_ITERATIONS if index == last else NESTED_ITERATIONS
             for _ in range(iterations):
                 self.update_coefficients(lv.sol, index)
                 self.vcycle(lv.sol, lv.q, index)
-            target = x if index == 1 else levels[index - 1].sol
             fine = levels[index - 1]
-            target.zero_()
+            target = x
+            if index > 1:
+                target = fine.sol
+                wp.copy(target, fine.estimate)
+            wp.launch(difference_kernel, dim=lv.shape, device=self.device,
+                      inputs=[lv.sol, lv.estimate, lv.x])  # lv.x: the V-cycle's scratch
             wp.launch(prolong_add_kernel, dim=fine.shape, device=self.device,
-                      inputs=[lv.sol, target, self._ratio(fine, lv)])
+                      inputs=[lv.x, target, self._ratio(fine, lv)])
 
     def vcycle(self, x: wp.array3d, b: wp.array3d, level: int = 0) -> None:
         """One V(2,2) cycle for the current (lagged) coefficients, in place."""

@@ -79,7 +79,11 @@ from vtkillum.core.convection_diffusion.opacity import (
     light_grid_shape,
     light_grid_spacing,
 )
-from vtkillum.core.convection_diffusion.radiative import LIMITERS, RadiativeDiffusion
+from vtkillum.core.convection_diffusion.radiative import (
+    LIMITERS,
+    WARM_NESTED_ABOVE,
+    RadiativeDiffusion,
+)
 from vtkillum.core.convection_diffusion.reconstruction import filter_along_surfaces
 from vtkillum.core.device import resolve_device
 from vtkillum.core.graphs import LaunchGraphs
@@ -733,7 +737,8 @@ class ConvectionDiffusionSolver:
         result = rd.solve(self._q, self._x, budget, opts["tolerance"], method=self.solver,
                           callback=self._progress_callback(report, opts["tolerance"], budget),
                           displacement=self._moment if self.first_moment else None,
-                          cold=not stats.warm_start and new_problem)
+                          cold=not stats.warm_start and new_problem,
+                          nested_above=WARM_NESTED_ABOVE if stats.warm_start else None)
         self._diffusion_key = key
         self._converged = result.converged or result.stalled  # more iterations gain nothing
         self._tolerance_reached = opts["tolerance"]
