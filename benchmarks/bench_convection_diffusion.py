@@ -355,11 +355,11 @@ TABLES = ("stages", "sizes", "residual", "iterated", "series", "vcycle")
 #: Bytes per cell a V(2,2) cycle must move at least on one level (vec3 float32 = 12 bytes
 #: per array and cell): 4 red–black sweeps (each colour reads the whole x and its half of
 #: b, writes its half of x: 24; the physical model also reads every face coefficient kx,
-#: ky, kz, 36, and its half of sigma_a and leak, 12), the fused residual-restriction (reads
-#: x, b and the coefficients: 24 or 84), the prolongation (reads and writes x: 24) and the
-#: coarse grid's arrays (4.5).
+#: ky, kz, 36, and its half of the absorption-plus-leakage array, 6), the fused
+#: residual-restriction (reads x, b and the coefficients: 24 or 72), the prolongation
+#: (reads and writes x: 24) and the coarse grid's arrays (4.5).
 VCYCLE_BYTES_PER_CELL = {"paper": 8 * 24 + 24 + 24 + 4.5,
-                         "physical": 8 * (24 + 36 + 12) + 84 + 24 + 4.5}
+                         "physical": 8 * (24 + 36 + 6) + 72 + 24 + 4.5}
 
 
 def copy_bandwidth(device: str) -> float:

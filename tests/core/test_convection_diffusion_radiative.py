@@ -260,13 +260,13 @@ def test_coarse_relax_with_a_lane_per_cell_equals_the_general_loop(device):
                         device=device)
 
     kx, ky, kz = field((3, 4, 3)), field((4, 3, 3)), field((4, 4, 2))
-    sigma_a, leak, b = field(shape, 0.1, 0.5), field(shape, 0.0, 0.2), field(shape)
+    absorb, b = field(shape, 0.1, 0.7), field(shape)
     results = []
     for block in (64, 32):  # 48 cells: a lane each, then the strided loop
         x = wp.zeros(shape, dtype=wp.vec3, device=device)
         lanes = block if wp.get_device(device).is_cuda else 1
         wp.launch_tiled(coarse_relax_kernel, dim=[1], block_dim=lanes, device=device,
-                        inputs=[x, b, kx, ky, kz, sigma_a, leak, 7, lanes])
+                        inputs=[x, b, kx, ky, kz, absorb, 7, lanes])
         results.append(x.numpy())
     np.testing.assert_allclose(results[0], results[1], rtol=1e-5, atol=1e-6)
     assert np.abs(results[0]).max() > 0.1
@@ -393,7 +393,7 @@ def _levels(fine_shape, coarse_shape, device, rng=None, k=1.0):
         nx, ny, nz = shape
         out = {}
         for name, s in (("kx", (nx - 1, ny, nz)), ("ky", (nx, ny - 1, nz)),
-                        ("kz", (nx, ny, nz - 1)), ("leak", shape)):
+                        ("kz", (nx, ny, nz - 1)), ("absorb", shape)):
             v = (np.full(s + (3,), k, np.float32) if rng is None
                  else 10.0 ** rng.uniform(-3, 3, s + (3,)).astype(np.float32))
             out[name] = vec3(v, device)
@@ -432,7 +432,7 @@ def _host_coarse(fine, ratio, coarse_shape):
                 channels += 1
             res[c] = total / (channels * ratio[a])
         out.append(res)
-    leak = fine.leak.numpy().astype(np.float64)
+    leak = fine.absorb.numpy().astype(np.float64)
     lc = np.zeros(tuple(coarse_shape) + (3,))
     for c in np.ndindex(*coarse_shape):
         sl = tuple(slice(c[b] * ratio[b], min(c[b] * ratio[b] + ratio[b], nf[b])) for b in range(3))
@@ -451,7 +451,7 @@ def test_coarse_coefficients_are_conductances_in_series_and_in_parallel(device, 
     fine, coarse = _levels(fine_shape, coarse_shape, device, rng=np.random.default_rng(5))
     coarse_coefficients(fine, coarse, wp.vec3i(*ratio), device)
     expected = _host_coarse(fine, ratio, coarse_shape)
-    for got, want in zip((coarse.kx, coarse.ky, coarse.kz, coarse.leak), expected):
+    for got, want in zip((coarse.kx, coarse.ky, coarse.kz, coarse.absorb), expected):
         np.testing.assert_allclose(got.numpy(), want, rtol=2e-5)
 
     fine, coarse = _levels(fine_shape, coarse_shape, device, k=3.0)

@@ -37,8 +37,8 @@ exactly the re-discretized ``D / H^2`` (``H = r_a h``); a blocking sheet inside 
 cell blocks its channels (series), and a thin gap between dense blocks still conducts
 (parallel). The leakage through the box faces is the mean of the children's (Galerkin
 with piecewise-constant transfer; equal to the re-discretized one where ``D >> h``, up to
-twice it in a dense boundary cell), and the absorption is the mean of the children's
-(:meth:`RadiativeDiffusion.set_medium`).
+twice it in a dense boundary cell), and so is the absorption (both are held in one
+array, ``absorb``, the part of the diagonal that couples to no neighbour).
 
 The fixed point of the outer iteration is the fine grid's equations: the coarse
 operators change how fast it is reached, not where.
@@ -61,16 +61,17 @@ def coarse_coefficients(fine, coarse, ratio: wp.vec3i, device) -> None:
     Parameters
     ----------
     fine, coarse : radiative.Level
-        Adjacent levels; ``fine.kx, ky, kz, leak`` are read and ``coarse.kx, ky, kz, leak``
-        written (vec3, one value per RGB channel, 1/world units).
+        Adjacent levels; ``fine.kx, ky, kz, absorb`` are read and ``coarse.kx, ky, kz,
+        absorb`` written (vec3, one value per RGB channel, 1/world units; ``absorb`` is
+        the absorption plus the box faces' leakage).
     ratio : wp.vec3i
         Coarsening ratio per axis (1 or 2).
     device : str
         Warp device.
     """
     wp.launch(coarse_coefficients_kernel, dim=(4, *coarse.shape), device=device,
-              inputs=[fine.kx, fine.ky, fine.kz, fine.leak, coarse.kx, coarse.ky, coarse.kz,
-                      coarse.leak, ratio])
+              inputs=[fine.kx, fine.ky, fine.kz, fine.absorb, coarse.kx, coarse.ky,
+                      coarse.kz, coarse.absorb, ratio])
 
 
 @wp.func
@@ -93,16 +94,17 @@ def resistance(k: wp.vec3, w: float):
 
 @wp.kernel
 def coarse_coefficients_kernel(kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
-                               kz: wp.array3d(dtype=wp.vec3), leak: wp.array3d(dtype=wp.vec3),
+                               kz: wp.array3d(dtype=wp.vec3), absorb: wp.array3d(dtype=wp.vec3),
                                ckx: wp.array3d(dtype=wp.vec3), cky: wp.array3d(dtype=wp.vec3),
                                ckz: wp.array3d(dtype=wp.vec3),
-                               cleak: wp.array3d(dtype=wp.vec3), ratio: wp.vec3i):
+                               cabsorb: wp.array3d(dtype=wp.vec3), ratio: wp.vec3i):
     """One coarse coefficient per thread, ``wp.tid() = (what, I, J, K)``: ``what`` 0-2 the
-    coarse cell's ``+x, +y, +z`` face (where the neighbour exists), 3 its leakage; see the
+    coarse cell's ``+x, +y, +z`` face (where the neighbour exists), 3 its absorption plus
+    leakage (the mean of its children's); see the
     module docstring. Fine arrays have the fine level's shapes (faces: one less along
     their axis), coarse arrays the coarse level's; all in 1/world units."""
     what, ci, cj, ck = wp.tid()
-    nf = wp.vec3i(leak.shape[0], leak.shape[1], leak.shape[2])
+    nf = wp.vec3i(absorb.shape[0], absorb.shape[1], absorb.shape[2])
     children = ratio[0] * ratio[1] * ratio[2]
     if what == 3:
         s = wp.vec3(0.0)
@@ -110,13 +112,13 @@ def coarse_coefficients_kernel(kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dty
         for child in range(children):
             i, j, k = child_cell(ci, cj, ck, ratio, child)
             if i < nf[0] and j < nf[1] and k < nf[2]:
-                s += leak[i, j, k]
+                s += absorb[i, j, k]
                 n += 1.0
-        cleak[ci, cj, ck] = s / n
+        cabsorb[ci, cj, ck] = s / n
         return
     a = what
     c = wp.vec3i(ci, cj, ck)
-    if c[a] >= cleak.shape[a] - 1:
+    if c[a] >= cabsorb.shape[a] - 1:
         return
     ra = ratio[a]
     last = c[a] * ra + ra - 1  # the fine cell left of the interface, along a
