@@ -345,8 +345,9 @@ class ConvectionDiffusionSolver:
             if self._scalars is None or self._scalars[0] != volume_key:
                 self._scalars = (volume_key, None)  # upload once per data set
             # Only the tables are rebuilt: a transfer-function edit does not upload the data.
+            # No block occupancy: the footprint means below sample every data point.
             medium = make_medium(volume, transfer_function, unit_distance, device=self.device,
-                                 scalars=self._scalars[1])
+                                 scalars=self._scalars[1], skip_empty=False)
             self._scalars = (volume_key, medium.scalars)
             self._sigma, self._color_sigma = light_grid_optics(
                 volume, transfer_function, unit_distance, shape, self.device, medium=medium,

@@ -63,8 +63,8 @@ from vtkillum.core.refraction.planes import (
 from vtkillum.core.refraction.preintegration import RefractiveMedium
 from vtkillum.core.refraction.ray_equation import MIN_COS, camera_sample_and_gradient
 
-#: Layers of the ``g`` and ``p`` light buffers (only the light propagation reads them: the
-#: previous plane's); ``l`` and ``v`` keep a ring of planes for the view rays
+#: Layers of the ``g``, ``p`` and ``o`` light buffers (only the light propagation reads them:
+#: the previous plane's); ``l`` and ``v`` keep a ring of planes for the view rays
 #: (:class:`~vtkillum.core.refraction.sweep.SweepBuffers`).
 GP_LAYERS = wp.constant(2)
 
@@ -78,12 +78,15 @@ NEWTON_MAX_RATIO = wp.constant(4.0)
 class LightBuffers:
     """The light buffers, texel ``b * nx + a`` (camera frame).
 
-    ``l`` and ``v`` are ``(ring, capacity)``: plane ``j`` in layer ``j % ring``; ``g`` and
-    ``p`` are ``(GP_LAYERS, capacity)``: plane ``j`` in layer ``j % GP_LAYERS``.
+    ``l`` and ``v`` are ``(ring, capacity)``: plane ``j`` in layer ``j % ring``; ``g``,
+    ``p`` and ``o`` are ``(GP_LAYERS, capacity)``: plane ``j`` in layer ``j % GP_LAYERS``.
     ``l``: light colour, the irradiance perpendicular to the ray (intensity-corrected);
     ``v``: ray direction ``η dx/ds`` (unnormalised); ``g``: ``∇η`` at the texel;
     ``p``: the ray tube's cross-section ``dX/dX0`` (2x2, columns, in-plane): how a texel
-    cell of plane 0 has been mapped onto this plane, for the intensity law.
+    cell of plane 0 has been mapped onto this plane, for the intensity law;
+    ``o``: the in-plane displacement of the texel's ray to the next plane
+    (:func:`ray_offset` of its ``v`` and ``g``), written with them: the next plane's Newton
+    step reads it at five texels, so each texel computes it once instead of five times.
     ``rect[j]``: the texels ``(a0, b0, a1, b1)`` (ends exclusive) computed on plane ``j``
     (:func:`~vtkillum.core.refraction.planes.plane_rects`); any other texel of the plane
     reads as the unobstructed light.
@@ -93,6 +96,7 @@ class LightBuffers:
     v: wp.array2d(dtype=wp.vec3)
     g: wp.array2d(dtype=wp.vec3)
     p: wp.array2d(dtype=wp.vec4)
+    o: wp.array2d(dtype=wp.vec2)
     rect: wp.array(dtype=wp.vec4i)
     ring: int
 
@@ -159,13 +163,10 @@ def chord_estimate(v: wp.vec3, g: wp.vec3, dz: float):
     return v + g * (0.5 * dz / wp.max(c[2], MIN_COS))
 
 @wp.func
-def neighbour_offset(lb: LightBuffers, rv: int, rg: int, p: SweepParams, r: wp.vec4i, a: int,
-                     b: int, v0: wp.vec3):
-    """In-plane displacement to the next plane of the ray leaving texel ``(a, b)`` (its
-    direction in layer ``rv`` of ``v``, ``∇η`` in layer ``rg`` of ``g``, the plane's
-    rectangle ``r``)."""
-    g = light_fetch(lb.g, rg, p, r, a, b, wp.vec3(0.0))
-    return plane_offset(chord_estimate(light_fetch(lb.v, rv, p, r, a, b, v0), g, p.dz), p.dz)
+def ray_offset(v: wp.vec3, g: wp.vec3, dz: float):
+    """In-plane displacement to the next plane of a ray leaving a texel with direction
+    ``v`` and ``∇η = g`` there (its chord estimate)."""
+    return plane_offset(chord_estimate(v, g, dz), dz)
 
 @wp.func
 def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, a: int, b: int,
@@ -184,6 +185,7 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, a: int, b: int,
         lb.v[wr, t] = v0
         lb.g[wg, t] = g_x
         lb.p[wg, t] = unit
+        lb.o[wg, t] = ray_offset(v0, g_x, p.dz)
         return
     rd = (j - 1) % lb.ring
     rg = (j - 1) % GP_LAYERS
@@ -200,11 +202,13 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, a: int, b: int,
     da = wp.vec2(0.0)
     db = wp.vec2(0.0)
     if m.eta_varies != 0:
-        oe = neighbour_offset(lb, rd, rg, p, r, a + 1, b, v0)
-        ow = neighbour_offset(lb, rd, rg, p, r, a - 1, b, v0)
-        on = neighbour_offset(lb, rd, rg, p, r, a, b + 1, v0)
-        os = neighbour_offset(lb, rd, rg, p, r, a, b - 1, v0)
-        delta = neighbour_offset(lb, rd, rg, p, r, a, b, v0) - off0
+        # beyond the plane's rectangle: the unobstructed light's ray (v0, no gradient)
+        o_out = ray_offset(v0, zero, p.dz)
+        oe = light_fetch(lb.o, rg, p, r, a + 1, b, o_out)
+        ow = light_fetch(lb.o, rg, p, r, a - 1, b, o_out)
+        on = light_fetch(lb.o, rg, p, r, a, b + 1, o_out)
+        os = light_fetch(lb.o, rg, p, r, a, b - 1, o_out)
+        delta = light_fetch(lb.o, rg, p, r, a, b, o_out) - off0
         da = (oe - ow) * (0.5 * inv_h)
         db = (on - os) * (0.5 * inv_h)
         det = (1.0 + da[0]) * (1.0 + db[1]) - da[1] * db[0]
@@ -280,6 +284,7 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, a: int, b: int,
     lb.v[wr, t] = v_new
     lb.g[wg, t] = g_x
     lb.p[wg, t] = p_new
+    lb.o[wg, t] = ray_offset(v_new, g_x, p.dz)
 
 @wp.func
 def light_at(m: RefractiveMedium, p: SweepParams, lb: LightBuffers, q: wp.vec3, j: int):

@@ -92,6 +92,7 @@ class SweepBuffers:
                                                    device=d))
             self.light.g = wp.zeros((GP_LAYERS, self.capacity), dtype=wp.vec3, device=d)
             self.light.p = wp.zeros((GP_LAYERS, self.capacity), dtype=wp.vec4, device=d)
+            self.light.o = wp.zeros((GP_LAYERS, self.capacity), dtype=wp.vec2, device=d)
             self.light.rect = wp.zeros(self.plane_capacity, dtype=wp.vec4i, device=d)
             changed = True
         if pixels != self.pixels:
