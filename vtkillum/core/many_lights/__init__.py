@@ -1,5 +1,5 @@
 """Many-light volume rendering with transmittance caching (Weber, Kaplanyan, Stamminger &
-Dachsbacher 2015; ``/work/shared/papers/weber-many-lights-transmittance-caching.txt``).
+Dachsbacher 2015).
 
 Multiple scattering is carried by *virtual lights* (VLs): the scattering vertices of
 random walks that start at the real lights. A view ray receives their single
