@@ -217,6 +217,14 @@ NESTED_ITERATIONS = 4
 #: the benchmark's transfer-function swaps (~2e-2) took 9-15 at 64³-128³ and 6-8 after
 #: the correction, which costs a few finest-grid iterations.
 WARM_NESTED_ABOVE = 1.0e-2
+#: A warm start's nested correction iterates from the first level with at most this many
+#: cells (the half-resolution grid at least), not from the coarsest: its V-cycles still
+#: reach the coarsest grid, and the levels left out would cost their launches (the
+#: coarse levels' work is latency, not arithmetic: the whole nested start cost 3-5 ms on
+#: an H100). CPU, outer iterations after the benchmark's swaps: Foot (64³), Pillars (50³)
+#: and Machine Room the same from level 1 as from the coarsest; Bonsai (128³) 11 / 6 / 11
+#: from the coarsest, 12 / 9 / 12 from level 1 (64³) and 10 / 7 / 10 from level 2 (32³).
+WARM_NESTED_CELLS = 32 ** 3
 
 
 class Level:
@@ -408,7 +416,9 @@ class RadiativeDiffusion:
             report.nested = True
             for coarse in self.levels[1:]:  # allocated before a capture, kept
                 coarse.nested_arrays(self.device)
-            self.graphs.run(("nested",) + array_key(rhs, x), lambda: self._nested_start(rhs, x))
+            top = None if cold else self._warm_nested_top()
+            self.graphs.run(("nested", top) + array_key(rhs, x),
+                            lambda: self._nested_start(rhs, x, top))
             self.update_coefficients(x)
             res, floor = self.residual(x, rhs, q_norm)
         # The lagged-coefficient V-cycle can diverge where the limited coefficients jump by
@@ -532,7 +542,14 @@ class RadiativeDiffusion:
 
         self.graphs.run(("outer", smoothing_only) + array_key(x, rhs), record)
 
-    def _nested_start(self, q: wp.array3d, x: wp.array3d) -> None:
+    def _warm_nested_top(self) -> int:
+        """The first level with at most :data:`WARM_NESTED_CELLS` cells (at least 1)."""
+        for index in range(1, len(self.levels)):
+            if int(np.prod(self.levels[index].shape)) <= WARM_NESTED_CELLS:
+                return index
+        return len(self.levels) - 1
+
+    def _nested_start(self, q: wp.array3d, x: wp.array3d, top: int | None = None) -> None:
         """Correct the estimate ``x`` (zeros at a cold start) by nested iteration (full
         multigrid, correction scheme), in place.
 
@@ -544,10 +561,15 @@ class RadiativeDiffusion:
         ``x`` plus the interpolated change its coarser grid made
         (:data:`COARSEST_ITERATIONS`, then :data:`NESTED_ITERATIONS` outer iterations a
         level), which leaves the finest grid only its local corrections. From zeros this
-        is plain nested iteration (the interpolated coarser solution).
+        is plain nested iteration (the interpolated coarser solution). ``top``: the
+        coarsest level iterated (default: the coarsest grid; a warm start is corrected
+        from :meth:`_warm_nested_top`), with :data:`NESTED_ITERATIONS` there unless it is
+        the coarsest grid.
         """
         levels = self.levels
-        for fine, coarse in zip(levels, levels[1:]):
+        coarsest = len(levels) - 1
+        last = coarsest if top is None else max(1, min(int(top), coarsest))
+        for fine, coarse in zip(levels[:last], levels[1:last + 1]):
             coarse.nested_arrays(self.device)  # no-op when solve() allocated them
             ratio = self._ratio(fine, coarse)
             src_q, src_x = (q, x) if fine is levels[0] else (fine.q, fine.estimate)
@@ -555,11 +577,10 @@ class RadiativeDiffusion:
                       inputs=[src_q, coarse.q, ratio])
             wp.launch(restrict_kernel, dim=coarse.shape, device=self.device,
                       inputs=[src_x, coarse.estimate, ratio])
-        last = len(levels) - 1
         wp.copy(levels[last].sol, levels[last].estimate)
         for index in range(last, 0, -1):
             lv = levels[index]
-            iterations = COARSEST_ITERATIONS if index == last else NESTED_ITERATIONS
+            iterations = COARSEST_ITERATIONS if index == coarsest else NESTED_ITERATIONS
             for _ in range(iterations):
                 self.update_coefficients(lv.sol, index)
                 self.vcycle(lv.sol, lv.q, index)
