@@ -86,6 +86,18 @@ def face_k(kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
 
 
 @wp.func
+def set_face_k(kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
+               kz: wp.array3d(dtype=wp.vec3), a: int, p: wp.vec3i, value: wp.vec3):
+    """Write the coefficient of the face between cell ``p`` and its ``+a`` neighbour."""
+    if a == 0:
+        kx[p[0], p[1], p[2]] = value
+    elif a == 1:
+        ky[p[0], p[1], p[2]] = value
+    else:
+        kz[p[0], p[1], p[2]] = value
+
+
+@wp.func
 def resistance(k: wp.vec3, w: float):
     """``w / k`` per channel (``k`` floored at :data:`MIN_COEFFICIENT`)."""
     return wp.vec3(w / wp.max(k[0], MIN_COEFFICIENT), w / wp.max(k[1], MIN_COEFFICIENT),
@@ -137,10 +149,4 @@ def coarse_coefficients_kernel(kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dty
                     r += resistance(face_k(kx, ky, kz, a, p + e), 0.5)
             g += wp.vec3(1.0 / r[0], 1.0 / r[1], 1.0 / r[2])
             channels += 1.0
-    out = g / (channels * float(ra))
-    if a == 0:
-        ckx[ci, cj, ck] = out
-    elif a == 1:
-        cky[ci, cj, ck] = out
-    else:
-        ckz[ci, cj, ck] = out
+    set_face_k(ckx, cky, ckz, a, c, g / (channels * float(ra)))

@@ -155,7 +155,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from vtkillum.core.convection_diffusion.coarsening import coarse_coefficients
+from vtkillum.core.convection_diffusion.coarsening import coarse_coefficients, set_face_k
 from vtkillum.core.convection_diffusion.diffusion import DiffusionReport
 from vtkillum.core.convection_diffusion.multigrid import (
     child_cell,
@@ -951,13 +951,8 @@ def coefficients_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dty
     if what == 3:
         absorb[i, j, k] = sigma_a[i, j, k] + leak_at(phi, sigma_tr, p, h, d_max, limiter)
     elif p[what] < phi.shape[what] - 1:
-        c = face_coefficient(phi, sigma_tr, p, what, h, d_max, limiter)
-        if what == 0:
-            kx[i, j, k] = c
-        elif what == 1:
-            ky[i, j, k] = c
-        else:
-            kz[i, j, k] = c
+        set_face_k(kx, ky, kz, what, p, face_coefficient(phi, sigma_tr, p, what, h, d_max,
+                                                          limiter))
 
 
 @wp.kernel
