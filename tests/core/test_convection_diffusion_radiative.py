@@ -414,7 +414,8 @@ def _host_coarse(fine, ratio, coarse_shape):
         res = np.zeros(tuple(shape) + (3,))
         for c in np.ndindex(*shape):
             total, channels = np.zeros(3), 0
-            span = [range(c[b] * ratio[b], min(c[b] * ratio[b] + ratio[b], nf[b])) for b in range(3)]
+            span = [range(c[b] * ratio[b], min(c[b] * ratio[b] + ratio[b], nf[b]))
+                    for b in range(3)]
             last = c[a] * ratio[a] + ratio[a] - 1
             span[a] = [last]
             for p in np.ndindex(*[len(s) for s in span]):
@@ -517,7 +518,8 @@ def test_a_far_warm_start_is_corrected_by_nested_iteration(monkeypatch):
     colours = [[1, 1, 1], [1, 0.9, 0.7], [1, 1, 1]]
     first = TransferFunction([0.0, 0.45, 1.0], [0.0, 0.0, 0.6], colours)
     small = TransferFunction([0.0, 0.45, 1.0], [0.0, 0.0, 0.62], colours)
-    swap = TransferFunction([0.0, 0.5, 1.0], [0.0, 0.0, 0.7], [[1, 1, 1], [0.8, 0.9, 1.0], [1, 1, 1]])
+    swap = TransferFunction([0.0, 0.5, 1.0], [0.0, 0.0, 0.7],
+                            [[1, 1, 1], [0.8, 0.9, 1.0], [1, 1, 1]])
     light = [DirectionalLight((1.0, -0.7, 0.3), (1.0, 1.0, 0.6))]
     runs = {}
     for label, above in (("plain", 1e30), ("nested", solver_module.WARM_NESTED_ABOVE)):

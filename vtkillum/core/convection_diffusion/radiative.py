@@ -556,9 +556,9 @@ class RadiativeDiffusion:
         The lagged flux limiter spreads a change of the solution by about a cell per outer
         iteration in optically thin regions, so a cold start, or an edit that changes the
         solution everywhere, needs iterations on the finest grid in proportion to its size.
-        The source and ``x`` are restricted to every level; the coarsest grid's problem is
-        iterated from its restricted ``x``, and each finer grid's from its own restricted
-        ``x`` plus the interpolated change its coarser grid made
+        The source and ``x`` are restricted down to the coarsest level iterated, whose
+        problem is iterated from its restricted ``x``, and each finer grid's from its own
+        restricted ``x`` plus the interpolated change its coarser grid made
         (:data:`COARSEST_ITERATIONS`, then :data:`NESTED_ITERATIONS` outer iterations a
         level), which leaves the finest grid only its local corrections. From zeros this
         is plain nested iteration (the interpolated coarser solution). ``top``: the
