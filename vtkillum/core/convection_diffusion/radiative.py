@@ -310,6 +310,11 @@ class RadiativeDiffusion:
         #: Anderson acceleration of the outer iteration (:meth:`_anderson_iteration`).
         self.anderson = True
         self._aa = None
+        #: Where a far warm start's nested correction begins: the first level with at most
+        #: :data:`WARM_NESTED_CELLS` cells (at least 1; the levels do not change).
+        self.warm_nested_top = next(
+            (i for i in range(1, len(self.levels))
+             if int(np.prod(self.levels[i].shape)) <= WARM_NESTED_CELLS), len(self.levels) - 1)
 
     # --- public ----------------------------------------------------------------------------
     def set_medium(self, sigma: wp.array3d, color_sigma: wp.array3d, albedo: float,
@@ -416,7 +421,7 @@ class RadiativeDiffusion:
             report.nested = True
             for coarse in self.levels[1:]:  # allocated before a capture, kept
                 coarse.nested_arrays(self.device)
-            top = None if cold else self._warm_nested_top()
+            top = None if cold else self.warm_nested_top
             self.graphs.run(("nested", top) + array_key(rhs, x),
                             lambda: self._nested_start(rhs, x, top))
             self.update_coefficients(x)
@@ -542,13 +547,6 @@ class RadiativeDiffusion:
 
         self.graphs.run(("outer", smoothing_only) + array_key(x, rhs), record)
 
-    def _warm_nested_top(self) -> int:
-        """The first level with at most :data:`WARM_NESTED_CELLS` cells (at least 1)."""
-        for index in range(1, len(self.levels)):
-            if int(np.prod(self.levels[index].shape)) <= WARM_NESTED_CELLS:
-                return index
-        return len(self.levels) - 1
-
     def _nested_start(self, q: wp.array3d, x: wp.array3d, top: int | None = None) -> None:
         """Correct the estimate ``x`` (zeros at a cold start) by nested iteration (full
         multigrid, correction scheme), in place.
@@ -563,7 +561,7 @@ class RadiativeDiffusion:
         level), which leaves the finest grid only its local corrections. From zeros this
         is plain nested iteration (the interpolated coarser solution). ``top``: the
         coarsest level iterated (default: the coarsest grid; a warm start is corrected
-        from :meth:`_warm_nested_top`), with :data:`NESTED_ITERATIONS` there unless it is
+        from :attr:`warm_nested_top`), with :data:`NESTED_ITERATIONS` there unless it is
         the coarsest grid.
         """
         levels = self.levels
