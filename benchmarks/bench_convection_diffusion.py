@@ -300,7 +300,7 @@ def iterated_table(n, device) -> None:
             wp.synchronize_device(device)
             it_ms = 1000.0 * (time.perf_counter() - t0)
             diff = float(np.abs(swept.numpy() - iterated.numpy()).max())
-            launches = sweep_plan(kind, np.asarray(vec, float), (n, n, n), h).wavefronts
+            launches = sweep_plan(kind, np.asarray(vec, float), (n, n, n), h, scheme).wavefronts
             print(f"| {label} | {scheme} | {launches} | {sweep_ms:.2f} | {steps} | {it_ms:.1f} | "
                   f"{diff:.1e} |")
 

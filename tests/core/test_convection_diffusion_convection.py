@@ -167,6 +167,28 @@ def test_point_light_outside_enters_through_the_faces_that_see_it():
     assert plan.wavefronts == 8 and plan.primary == 1
 
 
+def test_directional_characteristics_sweep_by_layers_along_the_dominant_axis():
+    """Short characteristics of a directional light all interpolate one layer back along the
+    axis of largest |u_a| / h_a: one launch per layer of that axis, not per wavefront."""
+    shape, h = (12, 10, 9), (1.0, 0.6, 1.2)
+    plan = sweep_plan(DIRECTIONAL, (0.3, -0.5, 0.8), shape, h)
+    assert plan.layers and plan.primary == 1 and plan.wavefronts == 10  # 0.5/0.6 > 0.8/1.2
+    plan = sweep_plan(DIRECTIONAL, (0.3, -0.5, 0.8), shape, h, scheme="upwind")
+    assert not plan.layers and plan.wavefronts == 12 + 10 + 9 - 2  # in-layer neighbours
+    plan = sweep_plan(POINT, (5.3, 3.1, 4.4), shape, h)
+    assert not plan.layers  # the interpolation axis changes from point to point
+
+
+@pytest.mark.parametrize("vec", [(1.0, 1.0, 0.5), (0.7, -0.7, 0.7), (0.0, 0.3, -1.0)])
+def test_layer_sweep_with_tied_axes_equals_the_iterated_steady_state(device, rng, vec):
+    """Directions whose |u_a| / h_a tie (the layer axis is the first of them) or vanish."""
+    sig = sigma_array(rng.uniform(0.0, 0.6, (11, 11, 11)), device)
+    swept = convect_light(sig, (1.0, 1.0, 1.0), DIRECTIONAL, vec).numpy()
+    iterated, _ = convect_light_iterated(sig, (1.0, 1.0, 1.0), DIRECTIONAL, vec,
+                                         tolerance=1e-8)
+    np.testing.assert_allclose(swept, iterated.numpy(), atol=2e-6)
+
+
 @pytest.mark.parametrize("scheme", ["upwind", "exponential", "characteristics"])
 @pytest.mark.parametrize("kind, vec", [
     (DIRECTIONAL, (0.3, -0.5, 0.8)),

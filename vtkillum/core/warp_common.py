@@ -193,6 +193,23 @@ def inside_box(p: wp.vec3, extent: wp.vec3):
 
 
 @wp.func
+def axis_offset(axis: int, value: int):
+    """``value`` times the unit index vector of ``axis``.
+
+    Built with selects, like :func:`component`: indexing a vector with a
+    run-time axis (``p[axis]``) makes CUDA keep it in local memory.
+    """
+    return wp.vec3i(wp.where(axis == 0, value, 0), wp.where(axis == 1, value, 0),
+                    wp.where(axis == 2, value, 0))
+
+
+@wp.func
+def component(v: Any, axis: int):
+    """``v[axis]`` for a run-time ``axis`` (see :func:`axis_offset`)."""
+    return wp.where(axis == 0, v[0], wp.where(axis == 1, v[1], v[2]))
+
+
+@wp.func
 def grid_point(i: int, j: int, k: int, spacing: wp.vec3):
     """Local position of point ``[i, j, k]`` of a regular grid with ``spacing`` starting at 0."""
     return wp.vec3(float(i) * spacing[0], float(j) * spacing[1], float(k) * spacing[2])

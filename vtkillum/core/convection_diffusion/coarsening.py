@@ -49,6 +49,7 @@ from __future__ import annotations
 import warp as wp
 
 from vtkillum.core.convection_diffusion.multigrid import child_cell
+from vtkillum.core.warp_common import axis_offset, component
 
 #: Smallest face coefficient in a channel's resistance (1/world units): a zero coefficient
 #: (a face that carries nothing) gives the channel a conductance of ~0, not a division by 0.
@@ -128,24 +129,26 @@ def coarse_coefficients_kernel(kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dty
                 n += 1.0
         cabsorb[ci, cj, ck] = s / n
         return
-    a = what
+    a = what  # a run-time axis: components by select (component, axis_offset)
     c = wp.vec3i(ci, cj, ck)
-    if c[a] >= cabsorb.shape[a] - 1:
+    ca = component(c, a)
+    if ca >= component(wp.vec3i(cabsorb.shape[0], cabsorb.shape[1], cabsorb.shape[2]), a) - 1:
         return
-    ra = ratio[a]
-    last = c[a] * ra + ra - 1  # the fine cell left of the interface, along a
-    e = wp.vec3i(0)
-    e[a] = 1
+    ra = component(ratio, a)
+    nfa = component(nf, a)
+    last = ca * ra + ra - 1  # the fine cell left of the interface, along a
+    e = axis_offset(a, 1)
     g = wp.vec3(0.0)
     channels = float(0.0)
     for child in range(children):
         i, j, k = child_cell(ci, cj, ck, ratio, child)
         p = wp.vec3i(i, j, k)
-        if p[a] == last and i < nf[0] and j < nf[1] and k < nf[2]:
+        pa = component(p, a)
+        if pa == last and i < nf[0] and j < nf[1] and k < nf[2]:
             r = resistance(face_k(kx, ky, kz, a, p), 1.0)
             if ra > 1:
                 r += resistance(face_k(kx, ky, kz, a, p - e), 0.5)
-                if p[a] + 2 < nf[a]:  # the right cell has two children
+                if pa + 2 < nfa:  # the right cell has two children
                     r += resistance(face_k(kx, ky, kz, a, p + e), 0.5)
             g += wp.vec3(1.0 / r[0], 1.0 / r[1], 1.0 / r[2])
             channels += 1.0

@@ -89,6 +89,14 @@ paper's layers. :func:`convect_light_iterated` implements the paper's iteration
 (Jacobi sweeps for ``"characteristics"``), which converges to the same numbers
 (tested).
 
+A directional light's short characteristics need fewer launches: every point
+interpolates in the grid plane one step back along the same axis ``d``, the one
+with the largest ``|u_a| / h_a``, so the layers along ``d`` are such an order
+after all: ``n_d`` launches instead of ``n_x + n_y + n_z - 2`` wavefronts (the
+sweep is bound by its launches' latency, not by its work). The upwind stencils
+read their in-layer neighbours and keep the wavefronts, and so do point lights,
+whose ``d`` changes from point to point.
+
 For point lights, the grid planes that straddle the light (``lo_a <= i <= hi_a``)
 take no upstream step along ``a``: their upwind neighbour would lie on the other
 side of the light, and keeping it would make the two planes depend on each
@@ -105,7 +113,7 @@ import warp as wp
 
 from vtkillum.core.graphs import array_key
 from vtkillum.core.lights import DIRECTIONAL, POINT
-from vtkillum.core.warp_common import grid_point
+from vtkillum.core.warp_common import axis_offset, component, grid_point
 
 #: Direction components smaller than this are treated as exactly zero.
 PARALLEL_EPS = 1.0e-6
@@ -132,9 +140,13 @@ class SweepPlan:
         Per axis, the index of the Dirichlet inflow face, or -1 when light does not
         enter through a face normal to that axis.
     primary : int
-        Axis along which each thread walks (the one with most wavefronts).
+        Axis along which each thread walks: the one with most wavefronts, or with
+        ``layers`` the axis of the layers.
     wavefronts : int
-        Number of wavefronts ``max(m) + 1``.
+        Number of launches: wavefronts ``max(m) + 1``, or layers.
+    layers : bool
+        Sweep layer by layer along ``primary`` (a directional light's short
+        characteristics, see the module docstring), not by wavefronts.
     """
 
     lo: np.ndarray
@@ -142,10 +154,11 @@ class SweepPlan:
     inflow: np.ndarray
     primary: int
     wavefronts: int
+    layers: bool = False
 
 
-def sweep_plan(kind: int, vec, shape, spacing) -> SweepPlan:
-    """Wavefront ordering for one light (see the module docstring).
+def sweep_plan(kind: int, vec, shape, spacing, scheme: str = "characteristics") -> SweepPlan:
+    """Sweep order for one light (see the module docstring).
 
     Parameters
     ----------
@@ -157,6 +170,9 @@ def sweep_plan(kind: int, vec, shape, spacing) -> SweepPlan:
         Light-grid points per axis.
     spacing : (3,) float
         Light-grid spacing (world units).
+    scheme : str
+        The discretisation (:data:`SCHEMES`): only short characteristics sweep a
+        directional light by layers.
     """
     n = np.asarray(shape, dtype=np.int64)
     vec = np.asarray(vec, dtype=np.float64)
@@ -182,6 +198,13 @@ def sweep_plan(kind: int, vec, shape, spacing) -> SweepPlan:
         else:
             raise ValueError(f"unknown light kind {kind!r}")
     rmax = np.maximum(n - 1 - hi, lo)
+    if kind == DIRECTIONAL and _scheme_id(scheme) == SCHEMES["characteristics"]:
+        # the characteristics' axis, as the kernel ranks it (float32), which it is then given
+        u32 = np.abs(vec.astype(np.float32))
+        c = [u32[a] / np.float32(spacing[a]) if abs(vec[a]) > PARALLEL_EPS else np.float32(0)
+             for a in range(3)]
+        d = int(np.argmax(c))  # the first of equal ones, like the kernel
+        return SweepPlan(lo, hi, inflow, d, int(rmax[d]) + 1, layers=True)
     return SweepPlan(lo, hi, inflow, int(np.argmax(rmax)), int(rmax.sum()) + 1)
 
 
@@ -208,12 +231,12 @@ def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: flo
     scheme : str
         ``"characteristics"`` (default), ``"exponential"`` or ``"upwind"`` (the paper's).
     graphs : vtkillum.core.graphs.LaunchGraphs, optional
-        Replay the sweep (one launch per wavefront) from a captured graph, recorded once
-        per light, grid and arrays.
+        Replay the sweep (one launch per wavefront or layer) from a captured graph,
+        recorded once per light, grid and arrays.
     second : (warp.array3d, warp.array3d), optional
         ``(sigma2, out2)``: convect the same light through a second extinction field in
         the same launches (the δ-Eddington beams of the physical model): the sweep is
-        bound by its wavefronts' latency, so the second field costs almost nothing.
+        bound by its launches' latency, so the second field costs almost nothing.
 
     Returns
     -------
@@ -221,39 +244,16 @@ def convect_light(sigma: wp.array3d, spacing, kind: int, vec, source_radius: flo
         Transmittance ``T`` in [0, 1] at every light-grid point.
     """
     shape = tuple(sigma.shape)
-    device = sigma.device
-    scheme_id = _scheme_id(scheme)
-    vec = _light_vector(kind, vec)
-    spacing = np.asarray(spacing, dtype=np.float64)
-    plan = sweep_plan(kind, vec, shape, spacing)
     if out is None:
-        out = wp.empty(shape, dtype=wp.float32, device=device)
-    secondary = [a for a in range(3) if a != plan.primary]
-    dim = (shape[secondary[0]], shape[secondary[1]])
-    vec32 = vec.astype(np.float32)
-    spacing32 = spacing.astype(np.float32)
-
-    sigma2, out2 = second if second is not None else (sigma, out)
-    if tuple(sigma2.shape) != shape or tuple(out2.shape) != shape:
-        raise ValueError("the second field of a paired sweep must have the grid's shape")
-
-    def sweep():
-        cmd = wp.launch(
-            upwind_sweep_kernel, dim=dim, device=device, record_cmd=True,
-            inputs=[sigma, out, 0, plan.primary, wp.vec3i(*plan.lo), wp.vec3i(*plan.hi),
-                    wp.vec3i(*plan.inflow), int(kind), wp.vec3(*vec32), wp.vec3(*spacing32),
-                    float(source_radius), scheme_id, int(second is not None), sigma2, out2],
-        )
-        for m in range(plan.wavefronts):
-            cmd.set_param_at_index(2, m)
-            cmd.launch()
-
-    if graphs is None:
-        sweep()
-    else:
-        graphs.run(("convect", int(kind), tuple(vec32.tolist()), tuple(spacing32.tolist()),
-                    float(source_radius), scheme_id, second is not None)
-                   + array_key(sigma, out, sigma2, out2), sweep)
+        out = wp.empty(shape, dtype=wp.float32, device=sigma.device)
+    paired = None
+    if second is not None:
+        sigma2, out2 = second
+        if tuple(out2.shape) != shape:
+            raise ValueError("the second field of a paired sweep must have the grid's shape")
+        paired = (sigma2, out2.reshape((1, *shape)))
+    convect_lights(sigma, spacing, [(kind, vec)], out.reshape((1, *shape)), [0],
+                   source_radius, scheme, graphs, paired)
     return out
 
 
@@ -262,8 +262,10 @@ def convect_lights(sigma: wp.array3d, spacing, lights, out: wp.array4d, slots,
                    second=None) -> None:
     """:func:`convect_light` for several lights in the same launches.
 
-    Wavefront ``m`` of every light is one launch, so ``n`` lights cost about as much as
-    the one with most wavefronts (the sweep is bound by the wavefronts' latency).
+    Wavefront (or layer) ``m`` of every light is one launch, so ``n`` lights cost about
+    as much as the one with most (the sweep is bound by its launches' latency). A
+    launch has a thread per line along each light's ``primary`` axis, per side of the
+    light and per field (with ``second``): a thread updates one point.
 
     Parameters
     ----------
@@ -287,12 +289,14 @@ def convect_lights(sigma: wp.array3d, spacing, lights, out: wp.array4d, slots,
     plans, vecs = [], []
     for kind, vec in lights:
         vec = _light_vector(kind, vec)
-        plans.append(sweep_plan(kind, vec, shape, spacing))
+        plans.append(sweep_plan(kind, vec, shape, spacing, scheme))
         vecs.append(vec.astype(np.float32))
     if not plans:
         return
     dims = [[shape[a] for a in range(3) if a != p.primary] for p in plans]
-    dim = (len(plans), max(d[0] for d in dims), max(d[1] for d in dims))
+    # a thread per (light, field and side of the light, line): one point each
+    parts = 4 if second is not None else 2
+    dim = (len(plans), parts, max(d[0] for d in dims), max(d[1] for d in dims))
     wavefronts = max(p.wavefronts for p in plans)
     sigma2, out2 = second if second is not None else (sigma, out)
     if tuple(sigma2.shape) != shape or tuple(out2.shape) != tuple(out.shape):
@@ -310,6 +314,7 @@ def convect_lights(sigma: wp.array3d, spacing, lights, out: wp.array4d, slots,
         return wp.array(np.asarray(values), dtype=dtype, device=device)
 
     params = [table(list(slots), int), table([p.primary for p in plans], int),
+              table([int(p.layers) for p in plans], int),
               table([p.lo for p in plans], wp.vec3i), table([p.hi for p in plans], wp.vec3i),
               table([p.inflow for p in plans], wp.vec3i),
               table([int(k) for k, _ in lights], int), table(vecs, wp.vec3)]
@@ -318,7 +323,7 @@ def convect_lights(sigma: wp.array3d, spacing, lights, out: wp.array4d, slots,
     def sweep():
         cmd = wp.launch(batched_sweep_kernel, dim=dim, device=device, record_cmd=True,
                         inputs=[sigma, out, 0, *params, wp.vec3(*h32), float(source_radius),
-                                scheme_id, int(second is not None), sigma2, out2])
+                                scheme_id, sigma2, out2])
         for m in range(wavefronts):
             cmd.set_param_at_index(2, m)
             cmd.launch()
@@ -495,13 +500,6 @@ def upwind_sums(T: wp.array3d(dtype=wp.float32), idx: wp.vec3i, u: wp.vec3, h: w
 
 
 @wp.func
-def axis_offset(axis: int, value: int):
-    """``value`` times the unit index vector of ``axis``."""
-    return wp.vec3i(wp.where(axis == 0, value, 0), wp.where(axis == 1, value, 0),
-                    wp.where(axis == 2, value, 0))
-
-
-@wp.func
 def upstream_step(i: int, lo: int, hi: int):
     """+1 if the upwind neighbour is at ``i - 1``, -1 if at ``i + 1``, 0 if there is none."""
     if i > hi:
@@ -513,29 +511,41 @@ def upstream_step(i: int, lo: int, hi: int):
 
 @wp.func
 def characteristic_value(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.float32),
-                         idx: wp.vec3i, u: wp.vec3, h: wp.vec3, lo: wp.vec3i, hi: wp.vec3i):
+                         idx: wp.vec3i, u: wp.vec3, h: wp.vec3, lo: wp.vec3i, hi: wp.vec3i,
+                         dominant: int):
     """Short characteristic: ``T`` interpolated where the ray back towards the light first
-    crosses a grid plane, times the transmittance of that step (trapezoidal ``sigma``)."""
+    crosses a grid plane, times the transmittance of that step (trapezoidal ``sigma``).
+
+    ``dominant``: the axis of that plane when the sweep's order relies on it (a
+    directional light swept by layers), or -1 to find it here."""
     s = wp.vec3i(upstream_step(idx[0], lo[0], hi[0]), upstream_step(idx[1], lo[1], hi[1]),
                  upstream_step(idx[2], lo[2], hi[2]))
     c = wp.vec3(wp.where(s[0] != 0, wp.abs(u[0]) / h[0], 0.0),
                 wp.where(s[1] != 0, wp.abs(u[1]) / h[1], 0.0),
                 wp.where(s[2] != 0, wp.abs(u[2]) / h[2], 0.0))
+    # d, a, b are run-time axes: components by select (component)
     d = 0
-    if c[1] > c[d]:
-        d = 1
-    if c[2] > c[d]:
-        d = 2
-    if c[d] <= 0.0:
+    cd = c[0]
+    if dominant >= 0:
+        d = dominant
+        cd = component(c, d)
+    else:
+        if c[1] > cd:
+            d = 1
+            cd = c[1]
+        if c[2] > cd:
+            d = 2
+            cd = c[2]
+    if cd <= 0.0:
         return 1.0  # no upstream point: the light's own cell
-    t = 1.0 / c[d]
+    t = 1.0 / cd
     a = (d + 1) % 3
     b = (d + 2) % 3
-    fa = wp.min(c[a] * t, 1.0)
-    fb = wp.min(c[b] * t, 1.0)
-    p00 = idx - axis_offset(d, s[d])
-    pa = axis_offset(a, s[a])
-    pb = axis_offset(b, s[b])
+    fa = wp.min(component(c, a) * t, 1.0)
+    fb = wp.min(component(c, b) * t, 1.0)
+    p00 = idx - axis_offset(d, component(s, d))
+    pa = axis_offset(a, component(s, a))
+    pb = axis_offset(b, component(s, b))
     p10 = p00 - pa
     p01 = p00 - pb
     p11 = p10 - pb
@@ -554,8 +564,9 @@ def characteristic_value(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtyp
 @wp.func
 def upwind_point(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.float32),
                  idx: wp.vec3i, lo: wp.vec3i, hi: wp.vec3i, inflow: wp.vec3i, kind: int,
-                 vec: wp.vec3, h: wp.vec3, source_radius: float, scheme: int):
-    """Solve the steady upwind equation at one point from its (final) upwind neighbours.
+                 vec: wp.vec3, h: wp.vec3, source_radius: float, scheme: int, dominant: int):
+    """Solve the steady upwind equation at one point from its (final) upwind neighbours
+    (``dominant``: see :func:`characteristic_value`).
 
     A point without upwind neighbours (only the point light's own cell, when the
     source radius is smaller than the cell) is treated as a source point, T = 1.
@@ -565,7 +576,7 @@ def upwind_point(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.flo
     s = sigma[idx[0], idx[1], idx[2]]
     value = boundary_value(idx, inflow, kind, dist, source_radius, s)
     if value < 0.0 and scheme == CHARACTERISTICS:
-        value = characteristic_value(sigma, T, idx, u, h, lo, hi)
+        value = characteristic_value(sigma, T, idx, u, h, lo, hi, dominant)
     elif value < 0.0:
         value = 1.0
         num, den = upwind_sums(T, idx, u, h, lo, hi)
@@ -579,74 +590,57 @@ def upwind_point(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.flo
 
 # --- kernels -------------------------------------------------------------------------------------
 @wp.func
-def sweep_line(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.float32), m: int,
-               primary: int, lo: wp.vec3i, hi: wp.vec3i, inflow: wp.vec3i, kind: int,
-               vec: wp.vec3, h: wp.vec3, source_radius: float, scheme: int, paired: int,
-               sigma2: wp.array3d(dtype=wp.float32), T2: wp.array3d(dtype=wp.float32), a: int,
-               b: int):
-    """The points of line ``(a, b)`` (the non-primary axes in increasing order) whose
-    wavefront index is ``m``: at most two, or the ``[lo, hi]`` range when ``m`` is reached
-    there; with ``paired`` also those of ``T2`` through ``sigma2``."""
-    base = grid_index(primary, 0, a, b)
-    r_other = (wavefront_distance(base[0], lo[0], hi[0]) + wavefront_distance(base[1], lo[1], hi[1])
-               + wavefront_distance(base[2], lo[2], hi[2]) - wavefront_distance(0, lo[primary],
-                                                                                hi[primary]))
+def sweep_point(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.float32), m: int,
+                primary: int, layers: int, lo: wp.vec3i, hi: wp.vec3i, inflow: wp.vec3i,
+                kind: int, vec: wp.vec3, h: wp.vec3, source_radius: float, scheme: int,
+                side: int, a: int, b: int):
+    """The point of line ``(a, b)`` (the non-primary axes in increasing order) in
+    wavefront ``m`` on the light's ``side`` 0 (beyond ``hi``) or 1 (before ``lo``) along
+    the primary axis, or side 0 the ``[lo, hi]`` range when ``m`` is reached there; with
+    ``layers`` the points of layer ``m`` along the primary axis."""
+    dominant = -1
+    r_other = 0
+    if layers != 0:
+        dominant = primary
+    else:
+        base = grid_index(primary, 0, a, b)
+        r_other = (wavefront_distance(base[0], lo[0], hi[0])
+                   + wavefront_distance(base[1], lo[1], hi[1])
+                   + wavefront_distance(base[2], lo[2], hi[2])
+                   - wavefront_distance(0, component(lo, primary), component(hi, primary)))
     rp = m - r_other
     if rp < 0:
         return
-    lp = lo[primary]
-    hp = hi[primary]
+    lp = component(lo, primary)
+    hp = component(hi, primary)
     if rp == 0:
-        for p in range(lp, hp + 1):
-            idx = grid_index(primary, p, a, b)
-            upwind_point(sigma, T, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
-            if paired != 0:
-                upwind_point(sigma2, T2, idx, lo, hi, inflow, kind, vec, h, source_radius,
-                             scheme)
+        if side == 0:
+            for p in range(lp, hp + 1):
+                upwind_point(sigma, T, grid_index(primary, p, a, b), lo, hi, inflow, kind, vec,
+                             h, source_radius, scheme, dominant)
         return
-    n_p = T.shape[primary]
-    if hp + rp < n_p:
-        idx = grid_index(primary, hp + rp, a, b)
-        upwind_point(sigma, T, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
-        if paired != 0:
-            upwind_point(sigma2, T2, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
-    if lp - rp >= 0:
-        idx = grid_index(primary, lp - rp, a, b)
-        upwind_point(sigma, T, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
-        if paired != 0:
-            upwind_point(sigma2, T2, idx, lo, hi, inflow, kind, vec, h, source_radius, scheme)
-
-
-@wp.kernel
-def upwind_sweep_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=wp.float32),
-                        m: int, primary: int, lo: wp.vec3i, hi: wp.vec3i, inflow: wp.vec3i,
-                        kind: int, vec: wp.vec3, h: wp.vec3, source_radius: float, scheme: int,
-                        paired: int, sigma2: wp.array3d(dtype=wp.float32),
-                        T2: wp.array3d(dtype=wp.float32)):
-    """Update every point of wavefront ``m`` (see the module docstring) of one light.
-
-    ``wp.tid() = (a, b)`` indexes the two non-primary axes in increasing axis order
-    (:func:`sweep_line`). ``h`` is the grid spacing (world units), ``vec`` the light's
-    travel direction or position in the local frame, ``sigma`` in 1/world units,
-    ``scheme`` 0 upwind or 1 exponential.
-    """
-    a, b = wp.tid()
-    sweep_line(sigma, T, m, primary, lo, hi, inflow, kind, vec, h, source_radius, scheme, paired,
-               sigma2, T2, a, b)
+    p = hp + rp
+    if side == 1:
+        p = lp - rp
+    if p >= 0 and p < component(wp.vec3i(T.shape[0], T.shape[1], T.shape[2]), primary):
+        upwind_point(sigma, T, grid_index(primary, p, a, b), lo, hi, inflow, kind, vec, h,
+                     source_radius, scheme, dominant)
 
 
 @wp.kernel
 def batched_sweep_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array4d(dtype=wp.float32),
                          m: int, slots: wp.array(dtype=int), primaries: wp.array(dtype=int),
-                         los: wp.array(dtype=wp.vec3i), his: wp.array(dtype=wp.vec3i),
-                         inflows: wp.array(dtype=wp.vec3i), kinds: wp.array(dtype=int),
-                         vecs: wp.array(dtype=wp.vec3), h: wp.vec3, source_radius: float,
-                         scheme: int, paired: int, sigma2: wp.array3d(dtype=wp.float32),
+                         layers: wp.array(dtype=int), los: wp.array(dtype=wp.vec3i),
+                         his: wp.array(dtype=wp.vec3i), inflows: wp.array(dtype=wp.vec3i),
+                         kinds: wp.array(dtype=int), vecs: wp.array(dtype=wp.vec3), h: wp.vec3,
+                         source_radius: float, scheme: int, sigma2: wp.array3d(dtype=wp.float32),
                          T2: wp.array4d(dtype=wp.float32)):
-    """Wavefront ``m`` of several lights at once: ``wp.tid() = (job, a, b)``, light ``job``
-    writes ``T[slots[job]]`` (lines beyond its own grid face are skipped, and so are the
-    wavefronts past its last)."""
-    job, a, b = wp.tid()
+    """Wavefront (or layer) ``m`` of several lights at once: ``wp.tid() = (job, part, a,
+    b)``, light ``job`` writes ``T[slots[job]]`` (``part`` 0, 1: the two sides of the
+    light) and ``T2[slots[job]]`` through ``sigma2`` (``part`` 2, 3), one point of line
+    ``(a, b)`` each (:func:`sweep_point`; lines beyond the light's own grid face are
+    skipped, and so are the wavefronts past its last)."""
+    job, part, a, b = wp.tid()
     primary = primaries[job]
     first = 0
     if primary == 0:
@@ -654,11 +648,17 @@ def batched_sweep_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array4d(dtyp
     second = 2
     if primary == 2:
         second = 1
-    if a >= sigma.shape[first] or b >= sigma.shape[second]:
+    shape = wp.vec3i(sigma.shape[0], sigma.shape[1], sigma.shape[2])
+    if a >= component(shape, first) or b >= component(shape, second):
         return
     slot = slots[job]
-    sweep_line(sigma, T[slot], m, primary, los[job], his[job], inflows[job], kinds[job],
-               vecs[job], h, source_radius, scheme, paired, sigma2, T2[slot], a, b)
+    if part < 2:
+        sweep_point(sigma, T[slot], m, primary, layers[job], los[job], his[job], inflows[job],
+                    kinds[job], vecs[job], h, source_radius, scheme, part, a, b)
+    else:
+        sweep_point(sigma2, T2[slot], m, primary, layers[job], los[job], his[job],
+                    inflows[job], kinds[job], vecs[job], h, source_radius, scheme, part - 2, a,
+                    b)
 
 
 @wp.kernel
@@ -680,7 +680,7 @@ def upwind_step_kernel(sigma: wp.array3d(dtype=wp.float32), T: wp.array3d(dtype=
     s = sigma[i, j, k]
     value = boundary_value(idx, inflow, kind, dist, source_radius, s)
     if value < 0.0 and scheme == CHARACTERISTICS:
-        value = characteristic_value(sigma, T, idx, u, h, lo, hi)  # explicit: Jacobi sweeps
+        value = characteristic_value(sigma, T, idx, u, h, lo, hi, -1)  # explicit: Jacobi sweeps
     elif value < 0.0:
         value = 1.0
         num, den = upwind_sums(T, idx, u, h, lo, hi)

@@ -164,6 +164,7 @@ from vtkillum.core.convection_diffusion.multigrid import (
 )
 from vtkillum.core.convection_diffusion.stencil import add_channels, sum_squares_kernel
 from vtkillum.core.graphs import LaunchGraphs, array_key
+from vtkillum.core.warp_common import axis_offset, component
 
 #: Flux limiters (see the module docstring).
 LIMITERS = {"levermore-pomraning": 0, "wilson": 1, "larsen": 2, "none": 3}
@@ -753,15 +754,20 @@ def limited_vec(sigma_tr: wp.vec3, grad_sq: wp.vec3, phi: wp.vec3, d_max: float,
 
 @wp.func
 def central_difference(phi: wp.array3d(dtype=wp.vec3), p: wp.vec3i, axis: int, h: float):
-    """``d phi / dx_axis`` at point ``p``: central inside, one-sided at the box faces."""
-    n = phi.shape[axis]
-    lo = wp.vec3i(p[0], p[1], p[2])
-    hi = wp.vec3i(p[0], p[1], p[2])
-    if p[axis] > 0:
-        lo[axis] = p[axis] - 1
-    if p[axis] < n - 1:
-        hi[axis] = p[axis] + 1
-    steps = float(hi[axis] - lo[axis])
+    """``d phi / dx_axis`` at point ``p`` (``h`` the spacing along ``axis``): central inside,
+    one-sided at the box faces."""
+    e = axis_offset(axis, 1)
+    i = component(p, axis)
+    n = component(wp.vec3i(phi.shape[0], phi.shape[1], phi.shape[2]), axis)
+    lo = p
+    hi = p
+    steps = float(0.0)
+    if i > 0:
+        lo = p - e
+        steps += 1.0
+    if i < n - 1:
+        hi = p + e
+        steps += 1.0
     if steps == 0.0:
         return wp.vec3(0.0)
     return (phi[hi[0], hi[1], hi[2]] - phi[lo[0], lo[1], lo[2]]) / (steps * h)
@@ -883,20 +889,25 @@ def face_coefficient(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=
     Face means of ``sigma_tr`` and ``phi``; face gradient from the two points (normal)
     and the mean of their central differences (tangential).
     """
-    q = wp.vec3i(p[0], p[1], p[2])
-    q[axis] = q[axis] + 1
+    q = p + axis_offset(axis, 1)
     a = phi[p[0], p[1], p[2]]
     b = phi[q[0], q[1], q[2]]
-    normal = (b - a) / h[axis]
+    ha = component(h, axis)
+    normal = (b - a) / ha
     grad_sq = wp.cw_mul(normal, normal)
-    for t in range(3):
-        if t != axis:
-            gt = 0.5 * (central_difference(phi, p, t, h[t]) + central_difference(phi, q, t, h[t]))
-            grad_sq += wp.cw_mul(gt, gt)
+    # the two tangential axes, in increasing order
+    t0 = wp.where(axis == 0, 1, 0)
+    t1 = wp.where(axis == 2, 1, 2)
+    h0 = component(h, t0)
+    gt = 0.5 * (central_difference(phi, p, t0, h0) + central_difference(phi, q, t0, h0))
+    grad_sq += wp.cw_mul(gt, gt)
+    h1 = component(h, t1)
+    gt = 0.5 * (central_difference(phi, p, t1, h1) + central_difference(phi, q, t1, h1))
+    grad_sq += wp.cw_mul(gt, gt)
     s = 0.5 * (sigma_tr[p[0], p[1], p[2]] + sigma_tr[q[0], q[1], q[2]])
     f = 0.5 * (a + b)
     d = limited_vec(s, grad_sq, f, d_max, limiter)
-    return d / (h[axis] * h[axis])
+    return d / (ha * ha)
 
 
 @wp.func
@@ -948,7 +959,7 @@ def coefficients_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dty
     p = wp.vec3i(i, j, k)
     if what == 3:
         absorb[i, j, k] = sigma_a[i, j, k] + leak_at(phi, sigma_tr, p, h, d_max, limiter)
-    elif p[what] < phi.shape[what] - 1:
+    elif component(p, what) < component(wp.vec3i(phi.shape[0], phi.shape[1], phi.shape[2]), what) - 1:
         set_face_k(kx, ky, kz, what, p, face_coefficient(phi, sigma_tr, p, what, h, d_max,
                                                           limiter))
 
