@@ -192,6 +192,18 @@ def inside_box(p: wp.vec3, extent: wp.vec3):
             and p[0] <= extent[0] and p[1] <= extent[1] and p[2] <= extent[2])
 
 
+def capped_kernel(registers: int):
+    """``wp.kernel`` with a cap on the registers per thread of its CUDA code (warp >= 1.10's
+    ``cuda_max_registers``; a plain ``wp.kernel`` where warp has no such option, or for a
+    cap of 0)."""
+    if int(registers) <= 0:
+        return wp.kernel
+    try:
+        return wp.kernel(cuda_max_registers=int(registers))
+    except TypeError:
+        return wp.kernel
+
+
 @wp.func
 def axis_offset(axis: int, value: int):
     """``value`` times the unit index vector of ``axis``.

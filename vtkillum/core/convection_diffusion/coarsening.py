@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from vtkillum.core.convection_diffusion.multigrid import child_cell
+from vtkillum.core.convection_diffusion.multigrid import child_of
 from vtkillum.core.warp_common import axis_offset, component
 
 #: Smallest face coefficient in a channel's resistance (1/world units): a zero coefficient
@@ -118,15 +118,16 @@ def coarse_coefficients_kernel(kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dty
     their axis), coarse arrays the coarse level's; all in 1/world units."""
     what, ci, cj, ck = wp.tid()
     nf = wp.vec3i(absorb.shape[0], absorb.shape[1], absorb.shape[2])
-    children = ratio[0] * ratio[1] * ratio[2]
     if what == 3:
         s = wp.vec3(0.0)
         n = float(0.0)
-        for child in range(children):
-            i, j, k = child_cell(ci, cj, ck, ratio, child)
-            if i < nf[0] and j < nf[1] and k < nf[2]:
-                s += absorb[i, j, k]
-                n += 1.0
+        for u in range(2):  # the children (child_of)
+            for v in range(2):
+                for w in range(2):
+                    i, j, k, ok = child_of(ci, cj, ck, ratio, u, v, w, nf)
+                    if ok:
+                        s += absorb[i, j, k]
+                        n += 1.0
         cabsorb[ci, cj, ck] = s / n
         return
     a = what  # a run-time axis: components by select (component, axis_offset)
@@ -140,16 +141,18 @@ def coarse_coefficients_kernel(kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dty
     e = axis_offset(a, 1)
     g = wp.vec3(0.0)
     channels = float(0.0)
-    for child in range(children):
-        i, j, k = child_cell(ci, cj, ck, ratio, child)
-        p = wp.vec3i(i, j, k)
-        pa = component(p, a)
-        if pa == last and i < nf[0] and j < nf[1] and k < nf[2]:
-            r = resistance(face_k(kx, ky, kz, a, p), 1.0)
-            if ra > 1:
-                r += resistance(face_k(kx, ky, kz, a, p - e), 0.5)
-                if pa + 2 < nfa:  # the right cell has two children
-                    r += resistance(face_k(kx, ky, kz, a, p + e), 0.5)
-            g += wp.vec3(1.0 / r[0], 1.0 / r[1], 1.0 / r[2])
-            channels += 1.0
+    for u in range(2):
+        for v in range(2):
+            for w in range(2):
+                i, j, k, ok = child_of(ci, cj, ck, ratio, u, v, w, nf)
+                p = wp.vec3i(i, j, k)
+                pa = component(p, a)
+                if ok and pa == last:
+                    r = resistance(face_k(kx, ky, kz, a, p), 1.0)
+                    if ra > 1:
+                        r += resistance(face_k(kx, ky, kz, a, p - e), 0.5)
+                        if pa + 2 < nfa:  # the right cell has two children
+                            r += resistance(face_k(kx, ky, kz, a, p + e), 0.5)
+                    g += wp.vec3(1.0 / r[0], 1.0 / r[1], 1.0 / r[2])
+                    channels += 1.0
     set_face_k(ckx, cky, ckz, a, c, g / (channels * float(ra)))

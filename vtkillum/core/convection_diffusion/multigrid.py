@@ -132,22 +132,34 @@ def restrict_kernel(r: wp.array3d(dtype=wp.vec3), bc: wp.array3d(dtype=wp.vec3),
     ci, cj, ck = wp.tid()
     s = wp.vec3(0.0)
     count = float(0.0)
-    for child in range(ratio[0] * ratio[1] * ratio[2]):
-        i, j, k = child_cell(ci, cj, ck, ratio, child)
-        if i < r.shape[0] and j < r.shape[1] and k < r.shape[2]:
-            s += r[i, j, k]
-            count += 1.0
+    shape = wp.vec3i(r.shape[0], r.shape[1], r.shape[2])
+    for u in range(2):
+        for v in range(2):
+            for w in range(2):
+                i, j, k, ok = child_of(ci, cj, ck, ratio, u, v, w, shape)
+                if ok:
+                    s += r[i, j, k]
+                    count += 1.0
     bc[ci, cj, ck] = s / count
 
 
 @wp.func
-def child_cell(ci: int, cj: int, ck: int, ratio: wp.vec3i, child: int):
-    """Fine cell ``child`` (0 .. ratio product - 1, the last axis fastest) of coarse cell
-    ``(ci, cj, ck)``; it may lie beyond an odd fine grid's end."""
-    a = child // (ratio[1] * ratio[2])
-    q = (child // ratio[2]) % ratio[1]
-    c = child % ratio[2]
-    return ci * ratio[0] + a, cj * ratio[1] + q, ck * ratio[2] + c
+def child_of(ci: int, cj: int, ck: int, ratio: wp.vec3i, u: int, v: int, w: int,
+             shape: wp.vec3i):
+    """Fine cell ``(u, v, w)`` (0 or 1 per axis) of coarse cell ``(ci, cj, ck)`` and whether
+    it exists (``u < ratio[0]`` etc., and inside a fine grid of ``shape``, which an odd
+    grid's last coarse cell overhangs).
+
+    Kernels visit the children in three constant loops ``for u in range(2)`` (unrolled,
+    the last axis fastest): a child number split into ``(u, v, w)`` by run-time integer
+    divisions cost more than the coarse coefficients themselves.
+    """
+    i = ci * ratio[0] + u
+    j = cj * ratio[1] + v
+    k = ck * ratio[2] + w
+    ok = (u < ratio[0] and v < ratio[1] and w < ratio[2] and i < shape[0] and j < shape[1]
+          and k < shape[2])
+    return i, j, k, ok
 
 
 @wp.kernel
@@ -159,12 +171,15 @@ def residual_restrict_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=w
     ci, cj, ck = wp.tid()
     s = wp.vec3(0.0)
     count = float(0.0)
-    for child in range(ratio[0] * ratio[1] * ratio[2]):
-        i, j, k = child_cell(ci, cj, ck, ratio, child)
-        if i < x.shape[0] and j < x.shape[1] and k < x.shape[2]:
-            off, diag = neighbours(x, i, j, k, cx, cy, cz)
-            s += b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
-            count += 1.0
+    shape = wp.vec3i(x.shape[0], x.shape[1], x.shape[2])
+    for u in range(2):
+        for v in range(2):
+            for w in range(2):
+                i, j, k, ok = child_of(ci, cj, ck, ratio, u, v, w, shape)
+                if ok:
+                    off, diag = neighbours(x, i, j, k, cx, cy, cz)
+                    s += b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
+                    count += 1.0
     bc[ci, cj, ck] = s / count
 
 

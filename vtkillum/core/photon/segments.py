@@ -41,7 +41,6 @@ from vtkillum.core.photon.hashgrid import PhotonGrid
 from vtkillum.core.photon.historygram import axis_bits, data_bin
 from vtkillum.core.photon.material import SurfaceParams, scattering, surface_normal
 from vtkillum.core.photon.storage import (
-    capped_kernel,
     exclusive_scan,
     gather_int_kernel,
     scan_total_kernel,
@@ -52,6 +51,7 @@ from vtkillum.core.warp_common import (
     CameraParams,
     Lights,
     Medium,
+    capped_kernel,
     light_incidence,
     lookup_color,
     lookup_sigma_t,

@@ -86,18 +86,6 @@ class Record:
 RECORD_BYTES = 72
 
 
-def capped_kernel(registers: int):
-    """``wp.kernel`` with a cap on the registers per thread of its CUDA code (warp >= 1.10's
-    ``cuda_max_registers``; a plain ``wp.kernel`` where warp has no such option, or for a
-    cap of 0)."""
-    if int(registers) <= 0:
-        return wp.kernel
-    try:
-        return wp.kernel(cuda_max_registers=int(registers))
-    except TypeError:
-        return wp.kernel
-
-
 def allocate_scratch(n: int, device: str) -> wp.array:
     """Uninitialised scratch records for ``n`` interactions (at least one)."""
     return wp.empty(max(int(n), 1), dtype=Record, device=device)

@@ -59,7 +59,6 @@ from vtkillum.core.photon.material import (
     sample_scattering,
     surface_normal,
 )
-from vtkillum.core.photon.tables import DeviceTables, table_range
 from vtkillum.core.photon.storage import (
     ABSORBED,
     CAPPED,
@@ -72,19 +71,20 @@ from vtkillum.core.photon.storage import (
     Record,
     allocate,
     allocate_scratch,
-    capped_kernel,
     check_fits,
-    gather_int_kernel,
     compact,
     exclusive_scan,
     free_bytes,
+    gather_int_kernel,
     select,
 )
+from vtkillum.core.photon.tables import DeviceTables, table_range
 from vtkillum.core.raymarch import MAX_STEPS_PER_RAY
 from vtkillum.core.transfer_function import TABLE_SIZE
 from vtkillum.core.warp_common import (
     Medium,
     attach_occupancy,
+    capped_kernel,
     lookup_color,
     lookup_sigma_t,
     ray_box,
