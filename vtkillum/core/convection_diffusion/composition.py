@@ -81,14 +81,24 @@ MAX_RATE = wp.constant(80.0)
 MAX_MOVED = wp.constant(1.0)
 
 
-def compose_direct(transmittances, kinds, vecs, rgbs, spacing, source_radius: float,
-                   out: wp.array3d) -> None:
+def light_tables(kinds, vecs, rgbs, device):
+    """The packed lights as device arrays (kind, vector, colour per light) for the
+    composition kernels, which visit every light at each point in one launch."""
+    return (wp.array(np.asarray(kinds, dtype=np.int32), dtype=wp.int32, device=device),
+            wp.array(np.asarray(vecs, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3,
+                     device=device),
+            wp.array(np.asarray(rgbs, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3,
+                     device=device))
+
+
+def compose_direct(transmittances: wp.array4d, kinds, vecs, rgbs, spacing,
+                   source_radius: float, out: wp.array3d) -> None:
     """``out = sum_l T_l E_l`` (eq. 22) on the light grid.
 
     Parameters
     ----------
-    transmittances : sequence of warp.array3d of float32
-        ``T_l`` per light.
+    transmittances : warp.array4d of float32
+        ``T_l = transmittances[l]`` for light ``l`` (the first ``len(kinds)`` slots).
     kinds, vecs, rgbs : arrays
         Packed lights (:func:`vtkillum.core.lights.pack_lights`), local frame.
     spacing : (3,) float
@@ -98,12 +108,10 @@ def compose_direct(transmittances, kinds, vecs, rgbs, spacing, source_radius: fl
     out : warp.array3d of vec3
         Overwritten.
     """
-    out.zero_()
     h = wp.vec3(*np.asarray(spacing, dtype=np.float32))
-    for T, kind, vec, rgb in zip(transmittances, kinds, vecs, rgbs):
-        wp.launch(compose_kernel, dim=out.shape, device=out.device,
-                  inputs=[T, out, int(kind), wp.vec3(*vec), wp.vec3(*rgb), h,
-                          float(source_radius)])
+    wp.launch(compose_kernel, dim=out.shape, device=out.device,
+              inputs=[transmittances, len(kinds), *light_tables(kinds, vecs, rgbs, out.device),
+                      out, h, float(source_radius)])
 
 
 def first_scattered_source(transmittances, kinds, vecs, rgbs, spacing, source_radius: float,
@@ -114,7 +122,7 @@ def first_scattered_source(transmittances, kinds, vecs, rgbs, spacing, source_ra
     Parameters
     ----------
     transmittances, kinds, vecs, rgbs, spacing, source_radius
-        As :func:`compose_direct`.
+        As :func:`compose_direct` (``transmittances[l]``: the beam of light ``l``).
     sigma : warp.array3d of float32
         Cell-mean extinction ``sigma_t`` (1/world units).
     color_sigma : warp.array3d of vec3
@@ -129,17 +137,12 @@ def first_scattered_source(transmittances, kinds, vecs, rgbs, spacing, source_ra
     anisotropy : float
         Henyey–Greenstein ``g`` (the forward displacement ``g u / sigma_tr``).
     """
-    out.zero_()
     px, py, pz = displacement if displacement is not None else (out,) * 3
-    if displacement is not None:
-        for m in displacement:
-            m.zero_()
     h = wp.vec3(*np.asarray(spacing, dtype=np.float32))
-    for T, kind, vec, rgb in zip(transmittances, kinds, vecs, rgbs):
-        wp.launch(first_scattered_kernel, dim=out.shape, device=out.device,
-                  inputs=[T, sigma, color_sigma, out, int(kind), wp.vec3(*vec), wp.vec3(*rgb),
-                          h, float(source_radius), float(albedo), float(anisotropy),
-                          int(displacement is not None), px, py, pz])
+    wp.launch(first_scattered_kernel, dim=out.shape, device=out.device,
+              inputs=[transmittances, len(kinds), *light_tables(kinds, vecs, rgbs, out.device),
+                      sigma, color_sigma, out, h, float(source_radius), float(albedo),
+                      float(anisotropy), int(displacement is not None), px, py, pz])
 
 
 # --- device functions ----------------------------------------------------------------------------
@@ -206,53 +209,74 @@ def cell_exposure(t: float, sigma: float, u: wp.vec3, h: wp.vec3, idx: wp.vec3i,
 
 # --- kernels -------------------------------------------------------------------------------------
 @wp.kernel
-def compose_kernel(T: wp.array3d(dtype=wp.float32), out: wp.array3d(dtype=wp.vec3), kind: int,
-                   vec: wp.vec3, rgb: wp.vec3, h: wp.vec3, source_radius: float):
-    """Eq. 22 for one light at light-grid point ``wp.tid() = (i, j, k)``: ``out += T E``.
+def compose_kernel(T: wp.array4d(dtype=wp.float32), count: int, kinds: wp.array(dtype=wp.int32),
+                   vecs: wp.array(dtype=wp.vec3), rgbs: wp.array(dtype=wp.vec3),
+                   out: wp.array3d(dtype=wp.vec3), h: wp.vec3, source_radius: float):
+    """Eq. 22 at light-grid point ``wp.tid() = (i, j, k)``: ``out = sum_l T_l E_l`` over the
+    ``count`` lights (one launch for all: the sum stays in registers).
 
     ``E = rgb`` (irradiance) for a directional light, ``rgb / max(d, source_radius)**2``
     (intensity over squared distance, world units) for a point light at ``vec``.
     """
     i, j, k = wp.tid()
-    e, _u = light_at(kind, vec, rgb, grid_point(i, j, k, h), source_radius)
-    out[i, j, k] = out[i, j, k] + T[i, j, k] * e
+    x = grid_point(i, j, k, h)
+    acc = wp.vec3(0.0)
+    for n in range(count):
+        e, _u = light_at(kinds[n], vecs[n], rgbs[n], x, source_radius)
+        acc = acc + T[n, i, j, k] * e
+    out[i, j, k] = acc
 
 
 @wp.kernel
-def first_scattered_kernel(T: wp.array3d(dtype=wp.float32), sigma: wp.array3d(dtype=wp.float32),
+def first_scattered_kernel(T: wp.array4d(dtype=wp.float32), count: int,
+                           kinds: wp.array(dtype=wp.int32), vecs: wp.array(dtype=wp.vec3),
+                           rgbs: wp.array(dtype=wp.vec3), sigma: wp.array3d(dtype=wp.float32),
                            color_sigma: wp.array3d(dtype=wp.vec3),
-                           out: wp.array3d(dtype=wp.vec3), kind: int, vec: wp.vec3, rgb: wp.vec3,
-                           h: wp.vec3, source_radius: float, albedo: float, g: float,
-                           with_displacement: int, px: wp.array3d(dtype=wp.vec3),
-                           py: wp.array3d(dtype=wp.vec3), pz: wp.array3d(dtype=wp.vec3)):
-    """``out += Q_l = albedo <color sigma_t> E <T>`` for one light at point ``wp.tid() = (i, j, k)``.
+                           out: wp.array3d(dtype=wp.vec3), h: wp.vec3, source_radius: float,
+                           albedo: float, g: float, with_displacement: int,
+                           px: wp.array3d(dtype=wp.vec3), py: wp.array3d(dtype=wp.vec3),
+                           pz: wp.array3d(dtype=wp.vec3)):
+    """``out = sum_l Q_l``, ``Q_l = albedo <color sigma_t> E_l <T_l>``, over the ``count``
+    lights at point ``wp.tid() = (i, j, k)`` (one launch for all: the sums stay in registers).
 
-    With ``with_displacement``: also ``(px, py, pz) += Q_l delta_l`` per channel (see the
-    module docstring). ``h`` is the light-grid spacing (world units), ``vec`` the light's
-    unit travel direction (directional) or position (point) in the local frame.
+    With ``with_displacement``: also ``(px, py, pz) = sum_l Q_l delta_l`` per channel (see
+    the module docstring). ``h`` is the light-grid spacing (world units), ``vecs[l]`` the
+    light's unit travel direction (directional) or position (point) in the local frame.
     """
     i, j, k = wp.tid()
-    e, u = light_at(kind, vec, rgb, grid_point(i, j, k, h), source_radius)
+    x = grid_point(i, j, k, h)
     st = sigma[i, j, k]
-    tm, cell = cell_exposure(T[i, j, k], st, u, h, wp.vec3i(i, j, k),
-                             wp.vec3i(T.shape[0], T.shape[1], T.shape[2]))
-    q = (albedo * tm) * wp.cw_mul(color_sigma[i, j, k], e)
-    out[i, j, k] = out[i, j, k] + q
+    cs = color_sigma[i, j, k]
+    shape = wp.vec3i(sigma.shape[0], sigma.shape[1], sigma.shape[2])
+    acc = wp.vec3(0.0)
+    mx = wp.vec3(0.0)
+    my = wp.vec3(0.0)
+    mz = wp.vec3(0.0)
+    for n in range(count):
+        e, u = light_at(kinds[n], vecs[n], rgbs[n], x, source_radius)
+        tm, cell = cell_exposure(T[n, i, j, k], st, u, h, wp.vec3i(i, j, k), shape)
+        q = (albedo * tm) * wp.cw_mul(cs, e)
+        acc = acc + q
+        if with_displacement != 0:
+            dx = wp.vec3(0.0)
+            dy = wp.vec3(0.0)
+            dz = wp.vec3(0.0)
+            for c in range(3):
+                sigma_tr = st - g * albedo * cs[c]
+                d = cell
+                if sigma_tr > 0.0:
+                    d = d + (g / sigma_tr) * u
+                moved = wp.abs(d[0]) / h[0] + wp.abs(d[1]) / h[1] + wp.abs(d[2]) / h[2]
+                if moved > MAX_MOVED:
+                    d = d * (MAX_MOVED / moved)
+                dx[c] = d[0] * q[c]
+                dy[c] = d[1] * q[c]
+                dz[c] = d[2] * q[c]
+            mx = mx + dx
+            my = my + dy
+            mz = mz + dz
+    out[i, j, k] = acc
     if with_displacement != 0:
-        dx = wp.vec3(0.0)
-        dy = wp.vec3(0.0)
-        dz = wp.vec3(0.0)
-        for c in range(3):
-            sigma_tr = st - g * albedo * color_sigma[i, j, k][c]
-            d = cell
-            if sigma_tr > 0.0:
-                d = d + (g / sigma_tr) * u
-            moved = wp.abs(d[0]) / h[0] + wp.abs(d[1]) / h[1] + wp.abs(d[2]) / h[2]
-            if moved > MAX_MOVED:
-                d = d * (MAX_MOVED / moved)
-            dx[c] = d[0] * q[c]
-            dy[c] = d[1] * q[c]
-            dz[c] = d[2] * q[c]
-        px[i, j, k] = px[i, j, k] + dx
-        py[i, j, k] = py[i, j, k] + dy
-        pz[i, j, k] = pz[i, j, k] + dz
+        px[i, j, k] = mx
+        py[i, j, k] = my
+        pz[i, j, k] = mz

@@ -414,17 +414,17 @@ class ConvectionDiffusionSolver:
                     self._q_norm_prev = self._q_norm_prev * ratio
                 self._light_scale = scale
             rgbs = (rgbs / scale).astype(np.float32)
-            Ts = [self._T_stack[i] for i in range(len(geometry))]
             directions = [v / max(float(np.linalg.norm(v)), 1e-30) if k == DIRECTIONAL else v
                           for k, v in zip(kinds, vecs.astype(np.float64))]
-            compose_direct(Ts, kinds, directions, rgbs, spacing, r_s, self._b)
+            compose_direct(self._T_stack, kinds, directions, rgbs, spacing, r_s, self._b)
             if physical:
                 if self._q is None:
                     self._q = wp.zeros(shape, dtype=wp.vec3, device=self.device)
                 if self.first_moment and self._moment is None:
                     self._moment = tuple(wp.zeros(shape, dtype=wp.vec3, device=self.device)
                                          for _ in range(3))
-                sources, sigma, albedo, g = Ts, self._sigma, opts["albedo"], opts["anisotropy"]
+                sources, sigma = self._T_stack, self._sigma
+                albedo, g = opts["albedo"], opts["anisotropy"]
                 if f > 0:  # δ-Eddington: the forward peak stays in the beam
                     sigma, sources = self._delta_beams(geometry, vecs, spacing, r_s)
                     albedo, g = albedo * (1.0 - f), g / (1.0 + g)
@@ -579,9 +579,9 @@ class ConvectionDiffusionSolver:
         self._beam_keys = [None] * capacity
 
     def _delta_beams(self, geometry, vecs, spacing, r_s):
-        """``sigma_t*`` and each light's transmittance through it: from the paired sweep of
-        the convection step, or swept now (all stale lights in the same launches) where
-        only the albedo, colour or ``g`` changed."""
+        """``sigma_t*`` and the lights' transmittances through it (the beam stack, light ``l``
+        in slot ``l``): from the paired sweep of the convection step, or swept now (all stale
+        lights in the same launches) where only the albedo, colour or ``g`` changed."""
         stale = [i for i, key in enumerate(geometry)
                  if self._beam_keys[i] != (key, self._sigma_star_key)]
         if stale:
@@ -589,7 +589,7 @@ class ConvectionDiffusionSolver:
                            self._beam_stack, stale, r_s, self.convection_scheme, self._graphs)
             for i in stale:
                 self._beam_keys[i] = (geometry[i], self._sigma_star_key)
-        return self._sigma_star, [self._beam_stack[i] for i in range(len(geometry))]
+        return self._sigma_star, self._beam_stack
 
     def _check_updated(self) -> None:
         if self._x is None:
