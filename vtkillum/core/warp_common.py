@@ -204,6 +204,26 @@ def capped_kernel(registers: int):
         return wp.kernel
 
 
+#: Device tables kept by :func:`cached_tables` (most recently used last).
+_TABLES: dict = {}
+TABLE_CACHE_SIZE = 64
+
+
+def cached_tables(key, build):
+    """Small device arrays (per-light parameters that kernels read) built by ``build()``
+    once per ``key``, and reused by later calls with the same key: an upload is a
+    synchronous copy, which costs an interactive update more than its launches. At most
+    :data:`TABLE_CACHE_SIZE` keys are kept, the least recently used dropped first; the
+    key must hold the device and everything the tables are built from."""
+    tables = _TABLES.pop(key, None)
+    if tables is None:
+        tables = build()
+    _TABLES[key] = tables
+    while len(_TABLES) > TABLE_CACHE_SIZE:
+        _TABLES.pop(next(iter(_TABLES)))
+    return tables
+
+
 @wp.func
 def axis_offset(axis: int, value: int):
     """``value`` times the unit index vector of ``axis``.

@@ -73,7 +73,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.convection_diffusion.convection import POINT_KIND
-from vtkillum.core.warp_common import grid_point
+from vtkillum.core.warp_common import cached_tables, grid_point
 
 #: Largest optical depth of a cell axis evaluated (beyond: the source is at the entry face).
 MAX_RATE = wp.constant(80.0)
@@ -83,12 +83,16 @@ MAX_MOVED = wp.constant(1.0)
 
 def light_tables(kinds, vecs, rgbs, device):
     """The packed lights as device arrays (kind, vector, colour per light) for the
-    composition kernels, which visit every light at each point in one launch."""
-    return (wp.array(np.asarray(kinds, dtype=np.int32), dtype=wp.int32, device=device),
-            wp.array(np.asarray(vecs, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3,
-                     device=device),
-            wp.array(np.asarray(rgbs, dtype=np.float32).reshape(-1, 3), dtype=wp.vec3,
-                     device=device))
+    composition kernels, which visit every light at each point in one launch (uploaded
+    once per set of lights: :func:`~vtkillum.core.warp_common.cached_tables`)."""
+    kinds = np.asarray(kinds, dtype=np.int32)
+    vecs = np.asarray(vecs, dtype=np.float32).reshape(-1, 3)
+    rgbs = np.asarray(rgbs, dtype=np.float32).reshape(-1, 3)
+    return cached_tables(
+        ("compose-tables", str(device), kinds.tobytes(), vecs.tobytes(), rgbs.tobytes()),
+        lambda: (wp.array(kinds, dtype=wp.int32, device=device),
+                 wp.array(vecs, dtype=wp.vec3, device=device),
+                 wp.array(rgbs, dtype=wp.vec3, device=device)))
 
 
 def compose_direct(transmittances: wp.array4d, kinds, vecs, rgbs, spacing,

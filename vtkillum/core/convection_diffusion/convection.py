@@ -113,7 +113,13 @@ import warp as wp
 
 from vtkillum.core.graphs import array_key
 from vtkillum.core.lights import DIRECTIONAL, POINT
-from vtkillum.core.warp_common import axis_offset, capped_kernel, component, grid_point
+from vtkillum.core.warp_common import (
+    axis_offset,
+    cached_tables,
+    capped_kernel,
+    component,
+    grid_point,
+)
 
 #: Direction components smaller than this are treated as exactly zero.
 PARALLEL_EPS = 1.0e-6
@@ -317,11 +323,13 @@ def convect_lights(sigma: wp.array3d, spacing, lights, out: wp.array4d, slots,
     def table(values, dtype):
         return wp.array(np.asarray(values), dtype=dtype, device=device)
 
-    params = [table(list(slots), int), table([p.primary for p in plans], int),
-              table([int(p.layers) for p in plans], int),
-              table([p.lo for p in plans], wp.vec3i), table([p.hi for p in plans], wp.vec3i),
-              table([p.inflow for p in plans], wp.vec3i),
-              table([int(k) for k, _ in lights], int), table(vecs, wp.vec3)]
+    # the tables depend on the lights, slots, spacing (key[1:4]), grid shape and scheme
+    params = cached_tables(("convect-tables", str(device), shape, scheme_id) + key[1:4], lambda: [
+        table(list(slots), int), table([p.primary for p in plans], int),
+        table([int(p.layers) for p in plans], int),
+        table([p.lo for p in plans], wp.vec3i), table([p.hi for p in plans], wp.vec3i),
+        table([p.inflow for p in plans], wp.vec3i),
+        table([int(k) for k, _ in lights], int), table(vecs, wp.vec3)])
     h32 = spacing.astype(np.float32)
 
     def sweep():
