@@ -308,6 +308,8 @@ class RadiativeDiffusion:
         #: Cells with a smaller reduced extinction (1/world units) are left out of the residual.
         self.min_sigma = MEDIUM_DEPTH / float(self.spacing.min())
         self._norms = wp.zeros(6, dtype=wp.float64, device=device)
+        # 1 where the residual norms count a cell (near_medium), set with the medium
+        self._counted = wp.zeros(self.shape, dtype=wp.uint8, device=device)
         self._rhs = None
         self._has_medium = False
         #: Captured outer iterations and nested starts (:mod:`~vtkillum.core.graphs`).
@@ -339,6 +341,8 @@ class RadiativeDiffusion:
         wp.launch(medium_kernel, dim=self.shape, device=self.device,
                   inputs=[sigma, color_sigma, float(albedo), float(anisotropy), top.sigma_a,
                           top.sigma_tr])
+        wp.launch(counted_kernel, dim=self.shape, device=self.device,
+                  inputs=[top.sigma_tr, self.min_sigma, self._counted])
         for fine, coarse in zip(self.levels, self.levels[1:]):
             ratio = self._ratio(fine, coarse)
             for a, b in ((fine.sigma_a, coarse.sigma_a), (fine.sigma_tr, coarse.sigma_tr)):
@@ -629,8 +633,8 @@ class RadiativeDiffusion:
         cells = int(np.prod(self.shape))
         blocks = -(-cells // (block * NORM_CHUNK))
         wp.launch_tiled(residual_norm_kernel, dim=[blocks], block_dim=block, device=self.device,
-                        inputs=[x, q, *top.coefficients, top.sigma_tr, self.min_sigma,
-                                self._norms, block])
+                        inputs=[x, q, *top.coefficients, self._counted, self._norms,
+                                block])
 
     def _read_residual(self) -> tuple[float, float]:
         """:meth:`residual` from the sums of :meth:`_launch_residual`."""
@@ -1022,14 +1026,26 @@ def residual_restrict_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=w
 
 
 @wp.kernel
+def counted_kernel(sigma_tr: wp.array3d(dtype=wp.vec3), min_sigma: float,
+                   counted: wp.array3d(dtype=wp.uint8)):
+    """``counted = 1`` where :func:`near_medium` (the cells of the residual norms), else 0:
+    set once per medium, so that the norms of every outer iteration read a byte per cell
+    instead of up to seven ``sigma_tr``."""
+    i, j, k = wp.tid()
+    counted[i, j, k] = wp.uint8(0)
+    if near_medium(sigma_tr, i, j, k, min_sigma):
+        counted[i, j, k] = wp.uint8(1)
+
+
+@wp.kernel
 def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.vec3),
                          kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dtype=wp.vec3),
                          kz: wp.array3d(dtype=wp.vec3), absorb: wp.array3d(dtype=wp.vec3),
-                         sigma_tr: wp.array3d(dtype=wp.vec3),
-                         min_sigma: float, acc: wp.array(dtype=wp.float64), block: int):
+                         counted: wp.array3d(dtype=wp.uint8), acc: wp.array(dtype=wp.float64),
+                         block: int):
     """Add ``sum_i |(b - A x) / diag(A)|^2`` to ``acc[0:3]`` and ``sum_i max(|x|, |b| /
-    diag(A))^2`` to ``acc[3:6]``, over the medium and its face neighbours
-    (:func:`near_medium`).
+    diag(A))^2`` to ``acc[3:6]``, over the medium and its face neighbours (the cells
+    marked in ``counted``, :func:`counted_kernel`).
 
     Tiled launch: block ``wp.tid()[0]`` sums :data:`NORM_CHUNK` runs of ``block``
     consecutive cells (one per lane, coalesced), reduces over the block and adds once.
@@ -1044,7 +1060,7 @@ def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.ve
         cell = (blk * NORM_CHUNK + run) * block + lane
         if cell < cells:
             i, j, k = grid_cell(cell, ny, nz)
-            if near_medium(sigma_tr, i, j, k, min_sigma):
+            if counted[i, j, k] != wp.uint8(0):
                 off, diag = neighbours(x, i, j, k, kx, ky, kz)
                 diag += absorb[i, j, k]
                 xi = x[i, j, k]
