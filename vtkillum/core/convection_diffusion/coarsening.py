@@ -121,13 +121,11 @@ def coarse_coefficients_kernel(kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dty
     if what == 3:
         s = wp.vec3(0.0)
         n = float(0.0)
-        for u in range(2):  # the children (child_of)
-            for v in range(2):
-                for w in range(2):
-                    i, j, k, ok = child_of(ci, cj, ck, ratio, u, v, w, nf)
-                    if ok:
-                        s += absorb[i, j, k]
-                        n += 1.0
+        for child in range(8):
+            i, j, k, ok = child_of(ci, cj, ck, ratio, child, nf)
+            if ok:
+                s += absorb[i, j, k]
+                n += 1.0
         cabsorb[ci, cj, ck] = s / n
         return
     a = what  # a run-time axis: components by select (component, axis_offset)
@@ -141,18 +139,16 @@ def coarse_coefficients_kernel(kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dty
     e = axis_offset(a, 1)
     g = wp.vec3(0.0)
     channels = float(0.0)
-    for u in range(2):
-        for v in range(2):
-            for w in range(2):
-                i, j, k, ok = child_of(ci, cj, ck, ratio, u, v, w, nf)
-                p = wp.vec3i(i, j, k)
-                pa = component(p, a)
-                if ok and pa == last:
-                    r = resistance(face_k(kx, ky, kz, a, p), 1.0)
-                    if ra > 1:
-                        r += resistance(face_k(kx, ky, kz, a, p - e), 0.5)
-                        if pa + 2 < nfa:  # the right cell has two children
-                            r += resistance(face_k(kx, ky, kz, a, p + e), 0.5)
-                    g += wp.vec3(1.0 / r[0], 1.0 / r[1], 1.0 / r[2])
-                    channels += 1.0
+    for child in range(8):
+        i, j, k, ok = child_of(ci, cj, ck, ratio, child, nf)
+        p = wp.vec3i(i, j, k)
+        pa = component(p, a)
+        if ok and pa == last:
+            r = resistance(face_k(kx, ky, kz, a, p), 1.0)
+            if ra > 1:
+                r += resistance(face_k(kx, ky, kz, a, p - e), 0.5)
+                if pa + 2 < nfa:  # the right cell has two children
+                    r += resistance(face_k(kx, ky, kz, a, p + e), 0.5)
+            g += wp.vec3(1.0 / r[0], 1.0 / r[1], 1.0 / r[2])
+            channels += 1.0
     set_face_k(ckx, cky, ckz, a, c, g / (channels * float(ra)))

@@ -133,27 +133,28 @@ def restrict_kernel(r: wp.array3d(dtype=wp.vec3), bc: wp.array3d(dtype=wp.vec3),
     s = wp.vec3(0.0)
     count = float(0.0)
     shape = wp.vec3i(r.shape[0], r.shape[1], r.shape[2])
-    for u in range(2):
-        for v in range(2):
-            for w in range(2):
-                i, j, k, ok = child_of(ci, cj, ck, ratio, u, v, w, shape)
-                if ok:
-                    s += r[i, j, k]
-                    count += 1.0
+    for child in range(8):
+        i, j, k, ok = child_of(ci, cj, ck, ratio, child, shape)
+        if ok:
+            s += r[i, j, k]
+            count += 1.0
     bc[ci, cj, ck] = s / count
 
 
 @wp.func
-def child_of(ci: int, cj: int, ck: int, ratio: wp.vec3i, u: int, v: int, w: int,
-             shape: wp.vec3i):
-    """Fine cell ``(u, v, w)`` (0 or 1 per axis) of coarse cell ``(ci, cj, ck)`` and whether
-    it exists (``u < ratio[0]`` etc., and inside a fine grid of ``shape``, which an odd
-    grid's last coarse cell overhangs).
+def child_of(ci: int, cj: int, ck: int, ratio: wp.vec3i, child: int, shape: wp.vec3i):
+    """Fine cell ``child`` (0-7: ``(u, v, w) = (child >> 2, (child >> 1) & 1, child & 1)``
+    along x, y, z) of coarse cell ``(ci, cj, ck)`` and whether it exists (``u < ratio[0]``
+    etc., and inside a fine grid of ``shape``, which an odd grid's last coarse cell
+    overhangs).
 
-    Kernels visit the children in three constant loops ``for u in range(2)`` (unrolled,
-    the last axis fastest): a child number split into ``(u, v, w)`` by run-time integer
-    divisions cost more than the coarse coefficients themselves.
+    Kernels visit the children in a constant loop ``for child in range(8)``, which warp
+    unrolls (the bit operations then fold away): a child number split by run-time integer
+    divisions by the ratios cost more than the coarse coefficients themselves.
     """
+    u = child >> 2
+    v = (child >> 1) & 1
+    w = child & 1
     i = ci * ratio[0] + u
     j = cj * ratio[1] + v
     k = ck * ratio[2] + w
@@ -172,14 +173,12 @@ def residual_restrict_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=w
     s = wp.vec3(0.0)
     count = float(0.0)
     shape = wp.vec3i(x.shape[0], x.shape[1], x.shape[2])
-    for u in range(2):
-        for v in range(2):
-            for w in range(2):
-                i, j, k, ok = child_of(ci, cj, ck, ratio, u, v, w, shape)
-                if ok:
-                    off, diag = neighbours(x, i, j, k, cx, cy, cz)
-                    s += b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
-                    count += 1.0
+    for child in range(8):
+        i, j, k, ok = child_of(ci, cj, ck, ratio, child, shape)
+        if ok:
+            off, diag = neighbours(x, i, j, k, cx, cy, cz)
+            s += b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
+            count += 1.0
     bc[ci, cj, ck] = s / count
 
 

@@ -1013,15 +1013,13 @@ def residual_restrict_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=w
     s = wp.vec3(0.0)
     count = float(0.0)
     shape = wp.vec3i(x.shape[0], x.shape[1], x.shape[2])
-    for u in range(2):
-        for v in range(2):
-            for w in range(2):
-                i, j, k, ok = child_of(ci, cj, ck, ratio, u, v, w, shape)
-                if ok:
-                    off, diag = neighbours(x, i, j, k, kx, ky, kz)
-                    diag += absorb[i, j, k]
-                    s += b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
-                    count += 1.0
+    for child in range(8):
+        i, j, k, ok = child_of(ci, cj, ck, ratio, child, shape)
+        if ok:
+            off, diag = neighbours(x, i, j, k, kx, ky, kz)
+            diag += absorb[i, j, k]
+            s += b[i, j, k] - wp.cw_mul(diag, x[i, j, k]) + off
+            count += 1.0
     bc[ci, cj, ck] = s / count
 
 
