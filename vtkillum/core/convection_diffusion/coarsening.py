@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import warp as wp
 
-from vtkillum.core.convection_diffusion.multigrid import child_of
+from vtkillum.core.convection_diffusion.multigrid import child_of, children_mean
 from vtkillum.core.warp_common import axis_offset, component
 
 #: Smallest face coefficient in a channel's resistance (1/world units): a zero coefficient
@@ -119,14 +119,7 @@ def coarse_coefficients_kernel(kx: wp.array3d(dtype=wp.vec3), ky: wp.array3d(dty
     what, ci, cj, ck = wp.tid()
     nf = wp.vec3i(absorb.shape[0], absorb.shape[1], absorb.shape[2])
     if what == 3:
-        s = wp.vec3(0.0)
-        n = float(0.0)
-        for child in range(8):
-            i, j, k, ok = child_of(ci, cj, ck, ratio, child, nf)
-            if ok:
-                s += absorb[i, j, k]
-                n += 1.0
-        cabsorb[ci, cj, ck] = s / n
+        cabsorb[ci, cj, ck] = children_mean(absorb, ci, cj, ck, ratio)
         return
     a = what  # a run-time axis: components by select (component, axis_offset)
     c = wp.vec3i(ci, cj, ck)

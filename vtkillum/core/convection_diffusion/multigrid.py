@@ -130,15 +130,21 @@ def restrict_kernel(r: wp.array3d(dtype=wp.vec3), bc: wp.array3d(dtype=wp.vec3),
     grid's end are skipped.
     """
     ci, cj, ck = wp.tid()
+    bc[ci, cj, ck] = children_mean(r, ci, cj, ck, ratio)
+
+
+@wp.func
+def children_mean(a: wp.array3d(dtype=wp.vec3), ci: int, cj: int, ck: int, ratio: wp.vec3i):
+    """Mean of ``a`` over the existing children of coarse cell ``(ci, cj, ck)``."""
     s = wp.vec3(0.0)
     count = float(0.0)
-    shape = wp.vec3i(r.shape[0], r.shape[1], r.shape[2])
+    shape = wp.vec3i(a.shape[0], a.shape[1], a.shape[2])
     for child in range(8):
         i, j, k, ok = child_of(ci, cj, ck, ratio, child, shape)
         if ok:
-            s += r[i, j, k]
+            s += a[i, j, k]
             count += 1.0
-    bc[ci, cj, ck] = s / count
+    return s / count
 
 
 @wp.func
