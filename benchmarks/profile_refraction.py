@@ -2,17 +2,15 @@
 
 For each data set it renders one frame plane by plane (no graph) with warp's
 per-launch CUDA timing and prints the mean time per plane of every kernel, then
-times the graph-replayed frame. ``--split`` adds a frame whose light and view
-work run as separate launches (each kernel timed alone), and micro-kernels that
-do only the volume sampling of the light texels (one trilinear sample, the
-``∇η`` stencil, a hardware-filtered texture sample), to see what the sampling
-costs. ``--save`` writes the images (to compare two versions of the code).
+times the graph-replayed frame. ``--micro`` adds a micro-kernel that does
+only the volume sampling of the light texels (one fetch of the optics field), to see
+what the sampling costs. ``--save`` writes the images (to compare two versions of the code).
 
 Examples
 --------
 ::
 
-    python benchmarks/profile_refraction.py --device cuda:0 --datasets hand visible-human --split
+    python benchmarks/profile_refraction.py --device cuda:0 --datasets hand visible-human --micro
 """
 
 from __future__ import annotations
@@ -33,55 +31,24 @@ from vtkillum.core.device import resolve_device
 from vtkillum.core.refraction import sweep
 from vtkillum.core.refraction.planes import SweepParams, texel_position
 from vtkillum.core.refraction.preintegration import RefractiveMedium
-from vtkillum.core.refraction.ray_equation import camera_eta_gradient, to_local
+from vtkillum.core.refraction.ray_equation import camera_sample_and_gradient
 from vtkillum.core.refraction.render import RefractionRenderer
 from vtkillum.core.refraction.view_rays import ACTIVE
-from vtkillum.core.warp_common import inside_box, sample_scalar
 
 
 @wp.kernel
-def sample_only(m: RefractiveMedium, params: wp.array(dtype=SweepParams), j: int,
-                out: wp.array(dtype=wp.float32)):
-    """One trilinear sample at every light texel of plane ``j``."""
+def field_only(m: RefractiveMedium, params: wp.array(dtype=SweepParams), j: int,
+               out: wp.array(dtype=wp.vec3)):
+    """The value and ``∇η`` (one optics-field fetch) at every light texel of plane ``j``."""
     t = wp.tid()
     p = params[0]
     if t >= p.nx * p.ny:
         return
     b = t / p.nx
     a = t - b * p.nx
-    q = to_local(p.frame, texel_position(p, float(a), float(b), j))
-    s = 0.0
-    if inside_box(q, m.extent):
-        s = sample_scalar(m.scalars, m.inv_spacing, q)
-    out[t] = s
-
-
-@wp.kernel
-def gradient_only(m: RefractiveMedium, params: wp.array(dtype=SweepParams), j: int,
-                  out: wp.array(dtype=wp.vec3)):
-    """The ``∇η`` stencil (six trilinear samples) at every light texel of plane ``j``."""
-    t = wp.tid()
-    p = params[0]
-    if t >= p.nx * p.ny:
-        return
-    b = t / p.nx
-    a = t - b * p.nx
-    out[t] = camera_eta_gradient(m, p.frame, texel_position(p, float(a), float(b), j))
-
-
-@wp.kernel
-def texture_only(m: RefractiveMedium, tex: wp.Texture3D, params: wp.array(dtype=SweepParams),
-                 j: int, out: wp.array(dtype=wp.float32)):
-    """One hardware-filtered texture sample at every light texel of plane ``j``."""
-    t = wp.tid()
-    p = params[0]
-    if t >= p.nx * p.ny:
-        return
-    b = t / p.nx
-    a = t - b * p.nx
-    q = to_local(p.frame, texel_position(p, float(a), float(b), j))
-    u = wp.cw_mul(q, m.inv_spacing)
-    out[t] = wp.texture_sample(tex, wp.vec3(u[2] + 0.5, u[1] + 0.5, u[0] + 0.5), dtype=float)
+    s, g, _inside = camera_sample_and_gradient(m, p.frame,
+                                               texel_position(p, float(a), float(b), j))
+    out[t] = g * s
 
 
 def cached_stand_in(name: str, dims):
@@ -183,27 +150,19 @@ def profile(args, name, dims, volume, scene, optics, options, device, variant, i
 
 
 def micro(renderer, volume, planes, texels, device):
-    """Micro-kernels over every light plane: sampling alone."""
+    """Micro-kernel over every light plane: the volume sampling alone."""
     medium = renderer._medium
     params = renderer._params
-    out1 = wp.zeros(texels, dtype=wp.float32, device=device)
-    out3 = wp.zeros(texels, dtype=wp.vec3, device=device)
-    tex = wp.Texture3D(np.ascontiguousarray(volume.scalars, dtype=np.float32),
-                       filter_mode=wp.TextureFilterMode.LINEAR, normalized_coords=False,
-                       address_mode=wp.TextureAddressMode.CLAMP, device=device)
-    for kernel, extra, out in ((sample_only, [], out1), (gradient_only, [], out3),
-                               (texture_only, [tex], out1)):
-        for j in range(3):  # warm-up
-            inputs = [medium, *extra, params, j, out]
-            wp.launch(kernel, dim=texels, inputs=inputs, device=device)
-        wp.synchronize_device(device)
-        wp.timing_begin(cuda_filter=wp.TIMING_KERNEL)
-        for j in range(planes):
-            wp.launch(kernel, dim=texels, inputs=[medium, *extra, params, j, out], device=device)
-        acc = per_kernel(wp.timing_end())
-        for k, (ms, n) in acc.items():
-            print(f"micro {k}: {1e3 * ms / n:.1f} us per plane ({texels} texels, "
-                  f"{1e12 * ms / n / 1e3 / texels:.2f} ns per texel)")
+    out = wp.zeros(texels, dtype=wp.vec3, device=device)
+    for j in range(3):  # warm-up
+        wp.launch(field_only, dim=texels, inputs=[medium, params, j, out], device=device)
+    wp.synchronize_device(device)
+    wp.timing_begin(cuda_filter=wp.TIMING_KERNEL)
+    for j in range(planes):
+        wp.launch(field_only, dim=texels, inputs=[medium, params, j, out], device=device)
+    for k, (ms, n) in per_kernel(wp.timing_end()).items():
+        print(f"micro {k}: {1e3 * ms / n:.1f} us per plane ({texels} texels, "
+              f"{1e12 * ms / n / 1e3 / texels:.2f} ns per texel)")
 
 
 if __name__ == "__main__":

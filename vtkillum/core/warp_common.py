@@ -224,6 +224,52 @@ def cached_tables(key, build):
     return tables
 
 
+#: Largest texture extent along any axis that every CUDA GPU of compute capability >= 3 supports.
+MAX_TEXTURE_EXTENT = 16384
+
+
+def fits_texture(shape) -> bool:
+    """Whether a grid of ``shape`` (depth, height, width) fits a 3D texture."""
+    return all(1 <= int(n) <= MAX_TEXTURE_EXTENT for n in shape)
+
+
+def texture_from(array, current=None):
+    """A linearly filtered, clamped ``wp.Texture3D`` (``wp.Texture2D``, ``wp.Texture1D``)
+    holding ``array``.
+
+    ``array`` is a contiguous warp array of shape ``(depth, height, width)`` (or
+    ``(height, width)``, or ``(width,)``) of float32, vec4 or vec4h. ``current`` is overwritten (one device
+    copy, no allocation) when it has the same shape, element type and channel count and
+    lives on the same device; otherwise a new texture is made.
+    """
+    channels = int(getattr(array.dtype, "_length_", 1))  # vec4: 4, float32: 1
+    scalar = getattr(array.dtype, "_wp_scalar_type_", array.dtype)
+    shape = tuple(int(n) for n in array.shape[:3])
+    cls = {1: wp.Texture1D, 2: wp.Texture2D, 3: wp.Texture3D}[len(shape)]
+    src = array
+    if not array.device.is_cuda and channels > 1:
+        # warp 1.19 copies a CPU vector array into a CPU texture as if it held scalars: give
+        # it the channels as the last axis.
+        src = array.numpy()
+    if (isinstance(current, cls) and _texture_shape(current) == shape
+            and current.num_channels == channels and current.dtype == scalar
+            and current.device == array.device):
+        current.copy_from(src)
+        return current
+    return cls(src, filter_mode=wp.TextureFilterMode.LINEAR,
+               address_mode=wp.TextureAddressMode.CLAMP, normalized_coords=False,
+               device=array.device)
+
+
+def _texture_shape(texture) -> tuple:
+    """A texture's array shape: ``(height, width)`` or ``(depth, height, width)``."""
+    if isinstance(texture, wp.Texture1D):
+        return (texture.width,)
+    if isinstance(texture, wp.Texture2D):
+        return (texture.height, texture.width)
+    return (texture.depth, texture.height, texture.width)
+
+
 @wp.func
 def axis_offset(axis: int, value: int):
     """``value`` times the unit index vector of ``axis``.

@@ -156,7 +156,7 @@ class AmbientScatteringCache:
         Sample ``σ̃t``, the radiance cache and the scalars through CUDA textures (hardware
         trilinear filtering, see the module docstring). Ignored on the CPU, which always
         runs the exact software path; also skipped (software path) for a grid larger than
-        a texture allows (:data:`~vtkillum.core.ambient.textures.MAX_TEXTURE_EXTENT` along
+        a texture allows (:data:`~vtkillum.core.warp_common.MAX_TEXTURE_EXTENT` along
         any axis, lights × cache points along x included).
     data_textures : bool, optional
         Let the gather read the scalars, ``σ̃t`` and the transfer function through CUDA

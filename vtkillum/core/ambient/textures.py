@@ -42,18 +42,18 @@ from dataclasses import dataclass
 import warp as wp
 
 from vtkillum.core.device import init_warp
-from vtkillum.core.warp_common import (
+from vtkillum.core.warp_common import (  # noqa: F401  (texture helpers re-exported)
+    MAX_TEXTURE_EXTENT,
     Medium,
+    fits_texture,
     lookup_color,
     lookup_sigma_t,
     sample_scalar,
     table_coord,
+    texture_from,
 )
 
 init_warp()
-
-#: Largest texture extent along any axis that every CUDA GPU of compute capability >= 3 supports.
-MAX_TEXTURE_EXTENT = 16384
 
 
 @dataclass
@@ -91,43 +91,6 @@ class AmbientTextures:
 def hardware_filtering_available(device: str) -> bool:
     """Whether ``device`` has texture units (a CUDA device)."""
     return wp.get_device(device).is_cuda
-
-
-def fits_texture(shape) -> bool:
-    """Whether a grid of ``shape`` (depth, height, width) fits a 3D texture."""
-    return all(1 <= int(n) <= MAX_TEXTURE_EXTENT for n in shape)
-
-
-def texture_from(array, current=None):
-    """A linearly filtered, clamped ``wp.Texture3D`` (``wp.Texture2D``, ``wp.Texture1D``)
-    holding ``array``.
-
-    ``array`` is a contiguous warp array of shape ``(depth, height, width)`` (or
-    ``(height, width)``, or ``(width,)``) of float32, vec4 or vec4h. ``current`` is overwritten (one device
-    copy, no allocation) when it has the same shape, element type and channel count and
-    lives on the same device; otherwise a new texture is made.
-    """
-    channels = int(getattr(array.dtype, "_length_", 1))  # vec4: 4, float32: 1
-    scalar = getattr(array.dtype, "_wp_scalar_type_", array.dtype)
-    shape = tuple(int(n) for n in array.shape[:3])
-    cls = {1: wp.Texture1D, 2: wp.Texture2D, 3: wp.Texture3D}[len(shape)]
-    if (isinstance(current, cls) and _texture_shape(current) == shape
-            and current.num_channels == channels and current.dtype == scalar
-            and current.device == array.device):
-        current.copy_from(array)
-        return current
-    return cls(array, filter_mode=wp.TextureFilterMode.LINEAR,
-               address_mode=wp.TextureAddressMode.CLAMP, normalized_coords=False,
-               device=array.device)
-
-
-def _texture_shape(texture) -> tuple:
-    """A texture's array shape: ``(height, width)`` or ``(depth, height, width)``."""
-    if isinstance(texture, wp.Texture1D):
-        return (texture.width,)
-    if isinstance(texture, wp.Texture2D):
-        return (texture.height, texture.width)
-    return (texture.depth, texture.height, texture.width)
 
 
 # --- device functions: one name, an array overload (exact) and a texture overload ----------------

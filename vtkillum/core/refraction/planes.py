@@ -28,9 +28,13 @@ from dataclasses import dataclass
 import numpy as np
 import warp as wp
 
-from vtkillum.core.refraction.preintegration import RefractiveMedium, segment_extinction
+from vtkillum.core.refraction.preintegration import (
+    RefractiveMedium,
+    data_value,
+    segment_extinction,
+)
 from vtkillum.core.refraction.ray_equation import MIN_COS, Frame, to_local
-from vtkillum.core.warp_common import ray_box, sample_scalar
+from vtkillum.core.warp_common import ray_box
 
 #: Largest angle between the light's travel direction and the view direction (paper: artefacts
 #: appear beyond 85° with view-aligned planes).
@@ -298,8 +302,8 @@ def segment_transmission(m: RefractiveMedium, frame: Frame, qa: wp.vec3, qb: wp.
         return wp.vec4(0.0), 0.0, 0.0, 0.0
     sa = sa_in
     if t0 > 0.0 or have_sa == 0:
-        sa = sample_scalar(m.scalars, m.inv_spacing, a + t0 * d)
+        sa = data_value(m, a + t0 * d)
     sb = sb_in
     if t1 < 1.0 or have_sb == 0:
-        sb = sample_scalar(m.scalars, m.inv_spacing, a + t1 * d)
+        sb = data_value(m, a + t1 * d)
     return segment_extinction(m, sa, sb), (t1 - t0) * length, sa, sb

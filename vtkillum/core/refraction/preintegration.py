@@ -22,6 +22,13 @@ bending rays cross planes at different lengths).
 
 With η ≡ 1 and m ≡ white (κ = 0) the tables reduce to plain extinction and the
 scattering colour of the project's optical model (``DESIGN.md``).
+
+The sweep samples the data through a 3D texture (:func:`data_texture`): on CUDA the
+texture units interpolate trilinearly (block-linear storage, so a plane at any
+orientation reads neighbouring points from one cache line, and one fetch replaces eight
+loads and their index arithmetic; 8-bit fractional weights, as in
+:mod:`~vtkillum.core.ambient.textures`), on the CPU warp interpolates exactly (the
+values of :func:`~vtkillum.core.warp_common.sample_scalar`).
 """
 
 from __future__ import annotations
@@ -33,7 +40,7 @@ import warp as wp
 
 from vtkillum.core.device import resolve_device
 from vtkillum.core.transfer_function import TABLE_SIZE
-from vtkillum.core.warp_common import make_medium
+from vtkillum.core.warp_common import MAX_TEXTURE_EXTENT, fits_texture, texture_from, to_device
 
 
 @wp.struct
@@ -43,10 +50,12 @@ class RefractiveMedium:
     ``extinction[i] = (σt, κ_r, κ_g, κ_b)`` and ``source[i] = σt · colour`` at table
     entry ``i`` (1/world units), with running integrals over the entry index;
     ``eta[i]`` the refractive index. Entry ``i`` holds data value
-    ``table_lo + i / table_scale``.
+    ``table_lo + i / table_scale``. ``data`` is the scalar volume as a texture
+    (:func:`data_texture`): grid point ``[i, j, k]`` at unnormalised texture coordinates
+    ``(k, j, i) + 0.5``.
     """
 
-    scalars: wp.array3d(dtype=wp.float32)  # [i, j, k], point-centred
+    data: wp.Texture3D  # the scalars, trilinear, clamped to the box
     extent: wp.vec3  # (n - 1) * spacing, world units
     spacing: wp.vec3
     inv_spacing: wp.vec3
@@ -95,11 +104,8 @@ def make_refractive_medium(volume, transfer_function, optics, unit_distance: flo
     """
     device = resolve_device(device)
     tables = preintegration_tables(volume, transfer_function, optics, unit_distance, size)
-    # The device copy of the scalars is shared with every other method (cached per Volume).
-    scalars = make_medium(volume, transfer_function, unit_distance, albedo, anisotropy,
-                          device).scalars
     m = RefractiveMedium()
-    m.scalars = scalars
+    m.data = data_texture(volume, device)
     m.extent = wp.vec3(*volume.extent.astype(np.float32))
     m.spacing = wp.vec3(*volume.spacing.astype(np.float32))
     m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
@@ -122,6 +128,24 @@ def make_refractive_medium(volume, transfer_function, optics, unit_distance: flo
     m.albedo = float(albedo)
     m.g = float(anisotropy)
     return m
+
+
+def data_texture(volume, device: str):
+    """``volume``'s scalars as a linearly filtered, clamped ``wp.Texture3D`` on ``device``
+    (made once per Volume and device, 4 bytes a grid point)."""
+    shape = tuple(int(n) for n in volume.dims)
+    if wp.get_device(device).is_cuda and not fits_texture(shape):
+        raise ValueError(
+            f"the refraction method samples the volume through a 3D texture of at most "
+            f"{MAX_TEXTURE_EXTENT} points per axis; this volume has {shape}. Resample it")
+
+    def make():
+        # The device copy of the scalars is shared with every other method (cached per Volume).
+        scalars = volume.derived(f"scalars@{device}", None,
+                                 lambda: to_device(volume.scalars, wp.float32, device))
+        return texture_from(scalars)
+
+    return volume.derived(f"scalar_texture@{device}", None, make)
 
 
 def preintegration_tables(volume, transfer_function, optics, unit_distance: float,
@@ -210,6 +234,25 @@ def table_mean(values: wp.array(dtype=Any), integral: wp.array(dtype=Any), xa: f
             total += table_value(values, 0.5 * (a + b)) * (b - a)
             a = b
     return total / width
+
+
+@wp.func
+def data_coordinate(m: RefractiveMedium, p: wp.vec3):
+    """Texture coordinates of local position ``p`` in ``m.data`` (one unit per grid point)."""
+    u = wp.cw_mul(p, m.inv_spacing)
+    return wp.vec3(u[2] + 0.5, u[1] + 0.5, u[0] + 0.5)
+
+
+@wp.func
+def data_fetch(m: RefractiveMedium, c: wp.vec3):
+    """Data value at texture coordinates ``c`` (trilinear, clamped to the box)."""
+    return wp.texture_sample(m.data, c, dtype=float)
+
+
+@wp.func
+def data_value(m: RefractiveMedium, p: wp.vec3):
+    """Data value at local position ``p`` (trilinear, clamped to the box)."""
+    return data_fetch(m, data_coordinate(m, p))
 
 
 @wp.func

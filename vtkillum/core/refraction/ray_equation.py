@@ -22,8 +22,9 @@ medium. A linear-gradient slab bends a ray along the catenary
 
 ``∇η`` is the central difference of ``η_tf`` applied to the data values one
 voxel either side (paper section 5: "by applying η_tf to the neighboring data
-values before computing the central differences"); outside the volume's box it
-is zero and η is the index of the surrounding space
+values before computing the central differences"): seven trilinear fetches of the
+data texture (:func:`~vtkillum.core.refraction.preintegration.data_texture`); outside
+the volume's box it is zero and η is the index of the surrounding space
 (:attr:`RefractiveMedium.eta_outside`).
 
 Positions and directions of the sweep live in the camera frame
@@ -38,12 +39,15 @@ import warp as wp
 from vtkillum.core.device import resolve_device
 from vtkillum.core.refraction.preintegration import (
     RefractiveMedium,
+    data_coordinate,
+    data_fetch,
+    data_value,
     make_refractive_medium,
     table_coordinate,
     table_value,
 )
 from vtkillum.core.transfer_function import TransferFunction
-from vtkillum.core.warp_common import inside_box, sample_scalar
+from vtkillum.core.warp_common import inside_box
 
 #: Rays that turn more than this from the sweep direction stop (cos of 87°): they no
 #: longer reach the next plane in a bounded number of steps.
@@ -136,117 +140,37 @@ def eta_at(m: RefractiveMedium, p: wp.vec3):
     """Refractive index at local position ``p`` (the surrounding space's outside the box)."""
     if not inside_box(p, m.extent):
         return m.eta_outside
-    return eta_of_value(m, sample_scalar(m.scalars, m.inv_spacing, p))
-
-
-@wp.func
-def eta_gradient(m: RefractiveMedium, p: wp.vec3):
-    """``∇η`` at local position ``p`` (1/world units, local frame): central differences of
-    ``η_tf`` of the data one voxel either side; zero outside the box or where η is constant."""
-    if m.eta_varies == 0:
-        return wp.vec3(0.0)
-    if not inside_box(p, m.extent):
-        return wp.vec3(0.0)
-    hx = wp.vec3(m.spacing[0], 0.0, 0.0)
-    hy = wp.vec3(0.0, m.spacing[1], 0.0)
-    hz = wp.vec3(0.0, 0.0, m.spacing[2])
-    a = m.scalars
-    inv = m.inv_spacing
-    return wp.vec3(
-        (eta_of_value(m, sample_scalar(a, inv, p + hx))
-         - eta_of_value(m, sample_scalar(a, inv, p - hx))) * (0.5 * inv[0]),
-        (eta_of_value(m, sample_scalar(a, inv, p + hy))
-         - eta_of_value(m, sample_scalar(a, inv, p - hy))) * (0.5 * inv[1]),
-        (eta_of_value(m, sample_scalar(a, inv, p + hz))
-         - eta_of_value(m, sample_scalar(a, inv, p - hz))) * (0.5 * inv[2]),
-    )
-
-
-@wp.func
-def camera_eta_gradient(m: RefractiveMedium, frame: Frame, p: wp.vec3):
-    """``∇η`` at camera-frame point ``p``, in camera-frame components."""
-    if m.eta_varies == 0:
-        return wp.vec3(0.0)
-    return to_camera(frame, eta_gradient(m, to_local(frame, p)))
-
-
-@wp.func
-def lerp_cell(c000: float, c100: float, c010: float, c110: float, c001: float, c101: float,
-              c011: float, c111: float, f: wp.vec3):
-    """Trilinear interpolation of one cell's corners (``cXYZ``), in the order of
-    :func:`~vtkillum.core.warp_common.trilinear` (x, then y, then z)."""
-    return wp.lerp(wp.lerp(wp.lerp(c000, c100, f[0]), wp.lerp(c010, c110, f[0]), f[1]),
-                   wp.lerp(wp.lerp(c001, c101, f[0]), wp.lerp(c011, c111, f[0]), f[1]), f[2])
+    return eta_of_value(m, data_value(m, p))
 
 
 @wp.func
 def sample_and_gradient(m: RefractiveMedium, p: wp.vec3):
-    """Data value and ``∇η`` (local frame) at local position ``p``: ``(s, ∇η, inside)``.
+    """Data value and ``∇η`` (local frame, 1/world units) at local position ``p``:
+    ``(s, ∇η, inside)``.
 
-    The value of :func:`sample_scalar` and the gradient of :func:`eta_gradient` from
-    one stencil: the seven trilinear samples (``p`` and ``p ± one voxel`` per axis)
-    share their cells, so away from the faces they read 32 distinct voxels instead of
-    56 (the sweep's cost is these loads). Outside the box ``s = 0`` and ``∇η = 0``;
-    within two voxels of a face the samples are taken one by one (clamped cells).
+    ``∇η`` is the central difference of ``η_tf`` of the data one voxel either side; the
+    seven samples are fetches of the data texture (one grid unit apart in its coordinates;
+    clamped to the box's faces). Outside the box ``s = 0`` and ``∇η = 0``; where η is
+    constant ``∇η = 0``.
     """
     if not inside_box(p, m.extent):
         return 0.0, wp.vec3(0.0), 0
-    a = m.scalars
-    inv = m.inv_spacing
+    c = data_coordinate(m, p)
+    s = data_fetch(m, c)
     if m.eta_varies == 0:
-        return sample_scalar(a, inv, p), wp.vec3(0.0), 1
-    u = wp.cw_mul(p, inv)
-    i = int(wp.floor(u[0]))
-    j = int(wp.floor(u[1]))
-    k = int(wp.floor(u[2]))
-    if (i < 1 or j < 1 or k < 1 or i > a.shape[0] - 3 or j > a.shape[1] - 3
-            or k > a.shape[2] - 3):
-        return sample_scalar(a, inv, p), eta_gradient(m, p), 1
-    f = wp.vec3(u[0] - float(i), u[1] - float(j), u[2] - float(k))
-    # The cell of p ...
-    c000 = a[i, j, k]
-    c100 = a[i + 1, j, k]
-    c010 = a[i, j + 1, k]
-    c110 = a[i + 1, j + 1, k]
-    c001 = a[i, j, k + 1]
-    c101 = a[i + 1, j, k + 1]
-    c011 = a[i, j + 1, k + 1]
-    c111 = a[i + 1, j + 1, k + 1]
-    # ... and the faces one voxel beyond it on either side of each axis.
-    xm00 = a[i - 1, j, k]
-    xm10 = a[i - 1, j + 1, k]
-    xm01 = a[i - 1, j, k + 1]
-    xm11 = a[i - 1, j + 1, k + 1]
-    xp00 = a[i + 2, j, k]
-    xp10 = a[i + 2, j + 1, k]
-    xp01 = a[i + 2, j, k + 1]
-    xp11 = a[i + 2, j + 1, k + 1]
-    ym00 = a[i, j - 1, k]
-    ym10 = a[i + 1, j - 1, k]
-    ym01 = a[i, j - 1, k + 1]
-    ym11 = a[i + 1, j - 1, k + 1]
-    yp00 = a[i, j + 2, k]
-    yp10 = a[i + 1, j + 2, k]
-    yp01 = a[i, j + 2, k + 1]
-    yp11 = a[i + 1, j + 2, k + 1]
-    zm00 = a[i, j, k - 1]
-    zm10 = a[i + 1, j, k - 1]
-    zm01 = a[i, j + 1, k - 1]
-    zm11 = a[i + 1, j + 1, k - 1]
-    zp00 = a[i, j, k + 2]
-    zp10 = a[i + 1, j, k + 2]
-    zp01 = a[i, j + 1, k + 2]
-    zp11 = a[i + 1, j + 1, k + 2]
-    s = lerp_cell(c000, c100, c010, c110, c001, c101, c011, c111, f)
-    sxp = lerp_cell(c100, xp00, c110, xp10, c101, xp01, c111, xp11, f)
-    sxm = lerp_cell(xm00, c000, xm10, c010, xm01, c001, xm11, c011, f)
-    syp = lerp_cell(c010, c110, yp00, yp10, c011, c111, yp01, yp11, f)
-    sym = lerp_cell(ym00, ym10, c000, c100, ym01, ym11, c001, c101, f)
-    szp = lerp_cell(c001, c101, c011, c111, zp00, zp10, zp01, zp11, f)
-    szm = lerp_cell(zm00, zm10, zm01, zm11, c000, c100, c010, c110, f)
-    g = wp.vec3((eta_of_value(m, sxp) - eta_of_value(m, sxm)) * (0.5 * inv[0]),
-                (eta_of_value(m, syp) - eta_of_value(m, sym)) * (0.5 * inv[1]),
-                (eta_of_value(m, szp) - eta_of_value(m, szm)) * (0.5 * inv[2]))
+        return s, wp.vec3(0.0), 1
+    # Texture axes (k, j, i) hold the local axes (z, y, x).
+    ex = wp.vec3(0.0, 0.0, 1.0)
+    ey = wp.vec3(0.0, 1.0, 0.0)
+    ez = wp.vec3(1.0, 0.0, 0.0)
+    inv = m.inv_spacing
+    g = wp.vec3(
+        (eta_of_value(m, data_fetch(m, c + ex)) - eta_of_value(m, data_fetch(m, c - ex)))
+        * (0.5 * inv[0]),
+        (eta_of_value(m, data_fetch(m, c + ey)) - eta_of_value(m, data_fetch(m, c - ey)))
+        * (0.5 * inv[1]),
+        (eta_of_value(m, data_fetch(m, c + ez)) - eta_of_value(m, data_fetch(m, c - ez)))
+        * (0.5 * inv[2]))
     return s, g, 1
 
 
@@ -256,6 +180,13 @@ def camera_sample_and_gradient(m: RefractiveMedium, frame: Frame, p: wp.vec3):
     components, inside)``."""
     s, g, inside = sample_and_gradient(m, to_local(frame, p))
     return s, to_camera(frame, g), inside
+
+
+@wp.func
+def camera_eta_gradient(m: RefractiveMedium, frame: Frame, p: wp.vec3):
+    """``∇η`` at camera-frame point ``p``, in camera-frame components."""
+    _s, g, _inside = camera_sample_and_gradient(m, frame, p)
+    return g
 
 
 @wp.func

@@ -30,9 +30,13 @@ from vtkillum.core.refraction.environment import Environment, environment_lookup
 from vtkillum.core.refraction.light_propagation import GP_LAYERS, LightBuffers, propagate_light
 from vtkillum.core.refraction.planes import SweepParams, world_direction
 from vtkillum.core.refraction.preintegration import RefractiveMedium
-from vtkillum.core.refraction.ray_equation import camera_eta_gradient, eta_at, to_local
+from vtkillum.core.refraction.ray_equation import (
+    camera_sample_and_gradient,
+    eta_of_value,
+    to_local,
+)
 from vtkillum.core.refraction.view_rays import ACTIVE, MISSED, advance_view
-from vtkillum.core.warp_common import inside_box, ray_box, sample_scalar
+from vtkillum.core.warp_common import ray_box
 
 #: Segments a view ray crosses per launch (at most; see the module docstring).
 VIEW_CHUNK = 16
@@ -197,14 +201,13 @@ def init_view_kernel(m: RefractiveMedium, params: wp.array(dtype=SweepParams),
     if tt[0] >= tt[1] or tt[1] <= 0.0:
         return
     q = o + d * ((p.z0 - o[2]) / d[2])
-    ql = to_local(p.frame, q)
-    e = eta_at(m, ql)
+    s, g, inside = camera_sample_and_gradient(m, p.frame, q)
+    e = m.eta_outside
+    if inside != 0:
+        e = eta_of_value(m, s)
     vp[i] = q
     vv[i] = d * e
-    vg[i] = camera_eta_gradient(m, p.frame, q)
-    s = float(0.0)
-    if inside_box(ql, m.extent):
-        s = sample_scalar(m.scalars, m.inv_spacing, ql)
+    vg[i] = g
     vs[i] = s
     veta[i] = e
     state[i] = ACTIVE
