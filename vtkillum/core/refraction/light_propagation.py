@@ -101,44 +101,29 @@ class LightBuffers:
     ring: int
 
 @wp.func
-def in_rect(r: wp.vec4i, a: int, b: int):
-    """Whether texel ``(a, b)`` lies in the rectangle ``r = (a0, b0, a1, b1)`` (ends exclusive)."""
-    return a >= r[0] and b >= r[1] and a < r[2] and b < r[3]
-
+def light_fetch(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, r: wp.vec4i, a: int,
+                b: int, outside: Any):
+    """Texel ``(a, b)`` of ``layer``, or ``outside`` (what the unobstructed light carries)
+    beyond the plane's computed rectangle ``r``."""
+    if a < r[0] or b < r[1] or a >= r[2] or b >= r[3]:
+        return outside
+    return buf[layer, b * p.nx + a]
 
 @wp.func
 def light_bilinear(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, r: wp.vec4i,
                    x: float, y: float, outside: Any):
-    """Bilinear lookup at continuous texel coordinates ``(x, y)`` of ``layer``; texels beyond
-    the plane's computed rectangle ``r`` read as ``outside`` (what the unobstructed light
-    carries)."""
+    """Bilinear lookup at continuous texel coordinates ``(x, y)`` (``outside`` beyond the grid)."""
     x0 = wp.floor(x)
     y0 = wp.floor(y)
     a = int(x0)
     b = int(y0)
     fx = x - x0
     fy = y - y0
-    # One row view and one flat index for the four corners (a 2D index per corner costs
-    # two sign fix-ups and two 64-bit multiplies); the rectangle test split by axis.
-    row = buf[layer]
-    t = b * p.nx + a
-    a0 = a >= r[0] and a < r[2]
-    a1 = a + 1 >= r[0] and a + 1 < r[2]
-    b0 = b >= r[1] and b < r[3]
-    b1 = b + 1 >= r[1] and b + 1 < r[3]
-    c00 = outside
-    c10 = outside
-    c01 = outside
-    c11 = outside
-    if a0 and b0:
-        c00 = row[t]
-    if a1 and b0:
-        c10 = row[t + 1]
-    if a0 and b1:
-        c01 = row[t + p.nx]
-    if a1 and b1:
-        c11 = row[t + p.nx + 1]
-    return wp.lerp(wp.lerp(c00, c10, fx), wp.lerp(c01, c11, fx), fy)
+    bottom = wp.lerp(light_fetch(buf, layer, p, r, a, b, outside),
+                     light_fetch(buf, layer, p, r, a + 1, b, outside), fx)
+    top = wp.lerp(light_fetch(buf, layer, p, r, a, b + 1, outside),
+                  light_fetch(buf, layer, p, r, a + 1, b + 1, outside), fx)
+    return wp.lerp(bottom, top, fy)
 
 @wp.func
 def light_filtered(buf: wp.array2d(dtype=Any), layer: int, p: SweepParams, r: wp.vec4i,
@@ -196,11 +181,11 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, a: int, b: int,
     zero = wp.vec3(0.0)
     unit = wp.vec4(1.0, 0.0, 0.0, 1.0)
     if j == 0:
-        lb.l[wr][t] = p.light_rgb
-        lb.v[wr][t] = v0
-        lb.g[wg][t] = g_x
-        lb.p[wg][t] = unit
-        lb.o[wg][t] = ray_offset(v0, g_x, p.dz)
+        lb.l[wr, t] = p.light_rgb
+        lb.v[wr, t] = v0
+        lb.g[wg, t] = g_x
+        lb.p[wg, t] = unit
+        lb.o[wg, t] = ray_offset(v0, g_x, p.dz)
         return
     rd = (j - 1) % lb.ring
     rg = (j - 1) % GP_LAYERS
@@ -219,23 +204,11 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, a: int, b: int,
     if m.eta_varies != 0:
         # beyond the plane's rectangle: the unobstructed light's ray (v0, no gradient)
         o_out = ray_offset(v0, zero, p.dz)
-        ro = lb.o[rg]
-        oc = o_out
-        oe = o_out
-        ow = o_out
-        on = o_out
-        os = o_out
-        if in_rect(r, a, b):
-            oc = ro[t]
-        if in_rect(r, a + 1, b):
-            oe = ro[t + 1]
-        if in_rect(r, a - 1, b):
-            ow = ro[t - 1]
-        if in_rect(r, a, b + 1):
-            on = ro[t + p.nx]
-        if in_rect(r, a, b - 1):
-            os = ro[t - p.nx]
-        delta = oc - off0
+        oe = light_fetch(lb.o, rg, p, r, a + 1, b, o_out)
+        ow = light_fetch(lb.o, rg, p, r, a - 1, b, o_out)
+        on = light_fetch(lb.o, rg, p, r, a, b + 1, o_out)
+        os = light_fetch(lb.o, rg, p, r, a, b - 1, o_out)
+        delta = light_fetch(lb.o, rg, p, r, a, b, o_out) - off0
         da = (oe - ow) * (0.5 * inv_h)
         db = (on - os) * (0.5 * inv_h)
         det = (1.0 + da[0]) * (1.0 + db[1]) - da[1] * db[0]
@@ -307,11 +280,11 @@ def propagate_light(m: RefractiveMedium, p: SweepParams, j: int, a: int, b: int,
                                              wp.exp(-ext[3] * inside)))
     # No texel carries more than max_concentration times the light (bilinear lookups of the
     # light and of P at a focus need not stay consistent).
-    lb.l[wr][t] = wp.min(l_out * gain, p.light_rgb * p.max_concentration)
-    lb.v[wr][t] = v_new
-    lb.g[wg][t] = g_x
-    lb.p[wg][t] = p_new
-    lb.o[wg][t] = ray_offset(v_new, g_x, p.dz)
+    lb.l[wr, t] = wp.min(l_out * gain, p.light_rgb * p.max_concentration)
+    lb.v[wr, t] = v_new
+    lb.g[wg, t] = g_x
+    lb.p[wg, t] = p_new
+    lb.o[wg, t] = ray_offset(v_new, g_x, p.dz)
 
 @wp.func
 def light_at(m: RefractiveMedium, p: SweepParams, lb: LightBuffers, q: wp.vec3, j: int):
