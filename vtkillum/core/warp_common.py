@@ -246,17 +246,12 @@ def texture_from(array, current=None):
     scalar = getattr(array.dtype, "_wp_scalar_type_", array.dtype)
     shape = tuple(int(n) for n in array.shape[:3])
     cls = {1: wp.Texture1D, 2: wp.Texture2D, 3: wp.Texture3D}[len(shape)]
-    src = array
-    if not array.device.is_cuda and channels > 1:
-        # warp 1.19 copies a CPU vector array into a CPU texture as if it held scalars: give
-        # it the channels as the last axis.
-        src = array.numpy()
     if (isinstance(current, cls) and _texture_shape(current) == shape
             and current.num_channels == channels and current.dtype == scalar
             and current.device == array.device):
-        current.copy_from(src)
+        current.copy_from(array)
         return current
-    return cls(src, filter_mode=wp.TextureFilterMode.LINEAR,
+    return cls(array, filter_mode=wp.TextureFilterMode.LINEAR,
                address_mode=wp.TextureAddressMode.CLAMP, normalized_coords=False,
                device=array.device)
 

@@ -23,12 +23,13 @@ bending rays cross planes at different lengths).
 With η ≡ 1 and m ≡ white (κ = 0) the tables reduce to plain extinction and the
 scattering colour of the project's optical model (``DESIGN.md``).
 
-The sweep samples the data through a 3D texture (:func:`data_texture`): on CUDA the
+On CUDA the sweep samples the data through a 3D texture (:func:`data_texture`): the
 texture units interpolate trilinearly (block-linear storage, so a plane at any
 orientation reads neighbouring points from one cache line, and one fetch replaces eight
 loads and their index arithmetic; 8-bit fractional weights, as in
-:mod:`~vtkillum.core.ambient.textures`), on the CPU warp interpolates exactly (the
-values of :func:`~vtkillum.core.warp_common.sample_scalar`).
+:mod:`~vtkillum.core.ambient.textures`). On the CPU it interpolates the array exactly
+(:func:`~vtkillum.core.warp_common.sample_scalar`; warp's software texture filtering
+would be about 1.5x slower there).
 """
 
 from __future__ import annotations
@@ -40,7 +41,13 @@ import warp as wp
 
 from vtkillum.core.device import resolve_device
 from vtkillum.core.transfer_function import TABLE_SIZE
-from vtkillum.core.warp_common import MAX_TEXTURE_EXTENT, fits_texture, texture_from, to_device
+from vtkillum.core.warp_common import (
+    MAX_TEXTURE_EXTENT,
+    fits_texture,
+    sample_scalar,
+    texture_from,
+    to_device,
+)
 
 
 @wp.struct
@@ -50,12 +57,15 @@ class RefractiveMedium:
     ``extinction[i] = (σt, κ_r, κ_g, κ_b)`` and ``source[i] = σt · colour`` at table
     entry ``i`` (1/world units), with running integrals over the entry index;
     ``eta[i]`` the refractive index. Entry ``i`` holds data value
-    ``table_lo + i / table_scale``. ``data`` is the scalar volume as a texture
-    (:func:`data_texture`): grid point ``[i, j, k]`` at unnormalised texture coordinates
-    ``(k, j, i) + 0.5``.
+    ``table_lo + i / table_scale``. The data are sampled at texture coordinates (grid
+    point ``[i, j, k]`` at ``(k, j, i) + 0.5``, :func:`data_coordinate`): from ``data``, the
+    scalar volume as a texture (:func:`data_texture`), when ``textured`` (CUDA), otherwise
+    from ``scalars``.
     """
 
-    data: wp.Texture3D  # the scalars, trilinear, clamped to the box
+    scalars: wp.array3d(dtype=wp.float32)  # [i, j, k], point-centred
+    data: wp.Texture3D  # the same, trilinear, clamped to the box (CUDA)
+    textured: int
     extent: wp.vec3  # (n - 1) * spacing, world units
     spacing: wp.vec3
     inv_spacing: wp.vec3
@@ -105,7 +115,11 @@ def make_refractive_medium(volume, transfer_function, optics, unit_distance: flo
     device = resolve_device(device)
     tables = preintegration_tables(volume, transfer_function, optics, unit_distance, size)
     m = RefractiveMedium()
-    m.data = data_texture(volume, device)
+    # The device copy of the scalars is shared with every other method (cached per Volume).
+    m.scalars = volume.derived(f"scalars@{device}", None,
+                               lambda: to_device(volume.scalars, wp.float32, device))
+    m.textured = int(wp.get_device(device).is_cuda)
+    m.data = data_texture(volume, m.scalars) if m.textured else None
     m.extent = wp.vec3(*volume.extent.astype(np.float32))
     m.spacing = wp.vec3(*volume.spacing.astype(np.float32))
     m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
@@ -130,22 +144,16 @@ def make_refractive_medium(volume, transfer_function, optics, unit_distance: flo
     return m
 
 
-def data_texture(volume, device: str):
-    """``volume``'s scalars as a linearly filtered, clamped ``wp.Texture3D`` on ``device``
-    (made once per Volume and device, 4 bytes a grid point)."""
+def data_texture(volume, scalars):
+    """``volume``'s scalars (``scalars``: their device array) as a linearly filtered, clamped
+    ``wp.Texture3D`` (made once per Volume and device, 4 bytes a grid point)."""
     shape = tuple(int(n) for n in volume.dims)
-    if wp.get_device(device).is_cuda and not fits_texture(shape):
+    if not fits_texture(shape):
         raise ValueError(
             f"the refraction method samples the volume through a 3D texture of at most "
             f"{MAX_TEXTURE_EXTENT} points per axis; this volume has {shape}. Resample it")
-
-    def make():
-        # The device copy of the scalars is shared with every other method (cached per Volume).
-        scalars = volume.derived(f"scalars@{device}", None,
-                                 lambda: to_device(volume.scalars, wp.float32, device))
-        return texture_from(scalars)
-
-    return volume.derived(f"scalar_texture@{device}", None, make)
+    return volume.derived(f"scalar_texture@{scalars.device}", None,
+                          lambda: texture_from(scalars))
 
 
 def preintegration_tables(volume, transfer_function, optics, unit_distance: float,
@@ -246,7 +254,9 @@ def data_coordinate(m: RefractiveMedium, p: wp.vec3):
 @wp.func
 def data_fetch(m: RefractiveMedium, c: wp.vec3):
     """Data value at texture coordinates ``c`` (trilinear, clamped to the box)."""
-    return wp.texture_sample(m.data, c, dtype=float)
+    if m.textured != 0:
+        return wp.texture_sample(m.data, c, dtype=float)
+    return sample_scalar(m.scalars, wp.vec3(1.0), wp.vec3(c[2] - 0.5, c[1] - 0.5, c[0] - 0.5))
 
 
 @wp.func
