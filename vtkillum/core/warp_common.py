@@ -224,6 +224,20 @@ def cached_tables(key, build):
     return tables
 
 
+@wp.func_native("""
+#if defined(__CUDA_ARCH__)
+return 1;
+#else
+return 0;
+#endif
+""")
+def compiled_for_cuda() -> int:
+    """1 in code compiled for a CUDA device, 0 in code compiled for the CPU: a branch on it
+    is resolved by the compiler, so each device keeps only its own path (a run-time flag
+    in a kernel argument would keep both, and their registers, on the GPU)."""
+    ...
+
+
 #: Largest texture extent along any axis that every CUDA GPU of compute capability >= 3 supports.
 MAX_TEXTURE_EXTENT = 16384
 

@@ -43,6 +43,7 @@ from vtkillum.core.device import resolve_device
 from vtkillum.core.transfer_function import TABLE_SIZE
 from vtkillum.core.warp_common import (
     MAX_TEXTURE_EXTENT,
+    compiled_for_cuda,
     fits_texture,
     sample_scalar,
     texture_from,
@@ -58,14 +59,13 @@ class RefractiveMedium:
     entry ``i`` (1/world units), with running integrals over the entry index;
     ``eta[i]`` the refractive index. Entry ``i`` holds data value
     ``table_lo + i / table_scale``. The data are sampled at texture coordinates (grid
-    point ``[i, j, k]`` at ``(k, j, i) + 0.5``, :func:`data_coordinate`): from ``data``, the
-    scalar volume as a texture (:func:`data_texture`), when ``textured`` (CUDA), otherwise
-    from ``scalars``.
+    point ``[i, j, k]`` at ``(k, j, i) + 0.5``, :func:`data_coordinate`): on CUDA from
+    ``data``, the scalar volume as a texture (:func:`data_texture`), on the CPU from
+    ``scalars``.
     """
 
     scalars: wp.array3d(dtype=wp.float32)  # [i, j, k], point-centred
-    data: wp.Texture3D  # the same, trilinear, clamped to the box (CUDA)
-    textured: int
+    data: wp.Texture3D  # the same, trilinear, clamped to the box (CUDA only)
     extent: wp.vec3  # (n - 1) * spacing, world units
     spacing: wp.vec3
     inv_spacing: wp.vec3
@@ -118,8 +118,7 @@ def make_refractive_medium(volume, transfer_function, optics, unit_distance: flo
     # The device copy of the scalars is shared with every other method (cached per Volume).
     m.scalars = volume.derived(f"scalars@{device}", None,
                                lambda: to_device(volume.scalars, wp.float32, device))
-    m.textured = int(wp.get_device(device).is_cuda)
-    m.data = data_texture(volume, m.scalars) if m.textured else None
+    m.data = data_texture(volume, m.scalars) if wp.get_device(device).is_cuda else None
     m.extent = wp.vec3(*volume.extent.astype(np.float32))
     m.spacing = wp.vec3(*volume.spacing.astype(np.float32))
     m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
@@ -254,7 +253,7 @@ def data_coordinate(m: RefractiveMedium, p: wp.vec3):
 @wp.func
 def data_fetch(m: RefractiveMedium, c: wp.vec3):
     """Data value at texture coordinates ``c`` (trilinear, clamped to the box)."""
-    if m.textured != 0:
+    if compiled_for_cuda() != 0:
         return wp.texture_sample(m.data, c, dtype=float)
     return sample_scalar(m.scalars, wp.vec3(1.0), wp.vec3(c[2] - 0.5, c[1] - 0.5, c[0] - 0.5))
 
