@@ -2,10 +2,18 @@
 
 import numpy as np
 import pytest
+import warp as wp
 
 from vtkillum.core.refraction.optics import RefractiveOptics
-from vtkillum.core.refraction.ray_equation import trace_rays
+from vtkillum.core.refraction.preintegration import (
+    RefractiveMedium,
+    data_value,
+    make_refractive_medium,
+)
+from vtkillum.core.refraction.ray_equation import sample_and_gradient, trace_rays
+from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.core.volume import Volume
+from vtkillum.core.warp_common import MAX_TEXTURE_EXTENT, sample_scalar
 
 
 def grin_slab(eta0=1.2, gradient=0.02, h=0.5):
@@ -60,3 +68,65 @@ def test_bad_plane_spacing():
     volume, optics = grin_slab()
     with pytest.raises(ValueError, match="dz"):
         trace_rays(volume, optics, [[0, 0, 0]], [[1, 0, 0]], (1, 0, 0), 0.0, 4, device="cpu")
+
+
+@wp.kernel
+def _sample_kernel(m: RefractiveMedium, points: wp.array(dtype=wp.vec3),
+                   value: wp.array(dtype=float), exact: wp.array(dtype=float),
+                   gradient: wp.array(dtype=wp.vec3)):
+    i = wp.tid()
+    value[i] = data_value(m, points[i])
+    exact[i] = sample_scalar(m.scalars, m.inv_spacing, points[i])
+    _s, g, _inside = sample_and_gradient(m, points[i])
+    gradient[i] = g
+
+
+def test_data_samples_are_trilinear_and_the_gradient_central_differences(device):
+    """The data texture (CUDA: hardware filtering, 8-bit weights) and the CPU's array give
+    the trilinear value, also clamped beyond the faces; ∇η is the central difference of η_tf
+    of the samples one voxel either side."""
+    rng = np.random.default_rng(3)
+    data = rng.random((9, 7, 11)).astype(np.float32)
+    spacing = np.array([1.0, 2.0, 0.5])
+    volume = Volume(data, spacing=spacing)
+    optics = RefractiveOptics([0.0, 0.5, 1.0], [1.0, 1.3, 1.4])  # a kink at 0.5
+    m = make_refractive_medium(volume, TransferFunction([0.0], [0.0]), optics, 1.0,
+                               device=device)
+    n = 400
+    points = rng.uniform(-0.2, 1.2, (n, 3)) * volume.extent  # some beyond the faces
+    out = [wp.zeros(n, dtype=t, device=device) for t in (float, float, wp.vec3)]
+    wp.launch(_sample_kernel, dim=n, device=device,
+              inputs=[m, wp.array(points.astype(np.float32), dtype=wp.vec3, device=device),
+                      *out])
+    value, exact, gradient = (a.numpy() for a in out)
+    # 8-bit weights: at most 1/256 of the largest neighbour difference per axis, three axes.
+    tol = 1e-6 if device == "cpu" else 3.0 / 256.0
+    assert np.abs(value - exact).max() <= tol
+    inside = np.all((points >= 0) & (points <= volume.extent), axis=1)
+    h = spacing
+
+    def eta(p):
+        u = np.clip(p / h, 0, np.array(data.shape) - 1)
+        i0 = np.minimum(np.floor(u).astype(int), np.array(data.shape) - 2)
+        f = u - i0
+        s = 0.0
+        for corner in np.ndindex(2, 2, 2):
+            w = np.prod([f[a] if corner[a] else 1 - f[a] for a in range(3)])
+            s += w * data[tuple(i0 + np.array(corner))]
+        return optics.eta_at(s)
+
+    expected = np.array([[(eta(p + e * h) - eta(p - e * h)) / (2 * h[a])
+                          for a, e in enumerate(np.eye(3))] for p in points[inside]])
+    err = np.abs(gradient[inside] - expected).max() / np.abs(expected).max()
+    assert err < (1e-4 if device == "cpu" else 0.05)
+    assert np.all(gradient[~inside] == 0.0)
+
+
+def test_a_volume_beyond_the_texture_extent_is_refused_on_cuda(device):
+    volume = Volume(np.zeros((MAX_TEXTURE_EXTENT + 1, 2, 2), np.float32))
+    tf = TransferFunction([0.0], [0.0])
+    if device == "cpu":  # the CPU samples the array: no limit
+        make_refractive_medium(volume, tf, RefractiveOptics(), 1.0, device=device)
+        return
+    with pytest.raises(ValueError, match="at most 16384 points per axis"):
+        make_refractive_medium(volume, tf, RefractiveOptics(), 1.0, device=device)
