@@ -37,9 +37,9 @@ from vtkillum.core.refraction.view_rays import ACTIVE
 
 
 @wp.kernel
-def field_only(m: RefractiveMedium, params: wp.array(dtype=SweepParams), j: int,
+def sample_only(m: RefractiveMedium, params: wp.array(dtype=SweepParams), j: int,
                out: wp.array(dtype=wp.vec3)):
-    """The value and ``∇η`` (one optics-field fetch) at every light texel of plane ``j``."""
+    """The value and ``∇η`` (the seven data fetches) at every light texel of plane ``j``."""
     t = wp.tid()
     p = params[0]
     if t >= p.nx * p.ny:
@@ -155,11 +155,11 @@ def micro(renderer, volume, planes, texels, device):
     params = renderer._params
     out = wp.zeros(texels, dtype=wp.vec3, device=device)
     for j in range(3):  # warm-up
-        wp.launch(field_only, dim=texels, inputs=[medium, params, j, out], device=device)
+        wp.launch(sample_only, dim=texels, inputs=[medium, params, j, out], device=device)
     wp.synchronize_device(device)
     wp.timing_begin(cuda_filter=wp.TIMING_KERNEL)
     for j in range(planes):
-        wp.launch(field_only, dim=texels, inputs=[medium, params, j, out], device=device)
+        wp.launch(sample_only, dim=texels, inputs=[medium, params, j, out], device=device)
     for k, (ms, n) in per_kernel(wp.timing_end()).items():
         print(f"micro {k}: {1e3 * ms / n:.1f} us per plane ({texels} texels, "
               f"{1e12 * ms / n / 1e3 / texels:.2f} ns per texel)")

@@ -521,6 +521,13 @@ def camera_ray(cam: CameraParams, x: float, y: float):
 
 
 # --- host side -----------------------------------------------------------------------------------
+def device_scalars(volume, device: str):
+    """``volume.scalars`` as a float32 warp array on ``device``, uploaded once per Volume and
+    device (a Volume's data do not change) and shared by every method."""
+    return volume.derived(f"scalars@{device}", None,
+                          lambda: to_device(volume.scalars, wp.float32, device))
+
+
 def make_medium(volume, transfer_function, unit_distance: float, albedo: float = 0.9,
                 anisotropy: float = 0.0, device: str | None = None,
                 scalars: wp.array3d | None = None, skip_empty: bool = True) -> Medium:
@@ -548,9 +555,7 @@ def make_medium(volume, transfer_function, unit_distance: float, albedo: float =
     sig, col, lo, hi = transfer_function.lookup_tables(unit_distance, volume.value_range)
     m = Medium()
     if scalars is None:
-        # Uploaded once per Volume and device (a Volume's data do not change).
-        scalars = volume.derived(f"scalars@{device}", None,
-                                 lambda: to_device(volume.scalars, wp.float32, device))
+        scalars = device_scalars(volume, device)
     elif tuple(scalars.shape) != tuple(volume.dims):
         raise ValueError(f"uploaded scalars of shape {tuple(scalars.shape)} do not belong to a "
                          f"volume of {tuple(volume.dims)} points; upload the volume's own scalars")

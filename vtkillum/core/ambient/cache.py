@@ -54,17 +54,23 @@ from vtkillum.core.ambient.table import PreintegrationTable, load_table
 from vtkillum.core.ambient.textures import (
     AmbientTextures,
     data_texture,
-    fits_texture,
     hardware_filtering_available,
     optics_texture,
-    texture_from,
 )
 from vtkillum.core.ambient.tube_march import RadianceCache, radiance_cache, step_extinction_field
 from vtkillum.core.device import resolve_device
 from vtkillum.core.lights import pack_lights, resolved_radius
 from vtkillum.core.resample import scaled_shape
 from vtkillum.core.volume import array_digest
-from vtkillum.core.warp_common import Lights, Medium, make_lights, make_medium, to_device
+from vtkillum.core.warp_common import (
+    Lights,
+    Medium,
+    fits_texture,
+    make_lights,
+    make_medium,
+    texture_from,
+    to_device,
+)
 
 #: Values compared for the data fingerprint (strided over the array). It only backs up the
 #: array's identity (in-place edits call for :meth:`AmbientScatteringCache.invalidate`), so it

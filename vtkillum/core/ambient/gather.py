@@ -109,7 +109,6 @@ from vtkillum.core.ambient.textures import (
     fetch_optics,
     optics_color,
     optics_texture,
-    texture_from,
 )
 from vtkillum.core.ambient.tube_march import RadianceGrid, radiance_unit, sample_radiance
 from vtkillum.core.device import resolve_device
@@ -121,6 +120,7 @@ from vtkillum.core.warp_common import (
     hg_phase,
     inside_box,
     light_incidence,
+    texture_from,
     view_normal,
 )
 

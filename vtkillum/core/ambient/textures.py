@@ -42,10 +42,8 @@ from dataclasses import dataclass
 import warp as wp
 
 from vtkillum.core.device import init_warp
-from vtkillum.core.warp_common import (  # noqa: F401  (texture helpers re-exported)
-    MAX_TEXTURE_EXTENT,
+from vtkillum.core.warp_common import (
     Medium,
-    fits_texture,
     lookup_color,
     lookup_sigma_t,
     sample_scalar,

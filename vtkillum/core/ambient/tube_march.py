@@ -69,7 +69,7 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from vtkillum.core.ambient.textures import fetch_scalar, texture_from
+from vtkillum.core.ambient.textures import fetch_scalar
 from vtkillum.core.device import init_warp, resolve_device
 from vtkillum.core.resample import scaled_shape
 from vtkillum.core.warp_common import (
@@ -78,6 +78,7 @@ from vtkillum.core.warp_common import (
     light_incidence,
     ray_box,
     table_lerp,
+    texture_from,
     trilinear_index,
 )
 
@@ -191,7 +192,7 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
         A previous cache to overwrite when it has the same grid and light count (and is
         on ``device``): a light or ``g`` edit then allocates nothing. Otherwise ignored.
     sigma_tilde_texture : wp.Texture3D, optional
-        ``sigma_tilde`` as a texture (:func:`~vtkillum.core.ambient.textures.texture_from`):
+        ``sigma_tilde`` as a texture (:func:`~vtkillum.core.warp_common.texture_from`):
         the march samples it by hardware filtering and the result also comes as an RGBA
         texture (:attr:`RadianceCache.texture`). CUDA only; see
         :mod:`~vtkillum.core.ambient.textures` for the accuracy.
@@ -206,7 +207,7 @@ def radiance_cache(sigma_tilde, data_spacing, extent, lights: Lights, transmitta
         instead of averaging ``σ̃t`` along the step. ``sigma_tilde_texture`` then only selects
         the half-precision texture output.
     step_field_texture : wp.Texture3D, optional
-        ``step_field`` as a texture (:func:`~vtkillum.core.ambient.textures.texture_from`,
+        ``step_field`` as a texture (:func:`~vtkillum.core.warp_common.texture_from`,
         CUDA): the march samples it by hardware trilinear filtering (one fetch instead of
         eight loads per step; the field is smooth, so the 8-bit interpolation weights cost
         little: see :class:`~vtkillum.core.ambient.cache.AmbientScatteringCache`).

@@ -85,11 +85,11 @@ from vtkillum.core.warp_common import (
     Medium,
     attach_occupancy,
     capped_kernel,
+    device_scalars,
     lookup_color,
     lookup_sigma_t,
     ray_box,
     sample_scalar,
-    to_device,
     uniform,
 )
 
@@ -172,8 +172,7 @@ def photon_medium(volume, transfer_function, unit_distance: float, albedo: float
     tables = DeviceTables(transfer_function, unit_distance, volume.value_range, device,
                           None if previous is None else previous[1])
     m = Medium()  # make_medium's fields, with these tables (not make_medium's own)
-    m.scalars = volume.derived(f"scalars@{device}", None,
-                               lambda: to_device(volume.scalars, wp.float32, device))
+    m.scalars = device_scalars(volume, device)
     m.extent = wp.vec3(*volume.extent.astype(np.float32))
     m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
     m.albedo = float(albedo)

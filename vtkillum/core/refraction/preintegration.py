@@ -44,10 +44,10 @@ from vtkillum.core.transfer_function import TABLE_SIZE
 from vtkillum.core.warp_common import (
     MAX_TEXTURE_EXTENT,
     compiled_for_cuda,
+    device_scalars,
     fits_texture,
     sample_scalar,
     texture_from,
-    to_device,
 )
 
 
@@ -115,9 +115,7 @@ def make_refractive_medium(volume, transfer_function, optics, unit_distance: flo
     device = resolve_device(device)
     tables = preintegration_tables(volume, transfer_function, optics, unit_distance, size)
     m = RefractiveMedium()
-    # The device copy of the scalars is shared with every other method (cached per Volume).
-    m.scalars = volume.derived(f"scalars@{device}", None,
-                               lambda: to_device(volume.scalars, wp.float32, device))
+    m.scalars = device_scalars(volume, device)
     m.data = data_texture(volume, m.scalars) if wp.get_device(device).is_cuda else None
     m.extent = wp.vec3(*volume.extent.astype(np.float32))
     m.spacing = wp.vec3(*volume.spacing.astype(np.float32))
