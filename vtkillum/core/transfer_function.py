@@ -141,12 +141,8 @@ class TransferFunction:
             hi = lo + max(1.0, abs(lo) * 1e-6)
         # Sample alpha (not sigma_t) linearly, as VTK's opacity table does, then convert.
         v = np.linspace(lo, hi, size)
-        return (
-            self.sigma_t(v, unit_distance).astype(np.float32),
-            self.color(v).astype(np.float32),
-            lo,
-            hi,
-        )
+        sigma, color = self.sigma_t_and_color(v, unit_distance)  # one search, same bits
+        return sigma.astype(np.float32), color.astype(np.float32), lo, hi
 
     # --- (de)serialisation ---------------------------------------------------------------
     def to_dict(self) -> dict:
