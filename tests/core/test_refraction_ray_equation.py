@@ -10,7 +10,7 @@ from vtkillum.core.refraction.preintegration import (
     data_value,
     make_refractive_medium,
 )
-from vtkillum.core.refraction.ray_equation import sample_and_gradient, trace_rays
+from vtkillum.core.refraction.ray_equation import eta_of_value, sample_and_gradient, trace_rays
 from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.core.volume import Volume
 from vtkillum.core.warp_common import MAX_TEXTURE_EXTENT, sample_scalar
@@ -120,6 +120,34 @@ def test_data_samples_are_trilinear_and_the_gradient_central_differences(device)
     err = np.abs(gradient[inside] - expected).max() / np.abs(expected).max()
     assert err < (1e-4 if device == "cpu" else 0.05)
     assert np.all(gradient[~inside] == 0.0)
+
+
+@wp.kernel
+def _eta_kernel(m: RefractiveMedium, values: wp.array(dtype=float), eta: wp.array(dtype=float)):
+    i = wp.tid()
+    eta[i] = eta_of_value(m, values[i])
+
+
+def test_eta_of_value_interpolates_the_table(device):
+    """η_tf(s) is the 4096-entry table interpolated linearly, constant beyond its ends (to the
+    float32 rounding of the table coordinate, a thousandth of an entry)."""
+    optics = RefractiveOptics([0.0, 0.3, 0.31, 1.0], [1.0, 1.1, 1.5, 1.52])  # a steep step
+    volume = Volume(np.linspace(0.0, 1.0, 64, dtype=np.float32).reshape(4, 4, 4))
+    m = make_refractive_medium(volume, TransferFunction([0.0], [0.0]), optics, 1.0,
+                               device=device)
+    table = m.eta.numpy().astype(np.float64)
+    entries = np.arange(table.size) / m.table_scale + m.table_lo
+    rng = np.random.default_rng(5)
+    s = np.concatenate([rng.uniform(-0.2, 1.2, 2000), entries[::97]]).astype(np.float32)
+    out = wp.zeros(s.size, dtype=float, device=device)
+    wp.launch(_eta_kernel, dim=s.size, device=device,
+              inputs=[m, wp.array(s, dtype=float, device=device), out])
+    x = np.clip((s.astype(np.float64) - m.table_lo) * m.table_scale, 0, table.size - 1)
+    expected = np.interp(x, np.arange(table.size), table)
+    step = np.abs(np.diff(table)).max()
+    tol = 1e-6 + 1e-3 * step
+    assert np.abs(out.numpy() - expected).max() <= tol
+    assert np.abs(out.numpy()[-len(entries[::97]):] - table[::97]).max() <= tol
 
 
 def test_a_volume_beyond_the_texture_extent_is_refused_on_cuda(device):
