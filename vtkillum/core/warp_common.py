@@ -252,9 +252,9 @@ def texture_from(array, current=None):
     holding ``array``.
 
     ``array`` is a contiguous warp array of shape ``(depth, height, width)`` (or
-    ``(height, width)``, or ``(width,)``) of float32, vec4 or vec4h. ``current`` is overwritten (one device
-    copy, no allocation) when it has the same shape, element type and channel count and
-    lives on the same device; otherwise a new texture is made.
+    ``(height, width)``, or ``(width,)``) of float32, vec4 or vec4h. ``current`` is
+    overwritten (one device copy, no allocation) when it has the same shape, element type
+    and channel count and lives on the same device; otherwise a new texture is made.
     """
     channels = int(getattr(array.dtype, "_length_", 1))  # vec4: 4, float32: 1
     scalar = getattr(array.dtype, "_wp_scalar_type_", array.dtype)
@@ -271,7 +271,7 @@ def texture_from(array, current=None):
 
 
 def _texture_shape(texture) -> tuple:
-    """A texture's array shape: ``(height, width)`` or ``(depth, height, width)``."""
+    """A texture's array shape: ``(width,)``, ``(height, width)`` or ``(depth, height, width)``."""
     if isinstance(texture, wp.Texture1D):
         return (texture.width,)
     if isinstance(texture, wp.Texture2D):

@@ -239,6 +239,7 @@ class Level:
         self.shape = tuple(int(n) for n in shape)
         self.spacing = np.asarray(spacing, dtype=np.float64)
         self.h = wp.vec3(*self.spacing.astype(np.float32))
+        self.inv_h = wp.vec3(*(1.0 / self.spacing).astype(np.float32))
         nx, ny, nz = self.shape
 
         def vec3(s):
@@ -360,7 +361,8 @@ class RadiativeDiffusion:
         level = self.levels[start]
         wp.launch(coefficients_kernel, dim=(4, *level.shape), device=self.device,
                   inputs=[x, level.sigma_tr, level.sigma_a, level.kx, level.ky, level.kz,
-                          level.absorb, level.h, self.d_max, LIMITERS[self.limiter]])
+                          level.absorb, level.h, level.inv_h, self.d_max,
+                          LIMITERS[self.limiter]])
         for fine, coarse in zip(self.levels[start:], self.levels[start + 1:]):
             coarse_coefficients(fine, coarse, self._ratio(fine, coarse), self.device)
 
@@ -831,6 +833,17 @@ def near_medium(sigma_tr: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int, min
 
 
 @wp.func
+def add_block_channels(acc: wp.array(dtype=wp.float64), start: int, v: wp.vec3, lane: int):
+    """Sum ``v`` over the block of a tiled launch (a tile reduction per channel) and add it
+    to ``acc[start:start + 3]`` once, from lane 0."""
+    t0 = wp.tile_sum(wp.tile(v[0]))
+    t1 = wp.tile_sum(wp.tile(v[1]))
+    t2 = wp.tile_sum(wp.tile(v[2]))
+    if lane == 0:
+        add_channels(acc, start, wp.vec3(t0[0], t1[0], t2[0]))
+
+
+@wp.func
 def grid_cell(cell: int, ny: int, nz: int):
     """Indices ``(i, j, k)`` of the row-major linear index ``cell`` of an ``(nx, ny, nz)`` grid."""
     return cell // (ny * nz), (cell // nz) % ny, cell % nz
@@ -992,8 +1005,8 @@ def leak_at(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
 def coefficients_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
                         sigma_a: wp.array3d(dtype=wp.vec3), kx: wp.array3d(dtype=wp.vec3),
                         ky: wp.array3d(dtype=wp.vec3), kz: wp.array3d(dtype=wp.vec3),
-                        absorb: wp.array3d(dtype=wp.vec3), h: wp.vec3, d_max: float,
-                        limiter: int):
+                        absorb: wp.array3d(dtype=wp.vec3), h: wp.vec3, inv_h: wp.vec3,
+                        d_max: float, limiter: int):
     """One lagged coefficient per thread, ``wp.tid() = (what, i, j, k)``: ``what`` 0-2 the
     cell's +x, +y, +z face (where the neighbour exists), 3 its absorption plus box-face
     leakage (``absorb``: the part of the diagonal that couples to no neighbour, one array
@@ -1010,7 +1023,6 @@ def coefficients_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dty
         absorb[i, j, k] = sigma_a[i, j, k] + leak_at(phi, sigma_tr, p, h, d_max, limiter)
     elif component(p, what) < component(wp.vec3i(phi.shape[0], phi.shape[1], phi.shape[2]),
                                         what) - 1:
-        inv_h = wp.vec3(1.0 / h[0], 1.0 / h[1], 1.0 / h[2])
         set_face_k(kx, ky, kz, what, p, face_coefficient(phi, sigma_tr, p, what, inv_h, d_max,
                                                           limiter))
 
@@ -1111,15 +1123,8 @@ def residual_norm_kernel(x: wp.array3d(dtype=wp.vec3), b: wp.array3d(dtype=wp.ve
                         v = wp.max(wp.abs(xi[c]), wp.abs(b[i, j, k][c]) / diag[c])
                         s[c] = s[c] + e * e
                         m[c] = m[c] + v * v
-    s0 = wp.tile_sum(wp.tile(s[0]))
-    s1 = wp.tile_sum(wp.tile(s[1]))
-    s2 = wp.tile_sum(wp.tile(s[2]))
-    m0 = wp.tile_sum(wp.tile(m[0]))
-    m1 = wp.tile_sum(wp.tile(m[1]))
-    m2 = wp.tile_sum(wp.tile(m[2]))
-    if lane == 0:
-        add_channels(acc, 0, wp.vec3(s0[0], s1[0], s2[0]))
-        add_channels(acc, 3, wp.vec3(m0[0], m1[0], m2[0]))
+    add_block_channels(acc, 0, s, lane)
+    add_block_channels(acc, 3, m, lane)
 
 
 @wp.kernel
@@ -1403,19 +1408,9 @@ def channel_sums_kernel(a: wp.array3d(dtype=wp.vec3), acc: wp.array(dtype=wp.flo
             else:
                 s += v
                 p += wp.vec3(wp.max(v[0], 0.0), wp.max(v[1], 0.0), wp.max(v[2], 0.0))
-    s0 = wp.tile_sum(wp.tile(s[0]))
-    s1 = wp.tile_sum(wp.tile(s[1]))
-    s2 = wp.tile_sum(wp.tile(s[2]))
-    if squares != 0:
-        if lane == 0:
-            add_channels(acc, 0, wp.vec3(s0[0], s1[0], s2[0]))
-        return
-    p0 = wp.tile_sum(wp.tile(p[0]))
-    p1 = wp.tile_sum(wp.tile(p[1]))
-    p2 = wp.tile_sum(wp.tile(p[2]))
-    if lane == 0:
-        add_channels(acc, 0, wp.vec3(s0[0], s1[0], s2[0]))
-        add_channels(acc, 3, wp.vec3(p0[0], p1[0], p2[0]))
+    add_block_channels(acc, 0, s, lane)
+    if squares == 0:  # the same for every lane of the block
+        add_block_channels(acc, 3, p, lane)
 
 
 @wp.kernel
