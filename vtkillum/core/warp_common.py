@@ -192,16 +192,17 @@ def inside_box(p: wp.vec3, extent: wp.vec3):
             and p[0] <= extent[0] and p[1] <= extent[1] and p[2] <= extent[2])
 
 
-def capped_kernel(registers: int):
+def capped_kernel(registers: int, **options):
     """``wp.kernel`` with a cap on the registers per thread of its CUDA code (warp >= 1.10's
     ``cuda_max_registers``; a plain ``wp.kernel`` where warp has no such option, or for a
-    cap of 0)."""
-    if int(registers) <= 0:
-        return wp.kernel
-    try:
-        return wp.kernel(cuda_max_registers=int(registers))
-    except TypeError:
-        return wp.kernel
+    cap of 0); ``options`` go to ``wp.kernel`` (e.g. ``name`` and ``module`` for kernels
+    made by a factory)."""
+    if int(registers) > 0:
+        try:
+            return wp.kernel(cuda_max_registers=int(registers), **options)
+        except TypeError:
+            pass
+    return wp.kernel(**options) if options else wp.kernel
 
 
 #: Device tables kept by :func:`cached_tables` (most recently used last).

@@ -155,7 +155,7 @@ from __future__ import annotations
 import numpy as np
 import warp as wp
 
-from vtkillum.core.convection_diffusion.coarsening import coarse_coefficients, set_face_k
+from vtkillum.core.convection_diffusion.coarsening import coarse_coefficients
 from vtkillum.core.convection_diffusion.diffusion import DiffusionReport
 from vtkillum.core.convection_diffusion.multigrid import (
     child_of,
@@ -359,10 +359,13 @@ class RadiativeDiffusion:
         """
         self._check_medium()
         level = self.levels[start]
-        wp.launch(coefficients_kernel, dim=(4, *level.shape), device=self.device,
-                  inputs=[x, level.sigma_tr, level.sigma_a, level.kx, level.ky, level.kz,
-                          level.absorb, level.h, level.inv_h, self.d_max,
-                          LIMITERS[self.limiter]])
+        limiter = LIMITERS[self.limiter]
+        for kernel, k in zip(FACE_KERNELS, (level.kx, level.ky, level.kz)):
+            wp.launch(kernel, dim=k.shape, device=self.device,
+                      inputs=[x, level.sigma_tr, k, level.inv_h, self.d_max, limiter])
+        wp.launch(absorption_kernel, dim=level.shape, device=self.device,
+                  inputs=[x, level.sigma_tr, level.sigma_a, level.absorb, level.h, self.d_max,
+                          limiter])
         for fine, coarse in zip(self.levels[start:], self.levels[start + 1:]):
             coarse_coefficients(fine, coarse, self._ratio(fine, coarse), self.device)
 
@@ -731,39 +734,43 @@ def _block(device, threads: int) -> int:
 def limited_coefficient(sigma_tr: float, grad: float, phi: float, d_max: float, limiter: int):
     """Diffusion coefficient ``D`` (world units) of one channel; see the module docstring.
 
-    Levermore–Pomraning as ``D = (coth R - 1/R) / g`` (``g = 2 |grad phi| / phi``,
-    ``R = g / sigma_tr``) with ``coth R = (1 + e) / (1 - e)``, ``e = exp(-2 R)``, over one
-    division; its Taylor series below ``R = 0.5``, where the difference of ``coth R`` and
-    ``1 / R`` cancels (relative error ``~3 eps / R^2``: the difference of ``1 / tanh R`` and
-    ``1 / R`` used before, with the series only below ``R = 0.01``, was up to 3.6e-3 off
-    there); the series' first omitted term is below 1e-8 at ``R = 0.5``, and the whole
-    limiter is within 2e-6 of float64 for every ``R``.
+    Levermore–Pomraning as ``D = (coth R - 1/R) / (R sigma_tr)`` with ``R = 2 |grad phi| /
+    (sigma_tr phi)``, ``coth R = (1 + e) / (1 - e)``, ``e = exp(-2 R)``: ``D = (R (1 + e) -
+    (1 - e)) / (R^2 (1 - e) sigma_tr)``, and its Taylor series ``(1/3 - R^2/45 + ...) /
+    sigma_tr`` below ``R = 0.5``, where the difference of ``coth R`` and ``1 / R`` cancels
+    (relative error ``~3 eps / R^2``; the difference of ``1 / tanh R`` and ``1 / R``, with the
+    series only below ``R = 0.01``, was up to 3.6e-3 off there). Both branches are
+    evaluated and one selected, so a warp does not diverge and the limiter costs two
+    divisions (``R`` and ``D``); ``e`` underflows to 0 for large ``R``, where the fraction
+    is ``(R - 1) / R^2 / sigma_tr`` (``coth R = 1`` to float32). The series' first omitted
+    term is below 1e-8 at ``R = 0.5``; the whole limiter is within 2e-6 of float64 for
+    every ``R``.
     """
     d = d_max
     if limiter == 3 or phi <= 0.0 or grad <= 0.0:
         if 3.0 * sigma_tr * d_max > 1.0:
             d = 1.0 / (3.0 * sigma_tr)
         return d
-    g = FREE_STREAMING * grad / phi  # 1/world units
+    fg = FREE_STREAMING * grad  # g phi, g = 2 |grad phi| / phi (1/world units)
     if limiter == WILSON:
-        d = 1.0 / (3.0 * sigma_tr + g)
+        d = 1.0 / (3.0 * sigma_tr + fg / phi)
     elif limiter == LARSEN:
+        g = fg / phi
         d = 1.0 / wp.sqrt(9.0 * sigma_tr * sigma_tr + g * g)
     else:
-        if sigma_tr * 1.0e4 <= g:
-            d = 1.0 / g  # R = g / sigma_tr -> inf: free streaming
+        ps = phi * sigma_tr
+        if ps * 1.0e4 <= fg:
+            d = phi / fg  # R = g / sigma_tr -> inf (or vacuum): free streaming, D = 1 / g
         else:
-            inv_s = 1.0 / sigma_tr
-            r = g * inv_s
-            if r < 0.5:
-                r2 = r * r
-                d = (1.0 / 3.0 + r2 * (-1.0 / 45.0 + r2 * (2.0 / 945.0 + r2 * (
-                    -1.0 / 4725.0 + r2 * (2.0 / 93555.0))))) * inv_s
-            elif r > 20.0:
-                d = (1.0 - 1.0 / r) / g  # coth R = 1 to float32
-            else:
-                e = wp.exp(-2.0 * r)
-                d = (r * (1.0 + e) - (1.0 - e)) / (r * (1.0 - e) * g)
+            r = fg / ps
+            r2 = r * r
+            e = wp.exp(-2.0 * r)
+            series = 1.0 / 3.0 + r2 * (-1.0 / 45.0 + r2 * (2.0 / 945.0 + r2 * (
+                -1.0 / 4725.0 + r2 * (2.0 / 93555.0))))
+            small = r < 0.5
+            num = wp.where(small, series, r * (1.0 + e) - (1.0 - e))
+            den = wp.where(small, sigma_tr, r2 * (1.0 - e) * sigma_tr)
+            d = num / den
     return wp.min(d, d_max)
 
 
@@ -917,62 +924,6 @@ def medium_kernel(sigma: wp.array3d(dtype=wp.float32), color_sigma: wp.array3d(d
 
 
 @wp.func
-def tangential_difference(phi: wp.array3d(dtype=wp.vec3), p: wp.vec3i, q: wp.vec3i, axis: int,
-                          inv_h: float):
-    """``d phi / dx_axis`` at the face between points ``p`` and ``q`` (neighbours across the
-    face, so at the same index along ``axis``): the mean of their central differences
-    (one-sided at the box faces, 0 on a grid one point thick), one multiplication for both."""
-    e = axis_offset(axis, 1)
-    i = component(p, axis)
-    n = component(wp.vec3i(phi.shape[0], phi.shape[1], phi.shape[2]), axis)
-    lo = wp.vec3i(0)
-    hi = wp.vec3i(0)
-    steps = int(0)
-    if i > 0:
-        lo = e
-        steps += 1
-    if i < n - 1:
-        hi = e
-        steps += 1
-    if steps == 0:
-        return wp.vec3(0.0)
-    a = p + hi
-    b = p - lo
-    c = q + hi
-    d = q - lo
-    diff = (phi[a[0], a[1], a[2]] - phi[b[0], b[1], b[2]]) + (phi[c[0], c[1], c[2]]
-                                                             - phi[d[0], d[1], d[2]])
-    return diff * (wp.where(steps == 2, 0.25, 0.5) * inv_h)
-
-
-@wp.func
-def face_coefficient(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
-                     p: wp.vec3i, axis: int, inv_h: wp.vec3, d_max: float, limiter: int):
-    """``k = D_f / h_axis^2`` of the face between point ``p`` and its +``axis`` neighbour.
-
-    Face means of ``sigma_tr`` and ``phi``; face gradient from the two points (normal)
-    and the mean of their central differences (tangential). ``inv_h``: ``1 / h`` per axis.
-    """
-    q = p + axis_offset(axis, 1)
-    a = phi[p[0], p[1], p[2]]
-    b = phi[q[0], q[1], q[2]]
-    inv_ha = component(inv_h, axis)
-    normal = (b - a) * inv_ha
-    grad_sq = wp.cw_mul(normal, normal)
-    # the two tangential axes, in increasing order
-    t0 = wp.where(axis == 0, 1, 0)
-    t1 = wp.where(axis == 2, 1, 2)
-    gt = tangential_difference(phi, p, q, t0, component(inv_h, t0))
-    grad_sq += wp.cw_mul(gt, gt)
-    gt = tangential_difference(phi, p, q, t1, component(inv_h, t1))
-    grad_sq += wp.cw_mul(gt, gt)
-    s = 0.5 * (sigma_tr[p[0], p[1], p[2]] + sigma_tr[q[0], q[1], q[2]])
-    f = 0.5 * (a + b)
-    d = limited_vec(s, grad_sq, f, d_max, limiter)
-    return d * (inv_ha * inv_ha)
-
-
-@wp.func
 def leak_at(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3), p: wp.vec3i,
             h: wp.vec3, d_max: float, limiter: int):
     """Marshak leakage ``b = sum_box faces 2 D / ((4 D + h_a) h_a)`` of cell ``p``.
@@ -1001,30 +952,85 @@ def leak_at(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
     return out
 
 
-@capped_kernel(COEFFICIENT_REGISTERS)
-def coefficients_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
-                        sigma_a: wp.array3d(dtype=wp.vec3), kx: wp.array3d(dtype=wp.vec3),
-                        ky: wp.array3d(dtype=wp.vec3), kz: wp.array3d(dtype=wp.vec3),
-                        absorb: wp.array3d(dtype=wp.vec3), h: wp.vec3, inv_h: wp.vec3,
-                        d_max: float, limiter: int):
-    """One lagged coefficient per thread, ``wp.tid() = (what, i, j, k)``: ``what`` 0-2 the
-    cell's +x, +y, +z face (where the neighbour exists), 3 its absorption plus box-face
-    leakage (``absorb``: the part of the diagonal that couples to no neighbour, one array
-    for the smoother and the residuals to read instead of two).
+def _face_kernel(axis: int):
+    """The lagged coefficient ``k = D_f / h_axis^2`` of every face between a point ``p``
+    and its ``+axis`` neighbour ``q``, a thread per face, ``wp.tid() = p``.
 
-    A thread per face rather than per cell: the per-cell kernel (three faces and the leakage
-    inlined) took 184 registers and ran at 12.5 % occupancy, latency bound (H100). The axis
-    stays a run-time value: a branch per axis with literal axes inlines all four again and
-    took 14.1 ms instead of 8.6 (Vortex teaser edit, 72 launches).
+    Face means of ``sigma_tr`` and ``phi``; face gradient from the two points (normal) and
+    the mean of their central differences along the two tangential axes (one-sided at the
+    box faces, 0 on a grid one point thick). ``inv_h``: ``1 / h`` per axis.
+
+    One kernel per axis, the axis a compile-time constant: with a run-time axis (one launch
+    for the three faces and the leakage) every offset and spacing was a select, the
+    kernel spilled at its 64-register cap (Nsight Compute, H100, 128³: 9.1 M local-memory
+    requests, a third of its stalls) and took ~1400 instructions a thread; a branch per
+    literal axis inside one kernel inlined all four bodies (14.1 ms instead of 8.6 for the
+    Vortex teaser edit's 72 launches).
     """
-    what, i, j, k = wp.tid()
-    p = wp.vec3i(i, j, k)
-    if what == 3:
-        absorb[i, j, k] = sigma_a[i, j, k] + leak_at(phi, sigma_tr, p, h, d_max, limiter)
-    elif component(p, what) < component(wp.vec3i(phi.shape[0], phi.shape[1], phi.shape[2]),
-                                        what) - 1:
-        set_face_k(kx, ky, kz, what, p, face_coefficient(phi, sigma_tr, p, what, inv_h, d_max,
-                                                          limiter))
+    t0 = 1 if axis == 0 else 0  # the tangential axes, in increasing order
+    t1 = 1 if axis == 2 else 2
+    normal = wp.vec3i(*(int(a == axis) for a in range(3)))
+    across0 = wp.vec3i(*(int(a == t0) for a in range(3)))
+    across1 = wp.vec3i(*(int(a == t1) for a in range(3)))
+
+    def face_coefficients(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
+                          k: wp.array3d(dtype=wp.vec3), inv_h: wp.vec3, d_max: float,
+                          limiter: int):
+        i, j, l = wp.tid()
+        p = wp.vec3i(i, j, l)
+        q = p + wp.static(normal)
+        a = phi[p[0], p[1], p[2]]
+        b = phi[q[0], q[1], q[2]]
+        inv_ha = inv_h[wp.static(axis)]
+        g = (b - a) * inv_ha
+        grad_sq = wp.cw_mul(g, g)
+        g = tangential_difference(phi, p, q, wp.static(across0), p[wp.static(t0)],
+                                  phi.shape[wp.static(t0)], inv_h[wp.static(t0)])
+        grad_sq += wp.cw_mul(g, g)
+        g = tangential_difference(phi, p, q, wp.static(across1), p[wp.static(t1)],
+                                  phi.shape[wp.static(t1)], inv_h[wp.static(t1)])
+        grad_sq += wp.cw_mul(g, g)
+        s = 0.5 * (sigma_tr[p[0], p[1], p[2]] + sigma_tr[q[0], q[1], q[2]])
+        d = limited_vec(s, grad_sq, 0.5 * (a + b), d_max, limiter)
+        k[i, j, l] = d * (inv_ha * inv_ha)
+
+    return capped_kernel(COEFFICIENT_REGISTERS, name=f"face_coefficients_{axis}",
+                         module="unique")(face_coefficients)
+
+
+@wp.func
+def tangential_difference(phi: wp.array3d(dtype=wp.vec3), p: wp.vec3i, q: wp.vec3i,
+                          e: wp.vec3i, c: int, n: int, inv_h: float):
+    """``d phi / dx_t`` at the face between points ``p`` and ``q`` (neighbours across the
+    face, at the same index ``c`` along the tangential axis ``t``, unit vector ``e``, ``n``
+    points): the mean of their central differences, one-sided at the box faces and 0 on a
+    grid one point thick (the neighbours' indices clamped, no branch)."""
+    lo = c - wp.max(c - 1, 0)
+    hi = wp.min(c + 1, n - 1) - c
+    pl = p - lo * e
+    ph = p + hi * e
+    ql = q - lo * e
+    qh = q + hi * e
+    diff = (phi[ph[0], ph[1], ph[2]] - phi[pl[0], pl[1], pl[2]]) + (phi[qh[0], qh[1], qh[2]]
+                                                                   - phi[ql[0], ql[1], ql[2]])
+    steps = lo + hi
+    return diff * (wp.where(steps == 2, 0.25, wp.where(steps == 1, 0.5, 0.0)) * inv_h)
+
+
+#: :func:`_face_kernel` per axis.
+FACE_KERNELS = tuple(_face_kernel(a) for a in range(3))
+
+
+@capped_kernel(COEFFICIENT_REGISTERS)
+def absorption_kernel(phi: wp.array3d(dtype=wp.vec3), sigma_tr: wp.array3d(dtype=wp.vec3),
+                      sigma_a: wp.array3d(dtype=wp.vec3), absorb: wp.array3d(dtype=wp.vec3),
+                      h: wp.vec3, d_max: float, limiter: int):
+    """``absorb = sigma_a`` plus the box faces' leakage at cell ``wp.tid()``: the part of the
+    diagonal that couples to no neighbour (one array for the smoother and the residuals to
+    read instead of two)."""
+    i, j, k = wp.tid()
+    absorb[i, j, k] = sigma_a[i, j, k] + leak_at(phi, sigma_tr, wp.vec3i(i, j, k), h, d_max,
+                                                  limiter)
 
 
 @wp.kernel
