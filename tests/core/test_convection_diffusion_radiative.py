@@ -199,6 +199,53 @@ def test_face_coefficients_match_the_limiter_in_double_precision(device):
     assert d.min() < 1e-4 and d.max() > 1e-2
 
 
+def marshak_leakage(phi, sigma_tr, h, d_max):
+    """Float64 reference of the box faces' leakage ``sum 2 D / ((4 D + h_a) h_a)`` per cell
+    (the cell's own ``D``: central differences, one-sided at the box; 0 inside)."""
+    grad_sq = np.zeros_like(phi)
+    for a in range(3):
+        if phi.shape[a] > 1:
+            grad_sq += np.gradient(phi, h[a], axis=a, edge_order=1) ** 2
+    g = FREE_STREAMING * np.sqrt(grad_sq) / phi
+    r = g / sigma_tr
+    d = np.minimum((1.0 / np.tanh(r) - 1.0 / r) / g, d_max)
+    out = np.zeros_like(phi)
+    for a in range(3):
+        faces = np.zeros(phi.shape[a])
+        faces[0] += 1.0
+        faces[-1] += 1.0
+        shape = [1, 1, 1, 1]
+        shape[a] = -1
+        out += faces.reshape(shape) * 2.0 * d / ((4.0 * d + h[a]) * h[a])
+    return out
+
+
+@pytest.mark.parametrize("shape", [(9, 8, 7), (2, 5, 3), (4, 1, 3), (3, 4, 2)])
+def test_leakage_is_written_on_every_box_face_cell_and_only_there(device, shape):
+    """``absorb = sigma_a + leakage``: the coefficient update launches only the box faces'
+    cells (each once, thin grids included), the inside keeps ``sigma_a`` from the medium;
+    against float64."""
+    from vtkillum.core.convection_diffusion.radiative import box_face_cells
+    rng = np.random.default_rng(11)
+    h = (0.1, 0.12, 0.09)
+    sigma = (10.0 ** rng.uniform(-1.0, 2.0, shape)).astype(np.float32)
+    rd = RadiativeDiffusion(shape, h, "levermore-pomraning", device)
+    rd.set_medium(*medium(shape, sigma, device, (1.0, 0.8, 0.5)), 0.9, 0.4)
+    phi = rng.uniform(0.2, 1.0, shape + (3,)).astype(np.float32)
+    top = rd.levels[0]
+    rd.update_coefficients(vec3(phi, device))
+    inner = np.zeros(shape, bool)
+    inner[tuple(slice(1, n - 1) for n in shape)] = True
+    assert box_face_cells(shape) == int((~inner).sum())
+    sigma_a = top.sigma_a.numpy().astype(np.float64)
+    ref = sigma_a + marshak_leakage(phi.astype(np.float64), top.sigma_tr.numpy().astype(np.float64),
+                                    h, rd.d_max)
+    got = top.absorb.numpy()
+    np.testing.assert_array_equal(got[inner], top.sigma_a.numpy()[inner])
+    np.testing.assert_allclose(got[~inner], ref[~inner], rtol=2e-5)
+    assert np.all(got[~inner] > sigma_a[~inner])
+
+
 def test_multigrid_and_gauss_seidel_agree(device):
     rd, q, sigma = random_scene(device, "levermore-pomraning", shape=(10, 9, 8))
     a = wp.zeros(rd.shape, dtype=wp.vec3, device=device)
