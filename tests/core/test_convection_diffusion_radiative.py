@@ -220,7 +220,7 @@ def marshak_leakage(phi, sigma_tr, h, d_max):
     return out
 
 
-@pytest.mark.parametrize("shape", [(9, 8, 7), (2, 5, 3), (4, 1, 3), (3, 4, 2)])
+@pytest.mark.parametrize("shape", [(9, 8, 7), (2, 5, 3), (4, 1, 3), (3, 4, 2), (12, 10, 9)])
 def test_leakage_is_written_on_every_box_face_cell_and_only_there(device, shape):
     """``absorb = sigma_a + leakage``: the coefficient update launches only the box faces'
     cells (each once, thin grids included), the inside keeps ``sigma_a`` from the medium;
@@ -244,6 +244,10 @@ def test_leakage_is_written_on_every_box_face_cell_and_only_there(device, shape)
     np.testing.assert_array_equal(got[inner], top.sigma_a.numpy()[inner])
     np.testing.assert_allclose(got[~inner], ref[~inner], rtol=2e-5)
     assert np.all(got[~inner] > sigma_a[~inner])
+    # the coarse levels' (homogenized: the children's mean) is their restricted sigma_a inside
+    for level in rd.levels[1:]:
+        core = tuple(slice(1, n - 1) for n in level.shape)
+        np.testing.assert_array_equal(level.absorb.numpy()[core], level.sigma_a.numpy()[core])
 
 
 def test_multigrid_and_gauss_seidel_agree(device):

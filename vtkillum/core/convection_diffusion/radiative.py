@@ -312,6 +312,7 @@ class RadiativeDiffusion:
         # 1 where the residual norms count a cell (near_medium), set with the medium
         self._counted = wp.zeros(self.shape, dtype=wp.uint8, device=device)
         self._rhs = None
+        self._best = None  # the best iterate of a solve (kept: graphs record its address)
         self._has_medium = False
         #: Captured outer iterations and nested starts (:mod:`~vtkillum.core.graphs`).
         self.graphs = LaunchGraphs(device)
@@ -338,10 +339,21 @@ class RadiativeDiffusion:
         albedo, anisotropy : float
             Single-scattering albedo and Henyey–Greenstein ``g``.
         """
+        key = ("medium", float(albedo), float(anisotropy)) + array_key(sigma, color_sigma)
+        self.graphs.run(key, lambda: self._medium(sigma, color_sigma, albedo, anisotropy))
+        self._has_medium = True
+
+    def _medium(self, sigma, color_sigma, albedo, anisotropy) -> None:
+        """The launches of :meth:`set_medium` (one replayed graph per medium's arrays)."""
         top = self.levels[0]
+        # Inside the box the diagonal's own part (``absorb``) is sigma_a: the coefficient
+        # updates write only the box faces' cells (:func:`leakage_kernel`). The coarse
+        # levels' is always homogenized from the finer level's first (every solve updates
+        # the finest level's coefficients before any other): the children's mean, inside
+        # their boxes the same bits as the restricted sigma_a below.
         wp.launch(medium_kernel, dim=self.shape, device=self.device,
                   inputs=[sigma, color_sigma, float(albedo), float(anisotropy), top.sigma_a,
-                          top.sigma_tr])
+                          top.sigma_tr, top.absorb])
         wp.launch(counted_kernel, dim=self.shape, device=self.device,
                   inputs=[top.sigma_tr, self.min_sigma, self._counted])
         for fine, coarse in zip(self.levels, self.levels[1:]):
@@ -349,13 +361,6 @@ class RadiativeDiffusion:
             for a, b in ((fine.sigma_a, coarse.sigma_a), (fine.sigma_tr, coarse.sigma_tr)):
                 wp.launch(restrict_kernel, dim=coarse.shape, device=self.device,
                           inputs=[a, b, ratio])
-        # Inside the box the diagonal's own part is sigma_a: the coefficient updates write
-        # only the box faces' cells (:func:`leakage_kernel`). The coarse levels' homogenized
-        # one is the children's mean, the same operation as the restriction of sigma_a
-        # above, so the same bits inside their boxes.
-        for level in self.levels:
-            wp.copy(level.absorb, level.sigma_a)
-        self._has_medium = True
 
     def update_coefficients(self, x: wp.array3d, start: int = 0) -> None:
         """Lagged coefficients (face ``D / h^2``, boundary leakage) from the solution ``x``.
@@ -374,6 +379,13 @@ class RadiativeDiffusion:
                           limiter])
         for fine, coarse in zip(self.levels[start:], self.levels[start + 1:]):
             coarse_coefficients(fine, coarse, self._ratio(fine, coarse), self.device)
+
+    def _update_coefficients_graphed(self, x: wp.array3d) -> None:
+        """:meth:`update_coefficients` of every level as one replayed graph (outside the
+        recorded sequences, which record it themselves): on small grids the launches' host
+        time is more than their work."""
+        self._check_medium()
+        self.graphs.run(("coefficients",) + array_key(x), lambda: self.update_coefficients(x))
 
     def solve(self, q: wp.array3d, x: wp.array3d, max_iterations: int = 100,
               tolerance: float = 1e-4, method: str = "multigrid", callback=None,
@@ -414,7 +426,7 @@ class RadiativeDiffusion:
             raise ValueError(f"the physical diffusion model is solved with 'multigrid' or "
                              f"'gauss-seidel', not {method!r}")
         report = DiffusionReport()
-        self.update_coefficients(x)
+        self._update_coefficients_graphed(x)
         rhs = q
         if displacement is not None:
             if self._rhs is None:
@@ -422,12 +434,15 @@ class RadiativeDiffusion:
             rhs = self._rhs
 
         if rhs is not q:
-            wp.launch(displaced_source_kernel, dim=self.shape, device=self.device,
-                      inputs=[q, *displacement, self.levels[0].h, rhs])
-            # Clip the negative parts (a dipole next to an empty cell), keeping the total.
-            self._channel_sums(rhs, squares=False)
-            wp.launch(clip_rescale_kernel, dim=self.shape, device=self.device,
-                      inputs=[rhs, self._norms])
+            def displaced():
+                wp.launch(displaced_source_kernel, dim=self.shape, device=self.device,
+                          inputs=[q, *displacement, self.levels[0].h, rhs])
+                # Clip the negative parts (a dipole next to an empty cell), keeping the total.
+                self._channel_sums(rhs, squares=False)
+                wp.launch(clip_rescale_kernel, dim=self.shape, device=self.device,
+                          inputs=[rhs, self._norms])
+
+            self.graphs.run(("displaced",) + array_key(q, *displacement, rhs), displaced)
         res, floor = self.residual(x, rhs)
         report.residuals.append(res)
         if res <= max(tolerance, floor):
@@ -441,33 +456,43 @@ class RadiativeDiffusion:
             top = None if cold else self.warm_nested_top
             self.graphs.run(("nested", top) + array_key(rhs, x),
                             lambda: self._nested_start(rhs, x, top))
-            self.update_coefficients(x)
+            self._update_coefficients_graphed(x)
             res, floor = self.residual(x, rhs)
         # The lagged-coefficient V-cycle can diverge where the limited coefficients jump by
         # orders of magnitude between cells (seen on CUDA at 128x128x89): keep the best
         # iterate, and on divergence (non-finite, or 10x worse than the best) go back to it
         # and continue with red-black Gauss-Seidel sweeps, which always converge (slowly).
+        # The best iterate is copied at the start of the next iteration's graph (a host copy
+        # per iteration cost more than the copy), into an array kept across solves (a new
+        # one would be a new graph to record every solve).
         best_res = res if np.isfinite(res) else np.inf
-        best = wp.clone(x) if method == "multigrid" else None
+        best = None
+        if method == "multigrid":
+            if self._best is None or tuple(self._best.shape) != tuple(x.shape):
+                self._best = wp.empty_like(x)
+            best = self._best
+        save_best = best is not None  # x is the best iterate so far
         smoothing_only = method != "multigrid"
         anderson = self._anderson_start(x) if self.anderson and not smoothing_only else None
         for _ in range(int(max_iterations)):
+            keep = best if save_best and not smoothing_only else None
             if anderson is not None and not smoothing_only:
-                self._anderson_iteration(x, rhs, anderson)
+                self._anderson_iteration(x, rhs, anderson, keep)
             else:
-                self._outer_iteration(x, rhs, smoothing_only)
+                self._outer_iteration(x, rhs, smoothing_only, keep)
+            save_best = False
             res, floor = self._read_residual()
             report.iterations += 1
             if best is not None and not smoothing_only:
                 if not np.isfinite(res) or res > 10.0 * best_res:
                     wp.copy(x, best)
-                    self.update_coefficients(x)
+                    self._update_coefficients_graphed(x)
                     res, floor = self.residual(x, rhs)
                     smoothing_only = True
                     report.fallback = True
                 elif res < best_res:
                     best_res = res
-                    wp.copy(best, x)
+                    save_best = True
             report.residuals.append(res)
             if callback is not None:
                 callback(report.iterations, res)
@@ -501,7 +526,8 @@ class RadiativeDiffusion:
         self._aa["k"] = 0
         return self._aa
 
-    def _anderson_iteration(self, x: wp.array3d, rhs: wp.array3d, aa: dict) -> None:
+    def _anderson_iteration(self, x: wp.array3d, rhs: wp.array3d, aa: dict,
+                            best: wp.array3d | None = None) -> None:
         """One outer iteration with Anderson acceleration of depth ``ANDERSON_SLOTS - 1``.
 
         The outer (Picard) iteration is a fixed-point map ``x -> G(x)``: a V-cycle with the
@@ -517,13 +543,16 @@ class RadiativeDiffusion:
         ill-conditioned history) fall back to the plain step and restart the history.
         The weights are solved on the device (:func:`anderson_weights_kernel`), so that an
         iteration is one replayed graph and one read of the residual norms: the host's
-        solve between two graphs cost a synchronisation and left the GPU idle.
+        solve between two graphs cost a synchronisation and left the GPU idle. ``best``:
+        copy ``x`` there first.
         """
         slot = aa["k"] % ANDERSON_SLOTS
         aa["k"] += 1
         G, F = aa["G"], aa["F"]
 
         def record():
+            if best is not None:
+                wp.copy(best, x)
             # G(x) into slot (the V-cycle runs on the slot, x keeps x_k), F_slot = G(x) - x
             # and <F_slot, F_j> for every slot in one pass
             wp.copy(G[slot], x)
@@ -544,15 +573,18 @@ class RadiativeDiffusion:
             self.update_coefficients(x)
             self._launch_residual(x, rhs)
 
-        self.graphs.run(("anderson", slot) + array_key(x, rhs), record)
+        self.graphs.run(("anderson", slot) + array_key(x, rhs, best), record)
 
-    def _outer_iteration(self, x: wp.array3d, rhs: wp.array3d, smoothing_only: bool) -> None:
+    def _outer_iteration(self, x: wp.array3d, rhs: wp.array3d, smoothing_only: bool,
+                         best: wp.array3d | None = None) -> None:
         """One outer iteration, replayed from a captured graph: a V-cycle (or one red-black
         sweep), the lagged coefficients of the new iterate and its residual norms
-        (read by :meth:`_read_residual`)."""
+        (read by :meth:`_read_residual`); ``best``: copy ``x`` there first."""
         top = self.levels[0]
 
         def record():
+            if best is not None:
+                wp.copy(best, x)
             if smoothing_only:
                 relax(top, x, rhs, 1)
             else:
@@ -560,7 +592,7 @@ class RadiativeDiffusion:
             self.update_coefficients(x)
             self._launch_residual(x, rhs)
 
-        self.graphs.run(("outer", smoothing_only) + array_key(x, rhs), record)
+        self.graphs.run(("outer", smoothing_only) + array_key(x, rhs, best), record)
 
     def _nested_start(self, q: wp.array3d, x: wp.array3d, top: int | None = None) -> None:
         """Correct the estimate ``x`` (zeros at a cold start) by nested iteration (full
@@ -628,7 +660,7 @@ class RadiativeDiffusion:
     def residual(self, x: wp.array3d, q: wp.array3d) -> tuple[float, float]:
         """Relative correction ``max_c ||diag(A)^-1 (Q - A x)||_c / ||x||_c`` over the medium
         and its neighbours, and its float32 floor (see the module docstring)."""
-        self._launch_residual(x, q)
+        self.graphs.run(("residual",) + array_key(x, q), lambda: self._launch_residual(x, q))
         return self._read_residual()
 
     def _launch_residual(self, x: wp.array3d, q: wp.array3d) -> None:
@@ -916,8 +948,9 @@ def neighbours(x: wp.array3d(dtype=wp.vec3), i: int, j: int, k: int,
 @wp.kernel
 def medium_kernel(sigma: wp.array3d(dtype=wp.float32), color_sigma: wp.array3d(dtype=wp.vec3),
                   albedo: float, g: float, sigma_a: wp.array3d(dtype=wp.vec3),
-                  sigma_tr: wp.array3d(dtype=wp.vec3)):
-    """``sigma_a = sigma_t - sigma_s`` and ``sigma_tr = sigma_t - g sigma_s`` at ``wp.tid()``.
+                  sigma_tr: wp.array3d(dtype=wp.vec3), absorb: wp.array3d(dtype=wp.vec3)):
+    """``sigma_a = sigma_t - sigma_s`` and ``sigma_tr = sigma_t - g sigma_s`` at ``wp.tid()``,
+    and ``absorb = sigma_a`` (the box faces' cells get their leakage with the coefficients).
 
     ``sigma_s = albedo * color_sigma`` (RGB, 1/world units), clamped to ``sigma_t``.
     """
@@ -926,6 +959,7 @@ def medium_kernel(sigma: wp.array3d(dtype=wp.float32), color_sigma: wp.array3d(d
     ss = albedo * color_sigma[i, j, k]
     ss = wp.vec3(wp.min(ss[0], st), wp.min(ss[1], st), wp.min(ss[2], st))
     sigma_a[i, j, k] = wp.vec3(st) - ss
+    absorb[i, j, k] = wp.vec3(st) - ss
     sigma_tr[i, j, k] = wp.vec3(st) - g * ss
 
 
