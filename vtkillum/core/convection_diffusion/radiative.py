@@ -175,8 +175,8 @@ LARSEN = wp.constant(2)
 #: Free-streaming limit of the flux, ``|F| -> phi / FREE_STREAMING`` (see the module docstring).
 FREE_STREAMING = wp.constant(2.0)
 
-#: Register cap of the lagged coefficients' kernel on CUDA (117 uncapped, 25 % occupancy;
-#: H100, 128³: 600 µs a launch uncapped, 470 with 64 or 48, 506 with 80).
+#: Register cap of the lagged coefficients' kernels on CUDA (H100, 128³, a face kernel:
+#: 63 µs a launch uncapped, 60 with 64, 65 with 48 or 80, 82 with 96).
 COEFFICIENT_REGISTERS = 64
 
 #: Coarsening stops at this many cells; the coarsest grid is relaxed, not solved.
