@@ -73,3 +73,19 @@ def test_paper_diffusion_replays_equal_launch_by_launch(device, method):
         out.append((report.iterations, x.numpy()))
     assert out[0][0] == out[1][0]
     np.testing.assert_allclose(out[0][1], out[1][1], rtol=1e-6, atol=1e-7)
+
+
+def test_host_reader_sees_each_launch_and_keeps_earlier_reads(device):
+    """:class:`~vtkillum.core.warp_common.HostReader`: every read waits for the work queued
+    before it and returns its own copy (the pinned array behind it is reused on CUDA)."""
+    from vtkillum.core.warp_common import HostReader
+
+    x = wp.array(np.arange(6, dtype=np.float32), device=device)
+    y = wp.zeros(6, dtype=float, device=device)
+    reader = HostReader(y)
+    reads = []
+    for a in (1.0, 2.0, 3.0):
+        wp.launch(_axpy, dim=6, inputs=[x, y, a], device=device)
+        reads.append(reader.read())
+    for total, got in zip((1.0, 3.0, 6.0), reads):
+        np.testing.assert_array_equal(got, total * np.arange(6))

@@ -81,6 +81,7 @@ from vtkillum.core.convection_diffusion.stencil import (
 )
 from vtkillum.core.device import resolve_device
 from vtkillum.core.graphs import LaunchGraphs, array_key
+from vtkillum.core.warp_common import HostReader
 
 SOLVERS = ("multigrid", "cg", "gauss-seidel", "dct")
 
@@ -171,6 +172,7 @@ class DiffusionSolver:
         #: Relative residual below which float32 round-off dominates.
         self.floor = residual_floor(s, self.spacing)
         self._norms = wp.zeros(6, dtype=wp.float64, device=self.device)
+        self._norms_host = HostReader(self._norms)  # read after every iteration
         self._work = {}
         self._multigrid = None
         #: Captured iterations (multigrid, Gauss-Seidel; :mod:`~vtkillum.core.graphs`).
@@ -248,7 +250,7 @@ class DiffusionSolver:
                   inputs=[x, b, *self.coeffs, self._norms])
 
     def _read_residual(self, b_norm) -> float:
-        r = np.sqrt(self._norms.numpy()[:3])
+        r = np.sqrt(self._norms_host.read()[:3])
         return float(np.max(np.where(b_norm > 0, r / np.maximum(b_norm, 1e-300), 0.0)))
 
     def apply(self, x: wp.array3d, out: wp.array3d | None = None) -> wp.array3d:
@@ -267,7 +269,7 @@ class DiffusionSolver:
         self._norms.zero_()
         wp.launch(sum_squares_kernel, dim=(self.shape[1], self.shape[2]), device=self.device,
                   inputs=[b, self._norms])
-        return np.sqrt(self._norms.numpy()[:3])
+        return np.sqrt(self._norms_host.read()[:3])
 
     def _gs_sweep(self, x, b) -> None:
         gauss_seidel(x, b, self.coeffs, 1)

@@ -166,7 +166,7 @@ from vtkillum.core.convection_diffusion.multigrid import (
 )
 from vtkillum.core.convection_diffusion.stencil import add_channels
 from vtkillum.core.graphs import LaunchGraphs, array_key
-from vtkillum.core.warp_common import axis_offset, capped_kernel, component
+from vtkillum.core.warp_common import HostReader, axis_offset, capped_kernel, component
 
 #: Flux limiters (see the module docstring).
 LIMITERS = {"levermore-pomraning": 0, "wilson": 1, "larsen": 2, "none": 3}
@@ -313,8 +313,7 @@ class RadiativeDiffusion:
         #: Cells with a smaller reduced extinction (1/world units) are left out of the residual.
         self.min_sigma = MEDIUM_DEPTH / float(self.spacing.min())
         self._norms = wp.zeros(6, dtype=wp.float64, device=device)
-        self._norms_host = None  # its pinned host copy (CUDA), made on the first read
-        self._norms_view = None
+        self._norms_host = HostReader(self._norms)  # read after every outer iteration
         # 1 where the residual norms count a cell (near_medium), set with the medium
         self._counted = wp.zeros(self.shape, dtype=wp.uint8, device=device)
         self._rhs = None
@@ -686,7 +685,7 @@ class RadiativeDiffusion:
         Six numbers after every outer iteration: plain floats (numpy's ufuncs on arrays of
         six cost more than the arithmetic), the same IEEE operations as before."""
         floor = 4.0 * FLOAT32_EPS
-        sums = self._host_norms().tolist()
+        sums = self._norms_host.read().tolist()
         if not all(math.isfinite(v) for v in sums):  # a NaN iterate must not read as "converged"
             return float("inf"), floor
         n = [math.sqrt(v) for v in sums]
@@ -695,19 +694,6 @@ class RadiativeDiffusion:
             if n[c] > 0.0:
                 rel = max(rel, 1.0 if n[3 + c] == 0.0 else n[c] / max(n[3 + c], 1e-300))
         return rel, floor
-
-    def _host_norms(self) -> np.ndarray:
-        """The six sums of ``self._norms`` on the host (float64). On CUDA through a pinned
-        array kept by the solver: ``array.numpy()`` (a new host array and a pageable copy)
-        took 44 µs a read on an H100, this 15."""
-        if not self._norms.device.is_cuda:
-            return self._norms.numpy()
-        if self._norms_host is None:
-            self._norms_host = wp.empty(6, dtype=wp.float64, device="cpu", pinned=True)
-            self._norms_view = self._norms_host.numpy()
-        wp.copy(self._norms_host, self._norms)
-        wp.synchronize_stream(wp.get_stream(self._norms.device))
-        return self._norms_view.copy()
 
     def apply(self, x: wp.array3d, out: wp.array3d | None = None) -> wp.array3d:
         """``A x`` with the current coefficients (tests and diagnostics)."""
@@ -746,7 +732,7 @@ class RadiativeDiffusion:
 
     def _norm(self, a) -> np.ndarray:
         self._channel_sums(a, squares=True)
-        return np.sqrt(self._host_norms()[:3])
+        return np.sqrt(self._norms_host.read()[:3])
 
     def _channel_sums(self, a: wp.array3d, squares: bool) -> None:
         """:func:`channel_sums_kernel` of ``a`` into ``self._norms`` (zeroed first)."""
