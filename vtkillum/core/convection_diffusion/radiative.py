@@ -181,6 +181,7 @@ FREE_STREAMING = wp.constant(2.0)
 #: 63 µs a launch uncapped, 60 with 64, 65 with 48 or 80, 82 with 96).
 COEFFICIENT_REGISTERS = 64
 
+#: float32 machine epsilon (the residual measure's floor is four of them).
 FLOAT32_EPS = float(np.finfo(np.float32).eps)
 
 #: Coarsening stops at this many cells; the coarsest grid is relaxed, not solved.
