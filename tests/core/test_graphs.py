@@ -89,3 +89,11 @@ def test_host_reader_sees_each_launch_and_keeps_earlier_reads(device):
         reads.append(reader.read())
     for total, got in zip((1.0, 3.0, 6.0), reads):
         np.testing.assert_array_equal(got, total * np.arange(6))
+
+
+def test_host_reader_reads_the_first_entries(device):
+    from vtkillum.core.warp_common import HostReader
+
+    y = wp.array(np.arange(6, dtype=np.float32), device=device)
+    got = HostReader(y).read(4)
+    np.testing.assert_array_equal(got, np.arange(4))

@@ -214,7 +214,7 @@ class HostReader:
     Parameters
     ----------
     array : warp.array
-        The device array (read whole).
+        The device array (contiguous).
     """
 
     def __init__(self, array: wp.array) -> None:
@@ -222,17 +222,19 @@ class HostReader:
         self._host = None
         self._view = None
 
-    def read(self) -> np.ndarray:
-        """A host copy of the array's current values (waits for the work queued before)."""
+    def read(self, count: int | None = None) -> np.ndarray:
+        """A host copy of the array's current values, or of its first ``count`` entries
+        (waits for the work queued before)."""
+        n = self.array.shape[0] if count is None else int(count)
         if not self.array.device.is_cuda:
-            return self.array.numpy().copy()  # (a view of the array itself otherwise)
+            return self.array.numpy()[:n].copy()  # (a view of the array itself otherwise)
         if self._host is None:
             self._host = wp.empty(self.array.shape, dtype=self.array.dtype, device="cpu",
                                   pinned=True)
             self._view = self._host.numpy()
-        wp.copy(self._host, self.array)
+        wp.copy(self._host, self.array, count=n)
         wp.synchronize_stream(wp.get_stream(self.array.device))
-        return self._view.copy()
+        return self._view[:n].copy()
 
 
 #: Device tables kept by :func:`cached_tables` (most recently used last).

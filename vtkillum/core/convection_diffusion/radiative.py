@@ -970,8 +970,9 @@ def medium_kernel(sigma: wp.array3d(dtype=wp.float32), color_sigma: wp.array3d(d
     st = sigma[i, j, k]
     ss = albedo * color_sigma[i, j, k]
     ss = wp.vec3(wp.min(ss[0], st), wp.min(ss[1], st), wp.min(ss[2], st))
-    sigma_a[i, j, k] = wp.vec3(st) - ss
-    absorb[i, j, k] = wp.vec3(st) - ss
+    sa = wp.vec3(st) - ss
+    sigma_a[i, j, k] = sa
+    absorb[i, j, k] = sa
     sigma_tr[i, j, k] = wp.vec3(st) - g * ss
 
 

@@ -74,6 +74,7 @@ from vtkillum.core.refraction.sweep import (
     sweep_launches,
 )
 from vtkillum.core.render import RenderResult
+from vtkillum.core.warp_common import HostReader
 
 #: Method options and their defaults (also the scene file's ``refraction`` section).
 REFRACTION_OPTIONS = {
@@ -249,7 +250,7 @@ class RefractionRenderer:
         self._params = wp.zeros(1, dtype=SweepParams, device=device)
         self._graphs: dict = {}
         self._graph_error = None  # why graph capture failed on this device, if it did
-        self._staging: dict = {}  # pinned host arrays of the image download (CUDA)
+        self._readers: dict = {}  # the image download's, per view buffer
         self._params_host = None  # pinned host copy of the frame record (CUDA)
 
     def render(self, volume, scene, width: int, height: int, progress=None,
@@ -362,18 +363,13 @@ class RefractionRenderer:
 
     def _download(self, name: str, n: int) -> np.ndarray:
         """A host copy of the first ``n`` entries of view buffer ``name`` (float32; on CUDA
-        through a pinned staging array kept between frames: an asynchronous-capable copy at
-        full bus speed instead of a pageable one into a fresh array)."""
+        through a pinned array kept between frames, :class:`HostReader`: a copy at full bus
+        speed instead of a pageable one into a fresh array)."""
         src = self.buffers.view[name]
-        if not src.device.is_cuda:
-            return np.array(src.numpy()[:n], dtype=np.float32)
-        staging = self._staging.get(name)
-        if staging is None or staging.shape[0] < n:
-            staging = self._staging[name] = wp.empty(src.shape[0], dtype=src.dtype,
-                                                     device="cpu", pinned=True)
-        wp.copy(staging, src, count=n)
-        wp.synchronize_device(self.device)
-        return np.array(staging.numpy()[:n], dtype=np.float32)
+        reader = self._readers.get(name)
+        if reader is None or reader.array is not src:  # the buffers were replaced
+            reader = self._readers[name] = HostReader(src)
+        return reader.read(n)
 
     def _use_graph(self, opts) -> bool:
         return bool(opts["graph"]) and self.device.startswith("cuda") \
