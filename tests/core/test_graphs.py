@@ -97,3 +97,50 @@ def test_host_reader_reads_the_first_entries(device):
     y = wp.array(np.arange(6, dtype=np.float32), device=device)
     got = HostReader(y).read(4)
     np.testing.assert_array_equal(got, np.arange(4))
+
+
+def test_host_writer_lands_every_write_in_order(device):
+    """:class:`~vtkillum.core.warp_common.HostWriter`: each write reaches the device array
+    before the work queued after it, and a later write does not change what an earlier
+    launch saw (the pinned staging array is reused on CUDA)."""
+    from vtkillum.core.warp_common import HostWriter
+
+    x = wp.zeros(6, dtype=float, device=device)
+    y = wp.zeros(6, dtype=float, device=device)
+    writer = HostWriter(x)
+    for a in (1.0, 2.0, 3.0):
+        writer.write(a * np.arange(6, dtype=np.float32))
+        wp.launch(_axpy, dim=6, inputs=[x, y, 1.0], device=device)  # y += x
+    np.testing.assert_array_equal(y.numpy(), 6.0 * np.arange(6))
+    v = wp.zeros(4, dtype=wp.vec3, device=device)
+    HostWriter(v).write(np.arange(12, dtype=np.float32).reshape(4, 3))
+    np.testing.assert_array_equal(v.numpy(), np.arange(12).reshape(4, 3))
+
+
+def test_medium_tables_follow_edits_like_a_new_medium(device):
+    """The convection–diffusion opacity stage's reused tables and recorded launch
+    (:class:`MediumTables`, :class:`LightGridOptics`) give what a new medium and
+    :func:`light_grid_optics` give, edit after edit, in the same arrays."""
+    from vtkillum.core.convection_diffusion.opacity import LightGridOptics, light_grid_optics
+    from vtkillum.core.transfer_function import TransferFunction
+    from vtkillum.core.volume import Volume
+    from vtkillum.core.warp_common import MediumTables, device_scalars, make_medium
+
+    rng = np.random.default_rng(3)
+    volume = Volume(rng.random((9, 8, 7)).astype(np.float32), spacing=(0.5, 0.6, 0.7))
+    tfs = [TransferFunction([0.0, 0.5, 1.0], [0.0, a, 0.9], [[1, 1, 1], [1, 0.5, 0.2], [0.1, 0.4, 1]])
+           for a in (0.1, 0.6, 0.3)]
+    scalars = device_scalars(volume, device)
+    tables, optics = MediumTables(device), LightGridOptics(device)
+    first = None
+    for tf in tfs:
+        m = tables.medium(volume, tf, 0.8, scalars)
+        got = optics(volume, m, (5, 4, 4))
+        first = first or got
+        assert got[0] is first[0] and got[1] is first[1]
+        ref = light_grid_optics(volume, tf, 0.8, (5, 4, 4), device,
+                                medium=make_medium(volume, tf, 0.8, device=device,
+                                                   skip_empty=False))
+        np.testing.assert_array_equal(got[0].numpy(), ref[0].numpy())
+        np.testing.assert_array_equal(got[1].numpy(), ref[1].numpy())
+        assert m.table_lo == make_medium(volume, tf, 0.8, device=device).table_lo

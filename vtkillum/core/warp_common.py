@@ -237,6 +237,38 @@ class HostReader:
         return self._view[:n].copy()
 
 
+class HostWriter:
+    """Upload new values into a device array, repeatedly (e.g. transfer-function tables on
+    every edit): on CUDA through a pinned host array kept between writes, so the copy is
+    asynchronous and needs no allocation (``wp.array(values, device=...)`` allocates and
+    makes a pageable, synchronous copy every time).
+
+    Parameters
+    ----------
+    array : warp.array
+        The device array (contiguous), overwritten by :meth:`write`.
+    """
+
+    def __init__(self, array: wp.array) -> None:
+        self.array = array
+        cuda = array.device.is_cuda
+        self._host = wp.empty(array.shape, dtype=array.dtype, device="cpu", pinned=cuda)
+        self._view = self._host.numpy()
+        self._done = wp.Event(array.device) if cuda else None
+        self._pending = False
+
+    def write(self, values: np.ndarray) -> None:
+        """Copy ``values`` (the array's shape, as numpy gives it) into the device array,
+        queued after the work before it."""
+        if self._pending:  # the previous copy must have left the staging array
+            wp.synchronize_event(self._done)
+        self._view[...] = values
+        wp.copy(self.array, self._host)
+        if self._done is not None:
+            wp.get_stream(self.array.device).record_event(self._done)
+            self._pending = True
+
+
 #: Device tables kept by :func:`cached_tables` (most recently used last).
 _TABLES: dict = {}
 TABLE_CACHE_SIZE = 64
@@ -597,17 +629,57 @@ def make_medium(volume, transfer_function, unit_distance: float, albedo: float =
     m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
     m.sigma_table = wp.array(sig, dtype=wp.float32, device=device)
     m.color_table = wp.array(col, dtype=wp.vec3, device=device)
-    m.table_lo = float(lo)
-    m.table_scale = float((len(sig) - 1) / (hi - lo))
+    set_table_range(m, volume, sig, lo, hi)
     m.albedo = float(albedo)
     m.g = float(anisotropy)
+    attach_occupancy(m, volume, sig, device, skip_empty)
+    return m
+
+
+def set_table_range(m: Medium, volume, sig: np.ndarray, lo: float, hi: float) -> None:
+    """``m``'s table placement and majorant for tables ``sig`` spanning ``[lo, hi]``."""
+    m.table_lo = float(lo)
+    m.table_scale = float((len(sig) - 1) / (hi - lo))
     # Trilinear interpolation stays within the data range, so the table's maximum over it bounds σt.
     vlo, vhi = volume.value_range
     x = np.linspace(lo, hi, len(sig))
     in_range = (x >= vlo - (hi - lo) / len(sig)) & (x <= vhi + (hi - lo) / len(sig))
     m.majorant = float(sig[in_range].max() if in_range.any() else sig.max()) * 1.0001 + 1e-12
-    attach_occupancy(m, volume, sig, device, skip_empty)
-    return m
+
+
+class MediumTables:
+    """A :class:`Medium` without block occupancy (every block marked occupied) whose
+    transfer-function tables are overwritten in place on every edit.
+
+    For a cache that follows transfer-function edits of one uploaded volume (the
+    convection–diffusion light grid): :func:`make_medium` allocates and uploads new tables
+    and an occupancy grid each time, which on an H100's host cost more than the
+    resampling kernel that reads them. The tables go up through :class:`HostWriter`.
+    """
+
+    def __init__(self, device: str) -> None:
+        self.device = device
+        self._medium = None
+        self._key = None
+        self._writers = None
+
+    def medium(self, volume, transfer_function, unit_distance: float,
+               scalars: wp.array3d) -> Medium:
+        """The medium of ``volume`` (already on the device as ``scalars``) for the transfer
+        function (albedo 0.9 and ``g = 0``, as :func:`make_medium`'s defaults)."""
+        sig, col, lo, hi = transfer_function.lookup_tables(unit_distance, volume.value_range)
+        key = (scalars.ptr, tuple(scalars.shape), tuple(np.round(volume.extent, 12)), len(sig))
+        if key != self._key:
+            self._medium = make_medium(volume, transfer_function, unit_distance,
+                                       device=self.device, scalars=scalars, skip_empty=False)
+            self._writers = (HostWriter(self._medium.sigma_table),
+                             HostWriter(self._medium.color_table))
+            self._key = key
+            return self._medium
+        self._writers[0].write(sig)
+        self._writers[1].write(col)
+        set_table_range(self._medium, volume, sig, lo, hi)
+        return self._medium
 
 
 def attach_occupancy(m: Medium, volume, sigma_table: np.ndarray, device: str,

@@ -135,6 +135,44 @@ def light_grid_optics(volume, transfer_function, unit_distance: float, shape,
     return sigma, color_sigma
 
 
+class LightGridOptics:
+    """:func:`light_grid_optics` repeated for transfer-function edits of one light grid:
+    the output arrays and the recorded launch are kept (a launch from Python packs every
+    argument again; the record only takes the new medium).
+
+    Parameters
+    ----------
+    device : str
+        Warp device.
+    """
+
+    def __init__(self, device: str) -> None:
+        self.device = device
+        self._key = None
+        self._launch = None
+        self.out = None
+
+    def __call__(self, volume, medium: Medium, shape):
+        """``(sigma, color_sigma)`` of :func:`light_grid_optics` for ``medium`` (the output
+        arrays are the same from call to call while the grid stays)."""
+        h = light_grid_spacing(volume.extent, shape)
+        sub = np.clip(np.ceil(h / volume.spacing - 1e-6), 1, MAX_SUBSAMPLES).astype(int)
+        key = (tuple(shape), h.tobytes(), sub.tobytes())
+        if key != self._key:
+            if self.out is None or tuple(self.out[0].shape) != tuple(shape):
+                self.out = (wp.empty(tuple(shape), dtype=wp.float32, device=self.device),
+                            wp.empty(tuple(shape), dtype=wp.vec3, device=self.device))
+            self._launch = wp.launch(light_grid_optics_kernel, dim=tuple(shape),
+                                     device=self.device, record_cmd=True,
+                                     inputs=[medium, wp.vec3(*h.astype(np.float32)),
+                                             wp.vec3i(*sub), *self.out])
+            self._key = key
+        else:
+            self._launch.set_param_at_index(0, medium)
+        self._launch.launch()
+        return self.out
+
+
 @wp.kernel
 def light_grid_sigma_kernel(m: Medium, h: wp.vec3, sub: wp.vec3i,
                             sigma: wp.array3d(dtype=wp.float32)):

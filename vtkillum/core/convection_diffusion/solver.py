@@ -75,7 +75,7 @@ from vtkillum.core.convection_diffusion.composition import compose_direct, first
 from vtkillum.core.convection_diffusion.convection import SCHEMES, convect_lights
 from vtkillum.core.convection_diffusion.diffusion import SOLVERS, DiffusionReport, DiffusionSolver
 from vtkillum.core.convection_diffusion.opacity import (
-    light_grid_optics,
+    LightGridOptics,
     light_grid_shape,
     light_grid_spacing,
 )
@@ -90,7 +90,7 @@ from vtkillum.core.graphs import LaunchGraphs
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.lights import DIRECTIONAL, pack_lights
 from vtkillum.core.volume import array_digest
-from vtkillum.core.warp_common import make_medium
+from vtkillum.core.warp_common import MediumTables, device_scalars
 
 #: Diffusion models (see the module docstring).
 MODELS = ("physical", "paper")
@@ -252,6 +252,8 @@ class ConvectionDiffusionSolver:
         self._color_key = None
         self._color_version = 0
         self._scalars = None  # (volume key, data on the device)
+        self._tables = MediumTables(self.device)  # the transfer function's, on the device
+        self._optics = LightGridOptics(self.device)  # the opacity stage's launch
         self._sigma = None
         self._color_sigma = None
         self._transmittance = {}  # geometry key -> (opacity version, array)
@@ -343,15 +345,12 @@ class ConvectionDiffusionSolver:
         if color_key != self._color_key:
             t = time.perf_counter()
             if self._scalars is None or self._scalars[0] != volume_key:
-                self._scalars = (volume_key, None)  # upload once per data set
-            # Only the tables are rebuilt: a transfer-function edit does not upload the data.
-            # No block occupancy: the footprint means below sample every data point.
-            medium = make_medium(volume, transfer_function, unit_distance, device=self.device,
-                                 scalars=self._scalars[1], skip_empty=False)
-            self._scalars = (volume_key, medium.scalars)
-            self._sigma, self._color_sigma = light_grid_optics(
-                volume, transfer_function, unit_distance, shape, self.device, medium=medium,
-                out=None if self._sigma is None else (self._sigma, self._color_sigma))
+                self._scalars = (volume_key, device_scalars(volume, self.device))
+            # Only the tables are rewritten: a transfer-function edit does not upload the
+            # data. No block occupancy: the footprint means below sample every data point.
+            medium = self._tables.medium(volume, transfer_function, unit_distance,
+                                         self._scalars[1])
+            self._sigma, self._color_sigma = self._optics(volume, medium, shape)
             self._color_key = color_key
             self._color_version += 1
             if opacity_key != self._opacity_key:
