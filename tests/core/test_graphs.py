@@ -118,9 +118,11 @@ def test_host_writer_lands_every_write_in_order(device):
 
 
 def test_medium_tables_follow_edits_like_a_new_medium(device):
-    """The convection–diffusion opacity stage's reused tables and recorded launch
-    (:class:`MediumTables`, :class:`LightGridOptics`) give what a new medium and
-    :func:`light_grid_optics` give, edit after edit, in the same arrays."""
+    """The convection–diffusion opacity stage's reused medium and recorded launch
+    (:class:`MediumTables`, whose tables a kernel rebuilds on the device, and
+    :class:`LightGridOptics`) give the host's tables to within a float32 ulp and what a new
+    medium and :func:`light_grid_optics` give, edit after edit, in the same arrays: a
+    one-point function, control points beyond the data, at ±1e30, opacities near 0 and 1."""
     from vtkillum.core.convection_diffusion.opacity import LightGridOptics, light_grid_optics
     from vtkillum.core.transfer_function import TransferFunction
     from vtkillum.core.volume import Volume
@@ -128,8 +130,13 @@ def test_medium_tables_follow_edits_like_a_new_medium(device):
 
     rng = np.random.default_rng(3)
     volume = Volume(rng.random((9, 8, 7)).astype(np.float32), spacing=(0.5, 0.6, 0.7))
-    tfs = [TransferFunction([0.0, 0.5, 1.0], [0.0, a, 0.9], [[1, 1, 1], [1, 0.5, 0.2], [0.1, 0.4, 1]])
-           for a in (0.1, 0.6, 0.3)]
+    white, warm, blue = [1, 1, 1], [1, 0.5, 0.2], [0.1, 0.4, 1]
+    tfs = [TransferFunction([0.0, 0.5, 1.0], [0.0, a, 0.9], [white, warm, blue])
+           for a in (0.1, 0.6)]
+    tfs += [TransferFunction([0.4], [0.3], [warm]),
+            TransferFunction([-3.0, 0.2, 0.21, 7.0], [1.0, 1e-7, 2e-5, 0.999999], [white, warm, blue, white]),
+            TransferFunction([-1e30, 0.5, 1e30], [0.0, 0.5, 0.0], [blue, white, warm]),
+            TransferFunction(np.linspace(0, 1, 90), rng.random(90), rng.random((90, 3)))]
     scalars = device_scalars(volume, device)
     tables, optics = MediumTables(device), LightGridOptics(device)
     first = None
@@ -138,9 +145,13 @@ def test_medium_tables_follow_edits_like_a_new_medium(device):
         got = optics(volume, m, (5, 4, 4))
         first = first or got
         assert got[0] is first[0] and got[1] is first[1]
+        sig, col, lo, hi = tf.lookup_tables(0.8, volume.value_range)
+        np.testing.assert_allclose(m.sigma_table.numpy(), sig, rtol=2.4e-7, atol=1e-30)
+        np.testing.assert_allclose(m.color_table.numpy(), col, rtol=2.4e-7, atol=1e-30)
+        assert (m.table_lo, m.table_scale) == (float(lo), float((sig.size - 1) / (hi - lo)))
+        assert m.majorant >= sig.max()
         ref = light_grid_optics(volume, tf, 0.8, (5, 4, 4), device,
                                 medium=make_medium(volume, tf, 0.8, device=device,
                                                    skip_empty=False))
-        np.testing.assert_array_equal(got[0].numpy(), ref[0].numpy())
-        np.testing.assert_array_equal(got[1].numpy(), ref[1].numpy())
-        assert m.table_lo == make_medium(volume, tf, 0.8, device=device).table_lo
+        np.testing.assert_allclose(got[0].numpy(), ref[0].numpy(), rtol=1e-6)
+        np.testing.assert_allclose(got[1].numpy(), ref[1].numpy(), rtol=1e-6, atol=1e-12)

@@ -130,6 +130,14 @@ class TransferFunction:
         lo, hi : float
             Data values of the first and last entries (finite in float32, ``lo < hi``).
         """
+        lo, hi = self.table_range(value_range)
+        # Sample alpha (not sigma_t) linearly, as VTK's opacity table does, then convert.
+        v = np.linspace(lo, hi, size)
+        sigma, color = self.sigma_t_and_color(v, unit_distance)  # one search, same bits
+        return sigma.astype(np.float32), color.astype(np.float32), lo, hi
+
+    def table_range(self, value_range=None) -> tuple[float, float]:
+        """Data values ``(lo, hi)`` of the first and last entries of :meth:`lookup_tables`."""
         lo, hi = self.domain()
         if value_range is not None:
             vlo, vhi = float(value_range[0]), float(value_range[1])
@@ -139,10 +147,7 @@ class TransferFunction:
         lo, hi = max(lo, -TABLE_RANGE_MAX), min(hi, TABLE_RANGE_MAX)
         if hi <= lo:
             hi = lo + max(1.0, abs(lo) * 1e-6)
-        # Sample alpha (not sigma_t) linearly, as VTK's opacity table does, then convert.
-        v = np.linspace(lo, hi, size)
-        sigma, color = self.sigma_t_and_color(v, unit_distance)  # one search, same bits
-        return sigma.astype(np.float32), color.astype(np.float32), lo, hi
+        return lo, hi
 
     # --- (de)serialisation ---------------------------------------------------------------
     def to_dict(self) -> dict:

@@ -16,11 +16,14 @@ import warp as wp
 
 from vtkillum.core.device import init_warp, resolve_device
 from vtkillum.core.lights import pack_lights, resolved_radius
+from vtkillum.core.transfer_function import MAX_ALPHA, TABLE_SIZE, check_unit_distance
 
 init_warp()
 
 DIRECTIONAL = wp.constant(0)
 POINT = wp.constant(1)
+#: The transfer function's largest opacity, in kernels.
+TABLE_MAX_ALPHA = wp.constant(MAX_ALPHA)
 #: Distance used for "infinitely far" (directional lights).
 FAR = wp.constant(1.0e30)
 
@@ -258,12 +261,13 @@ class HostWriter:
         self._pending = False
 
     def write(self, values: np.ndarray) -> None:
-        """Copy ``values`` (the array's shape, as numpy gives it) into the device array,
-        queued after the work before it."""
+        """Copy ``values`` (the array's shape, as numpy gives it, or the first entries of a
+        1-D array) into the device array, queued after the work before it."""
         if self._pending:  # the previous copy must have left the staging array
             wp.synchronize_event(self._done)
-        self._view[...] = values
-        wp.copy(self.array, self._host)
+        count = len(values)
+        self._view[:count] = values
+        wp.copy(self.array, self._host, count=count)
         if self._done is not None:
             wp.get_stream(self.array.device).record_event(self._done)
             self._pending = True
@@ -649,37 +653,114 @@ def set_table_range(m: Medium, volume, sig: np.ndarray, lo: float, hi: float) ->
 
 class MediumTables:
     """A :class:`Medium` without block occupancy (every block marked occupied) whose
-    transfer-function tables are overwritten in place on every edit.
+    transfer-function tables are rebuilt in place, on the device, on every edit.
 
     For a cache that follows transfer-function edits of one uploaded volume (the
-    convection–diffusion light grid): :func:`make_medium` allocates and uploads new tables
-    and an occupancy grid each time, which on an H100's host cost more than the
-    resampling kernel that reads them. The tables go up through :class:`HostWriter`.
+    convection–diffusion light grid): :func:`make_medium` builds the tables with numpy,
+    allocates and uploads them and an occupancy grid each time, which on an H100's host
+    cost more than the resampling kernel that reads them. Here the entries' data values
+    and the control points go up (one asynchronous copy through :class:`HostWriter`) and
+    :func:`tf_table_kernel` evaluates :meth:`TransferFunction.lookup_tables`'s
+    interpolation in float64 on the device: the tables equal the host's to within a unit
+    in the last place of float32 (the device may fuse a multiply and an add). The medium's
+    ``majorant`` is σt of the largest control-point opacity, a bound on the tables (what
+    the resampling needs none of).
     """
 
     def __init__(self, device: str) -> None:
         self.device = device
         self._medium = None
         self._key = None
-        self._writers = None
+        self._pack = None
+        self._writer = None
+        self._launch = None
 
     def medium(self, volume, transfer_function, unit_distance: float,
                scalars: wp.array3d) -> Medium:
         """The medium of ``volume`` (already on the device as ``scalars``) for the transfer
         function (albedo 0.9 and ``g = 0``, as :func:`make_medium`'s defaults)."""
-        sig, col, lo, hi = transfer_function.lookup_tables(unit_distance, volume.value_range)
-        key = (scalars.ptr, tuple(scalars.shape), tuple(np.round(volume.extent, 12)), len(sig))
+        check_unit_distance(unit_distance)
+        tf = transfer_function
+        key = (scalars.ptr, tuple(scalars.shape), tuple(np.round(volume.extent, 12)))
         if key != self._key:
-            self._medium = make_medium(volume, transfer_function, unit_distance,
-                                       device=self.device, scalars=scalars, skip_empty=False)
-            self._writers = (HostWriter(self._medium.sigma_table),
-                             HostWriter(self._medium.color_table))
+            self._medium = make_medium(volume, tf, unit_distance, device=self.device,
+                                       scalars=scalars, skip_empty=False)
             self._key = key
+            self._pack = None  # the recorded launch writes the new medium's tables
             return self._medium
-        self._writers[0].write(sig)
-        self._writers[1].write(col)
-        set_table_range(self._medium, volume, sig, lo, hi)
-        return self._medium
+        m = self._medium
+        size, n = TABLE_SIZE, tf.scalars.size
+        lo, hi = tf.table_range(volume.value_range)
+        columns = np.column_stack([tf.opacity, tf.colors])
+        pack = np.concatenate([np.linspace(lo, hi, size), tf.scalars, columns.T.ravel(),
+                               columns.min(axis=0), columns.max(axis=0)])
+        if self._pack is None or self._pack.shape[0] < pack.size:
+            self._pack = wp.empty(size + 5 * max(n, 64) + 8, dtype=wp.float64,
+                                  device=self.device)
+            self._writer = HostWriter(self._pack)
+            self._launch = wp.launch(tf_table_kernel, dim=size, device=self.device,
+                                     record_cmd=True,
+                                     inputs=[self._pack, size, n, float(unit_distance),
+                                             m.sigma_table, m.color_table])
+        self._writer.write(pack)
+        self._launch.set_param_at_index(2, n)
+        self._launch.set_param_at_index(3, float(unit_distance))
+        self._launch.launch()
+        m.table_lo = float(lo)
+        m.table_scale = float((size - 1) / (hi - lo))
+        m.majorant = float(tf.sigma_t(tf.scalars, unit_distance).max()) * 1.0001 + 1e-12
+        return m
+
+
+@wp.func
+def table_column(pack: wp.array(dtype=wp.float64), start: int, j: int, t: wp.float64,
+                 lo: wp.float64, hi: wp.float64):
+    """``(1 - t) f_j + t f_(j+1)`` of the column at ``pack[start:]``, within ``[lo, hi]``."""
+    one = wp.float64(1.0)
+    return wp.clamp((one - t) * pack[start + j] + t * pack[start + j + 1], lo, hi)
+
+
+@wp.kernel
+def tf_table_kernel(pack: wp.array(dtype=wp.float64), size: int, n: int,
+                    unit_distance: wp.float64, sigma: wp.array(dtype=wp.float32),
+                    color: wp.array(dtype=wp.vec3)):
+    """Entry ``wp.tid()`` of the transfer function's tables (``lookup_tables``).
+
+    ``pack``: the entries' data values (``size``), the ``n`` control points, the opacity,
+    red, green and blue columns (``n`` each), the four columns' minima and their maxima.
+    The same float64 steps as the host's ``_interp`` (the halved control points, ``t``
+    clamped to [0, 1], the result to the column's range) and σt ``= -ln(1 - min(α,
+    MAX_ALPHA)) / u``, with ``ln(1 - α)`` by its series below ``α = 1e-4`` (warp has no
+    ``log1p``; the series' error there is below 1e-20 relative).
+    """
+    i = wp.tid()
+    x = pack[i]
+    half = wp.float64(0.5)
+    v = wp.vec4d()
+    if n == 1:
+        v = wp.vec4d(pack[size + 1], pack[size + 2], pack[size + 3], pack[size + 4])
+    else:
+        j = int(0)
+        for k in range(n):
+            if pack[size + k] <= x:
+                j = k
+        j = wp.min(j, n - 2)
+        lo = half * pack[size + j]
+        t = (half * x - lo) / (half * pack[size + j + 1] - lo)
+        t = wp.clamp(t, wp.float64(0.0), wp.float64(1.0))
+        ranges = size + 5 * n
+        for c in range(4):
+            v[c] = table_column(pack, size + (c + 1) * n, j, t, pack[ranges + c],
+                                pack[ranges + 4 + c])
+    a = wp.min(v[0], wp.float64(TABLE_MAX_ALPHA))
+    ln = wp.float64(0.0)
+    if a < wp.float64(1.0e-4):
+        ln = -a * (wp.float64(1.0) + a * (half + a * (wp.float64(1.0 / 3.0)
+                                                        + a * (wp.float64(0.25) + a * wp.float64(0.2)))))
+    else:
+        ln = wp.log(wp.float64(1.0) - a)
+    sigma[i] = wp.float32(-ln / unit_distance)
+    color[i] = wp.vec3(wp.float32(v[1]), wp.float32(v[2]), wp.float32(v[3]))
 
 
 def attach_occupancy(m: Medium, volume, sigma_table: np.ndarray, device: str,
