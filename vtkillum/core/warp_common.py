@@ -633,22 +633,22 @@ def make_medium(volume, transfer_function, unit_distance: float, albedo: float =
     m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
     m.sigma_table = wp.array(sig, dtype=wp.float32, device=device)
     m.color_table = wp.array(col, dtype=wp.vec3, device=device)
-    set_table_range(m, volume, sig, lo, hi)
+    set_table_range(m, lo, hi, len(sig))
     m.albedo = float(albedo)
     m.g = float(anisotropy)
-    attach_occupancy(m, volume, sig, device, skip_empty)
-    return m
-
-
-def set_table_range(m: Medium, volume, sig: np.ndarray, lo: float, hi: float) -> None:
-    """``m``'s table placement and majorant for tables ``sig`` spanning ``[lo, hi]``."""
-    m.table_lo = float(lo)
-    m.table_scale = float((len(sig) - 1) / (hi - lo))
     # Trilinear interpolation stays within the data range, so the table's maximum over it bounds σt.
     vlo, vhi = volume.value_range
     x = np.linspace(lo, hi, len(sig))
     in_range = (x >= vlo - (hi - lo) / len(sig)) & (x <= vhi + (hi - lo) / len(sig))
     m.majorant = float(sig[in_range].max() if in_range.any() else sig.max()) * 1.0001 + 1e-12
+    attach_occupancy(m, volume, sig, device, skip_empty)
+    return m
+
+
+def set_table_range(m: Medium, lo: float, hi: float, size: int) -> None:
+    """Place ``m``'s tables of ``size`` entries on the data values ``[lo, hi]``."""
+    m.table_lo = float(lo)
+    m.table_scale = float((size - 1) / (hi - lo))
 
 
 class MediumTables:
@@ -706,8 +706,7 @@ class MediumTables:
         self._launch.set_param_at_index(2, n)
         self._launch.set_param_at_index(3, float(unit_distance))
         self._launch.launch()
-        m.table_lo = float(lo)
-        m.table_scale = float((size - 1) / (hi - lo))
+        set_table_range(m, lo, hi, size)
         m.majorant = float(tf.sigma_t(tf.scalars, unit_distance).max()) * 1.0001 + 1e-12
         return m
 

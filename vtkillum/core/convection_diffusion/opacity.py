@@ -70,6 +70,13 @@ def light_grid_spacing(extent, shape) -> np.ndarray:
     return np.asarray(extent, dtype=np.float64) / (np.asarray(shape) - 1)
 
 
+def footprint_samples(volume, shape):
+    """Light-grid spacing ``h`` (world units) and the sub-samples per axis of a point's
+    footprint mean: ``ceil(h / h_data)``, 1 to :data:`MAX_SUBSAMPLES`."""
+    h = light_grid_spacing(volume.extent, shape)
+    return h, np.clip(np.ceil(h / volume.spacing - 1e-6), 1, MAX_SUBSAMPLES).astype(int)
+
+
 def light_grid_sigma(volume, transfer_function, unit_distance: float, shape,
                      device: str | None = None, medium: Medium | None = None) -> wp.array3d:
     """Mean extinction over each light-grid point's footprint.
@@ -95,8 +102,7 @@ def light_grid_sigma(volume, transfer_function, unit_distance: float, shape,
     device = resolve_device(device)
     if medium is None:
         medium = make_medium(volume, transfer_function, unit_distance, device=device)
-    h = light_grid_spacing(volume.extent, shape)
-    sub = np.clip(np.ceil(h / volume.spacing - 1e-6), 1, MAX_SUBSAMPLES).astype(int)
+    h, sub = footprint_samples(volume, shape)
     sigma = wp.empty(tuple(shape), dtype=wp.float32, device=device)
     wp.launch(light_grid_sigma_kernel, dim=tuple(shape), device=device,
               inputs=[medium, wp.vec3(*h.astype(np.float32)), wp.vec3i(*sub), sigma])
@@ -122,8 +128,7 @@ def light_grid_optics(volume, transfer_function, unit_distance: float, shape,
     device = resolve_device(device)
     if medium is None:
         medium = make_medium(volume, transfer_function, unit_distance, device=device)
-    h = light_grid_spacing(volume.extent, shape)
-    sub = np.clip(np.ceil(h / volume.spacing - 1e-6), 1, MAX_SUBSAMPLES).astype(int)
+    h, sub = footprint_samples(volume, shape)
     if out is not None and tuple(out[0].shape) == tuple(shape):
         sigma, color_sigma = out
     else:
@@ -155,8 +160,7 @@ class LightGridOptics:
     def __call__(self, volume, medium: Medium, shape):
         """``(sigma, color_sigma)`` of :func:`light_grid_optics` for ``medium`` (the output
         arrays are the same from call to call while the grid stays)."""
-        h = light_grid_spacing(volume.extent, shape)
-        sub = np.clip(np.ceil(h / volume.spacing - 1e-6), 1, MAX_SUBSAMPLES).astype(int)
+        h, sub = footprint_samples(volume, shape)
         key = (tuple(shape), h.tobytes(), sub.tobytes())
         if key != self._key:
             if self.out is None or tuple(self.out[0].shape) != tuple(shape):
