@@ -17,6 +17,8 @@ flux-limited radiative-transfer diffusion; ``paper``: Zhang & Ma's eq. 23):
 5. **Time series**: diffusion iterations with and without warm start.
 6. **V-cycle**: one multigrid cycle of each model against the memory traffic it needs,
    at the measured copy bandwidth.
+7. **Tolerance**: outer iterations, diffusion ms and the change of the light volume and
+   the image when the physical diffusion stops at a looser relative residual.
 
 Data are synthetic (an analytic cellular field, no download) at the paper's sizes;
 lights alternate between oblique directional lights and point lights inside the
@@ -117,25 +119,34 @@ def median_ms(fn, repeats: int) -> float:
 ALBEDO, ANISOTROPY = 0.9, 0.3
 
 
-def stage_table(rows, device, repeats, render_size, model) -> None:
+def row_solver(dims, light_dims, count, device, **options):
+    """The synthetic volume of a Table-1 row, its lights and a solver for its light volume
+    (scattering length two light-grid spacings; ``options`` go to the solver)."""
+    vol = synthetic(dims)
+    lights = make_lights(vol, count)
+    h = vol.extent / (np.asarray(light_dims) - 1)
+    scattering = (2.0 * h.max()) ** 2
+    cd = ConvectionDiffusionSolver(light_volume_shape=light_dims, scattering=[scattering] * 3,
+                                   device=device, **options)
+    return vol, lights, cd
+
+
+def stage_table(rows, device, repeats, render_size, model, tolerance: float = 1e-4) -> None:
     from vtkillum.core.raycast import render_illuminated
 
     name = device_name(device)
     print(f"\n### 1. Stages (ms), {model} model, device {name}: short characteristics, "
-          "multigrid diffusion after a transfer-function edit, from the previous solution "
-          "(warm, the default) and from a cold start; paper: GTX 460M\n")
+          f"multigrid diffusion to a relative residual of {tolerance:g} after a "
+          "transfer-function edit, from the previous solution (warm, the default) and from a "
+          "cold start; paper: GTX 460M\n")
     print("| data | data size | light volume | lights | start | opacity | convection / light | "
           "composition | diffusion (iters) | light simulation | paper | speed-up | render "
           f"{render_size}² |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for (label, dims, light_dims, count), warm in (
             (row, warm) for row in rows for warm in (True, False)):
-        vol = synthetic(dims)
-        lights = make_lights(vol, count)
-        h = vol.extent / (np.asarray(light_dims) - 1)
-        scattering = (2.0 * h.max()) ** 2
-        cd = ConvectionDiffusionSolver(light_volume_shape=light_dims, scattering=[scattering] * 3,
-                                       diffusion_model=model, warm_start=warm, device=device)
+        vol, lights, cd = row_solver(dims, light_dims, count, device, diffusion_model=model,
+                                     warm_start=warm, tolerance=tolerance)
         for tf in (TF_A, TF_B, TF_A):  # upload, allocate, record the launch graphs
             cd.update(vol, tf, vol.mean_spacing(), lights, volume_key=label, albedo=ALBEDO,
                       anisotropy=ANISOTROPY)
@@ -163,6 +174,48 @@ def stage_table(rows, device, repeats, render_size, model) -> None:
               f"{count} | {'warm' if warm else 'cold'} | {med[0]:.2f} | {med[1]:.2f} | "
               f"{med[2]:.2f} | {med[3]:.2f} ({med[5]:.0f}) | {med[4]:.2f} | {versus} | "
               f"{render_ms:.2f} |")
+
+
+def tolerance_table(rows, device, tolerances, render_size) -> None:
+    """Outer iterations, warm diffusion ms and the change of the light and the image when the
+    physical diffusion stops at each of ``tolerances`` instead of the first."""
+    from vtkillum.core.raycast import render_illuminated
+
+    print(f"\n### 7. Diffusion tolerance, physical model, device {device_name(device)}: three "
+          "transfer-function edits after the first solve, warm; differences against "
+          f"tolerance {tolerances[0]:g} (scattered fluence: largest over the edits, of its "
+          f"maximum; {render_size}² image of the last edit: mean, of its mean)\n")
+    print("| data | light volume | lights | tolerance | outer iterations | diffusion ms (median) "
+          "| scattered fluence max diff. | image mean diff. |")
+    print("|---|---|---|---|---|---|---|---|")
+    for label, dims, light_dims, count in rows:
+        reference = None
+        for tol in tolerances:
+            vol, lights, cd = row_solver(dims, light_dims, count, device,
+                                         diffusion_model="physical", tolerance=tol)
+            iterations, ms, fluences = [], [], []
+            for r in range(4):
+                tf = TF_A if r % 2 == 0 else TF_B
+                stats = cd.update(vol, tf, vol.mean_spacing(), lights, volume_key=label,
+                                  albedo=ALBEDO, anisotropy=ANISOTROPY)
+                if r:
+                    iterations.append(stats.diffusion.iterations)
+                    ms.append(stats.ms["diffusion"])
+                    fluences.append(cd.scattered_fluence)
+            scene = Scene(transfer_function=tf, lights=lights, albedo=ALBEDO,
+                          anisotropy=ANISOTROPY)
+            image = np.asarray(render_illuminated(
+                vol, scene, render_size, render_size, device,
+                illumination=cd.illumination_volume(vol)).radiance, dtype=np.float64)
+            if reference is None:
+                reference = (fluences, image)
+            light = max(float(np.abs(f - g).max() / max(np.abs(g).max(), 1e-30))
+                        for f, g in zip(fluences, reference[0]))
+            picture = float(np.abs(image - reference[1]).mean()
+                            / max(reference[1].mean(), 1e-30))
+            print(f"| {label} | {'x'.join(map(str, light_dims))} | {count} | {tol:g} | "
+                  f"{'/'.join(map(str, iterations))} | {np.median(ms):.2f} | {light:.1e} | "
+                  f"{picture:.1e} |", flush=True)
 
 
 def cube_case(n: int, device: str, lights=None, **optics):
@@ -351,7 +404,7 @@ def parse_sizes(values):
 
 
 #: The tables ``--tables`` can pick (module docstring, items 1-5).
-TABLES = ("stages", "sizes", "residual", "iterated", "series", "vcycle")
+TABLES = ("stages", "sizes", "residual", "iterated", "series", "vcycle", "tolerance")
 #: Bytes per cell a V(2,2) cycle must move at least on one level (vec3 float32 = 12 bytes
 #: per array and cell): 4 red–black sweeps (each colour reads the whole x and its half of
 #: b, writes its half of x: 24; the physical model also reads every face coefficient kx,
@@ -438,6 +491,11 @@ def main(argv=None) -> None:
     ap.add_argument("--models", nargs="+", default=["physical", "paper"],
                     choices=["physical", "paper"],
                     help="diffusion models of the stages table (default: both)")
+    ap.add_argument("--tolerance", type=float, default=1e-4,
+                    help="relative residual of the stages table's diffusion (default 1e-4, "
+                         "the solver's)")
+    ap.add_argument("--tolerances", type=float, nargs="+", default=[1e-4, 3e-4, 1e-3],
+                    help="tolerances of the tolerance table (the first is the reference)")
     args = ap.parse_args(argv)
     device = resolve_device(args.device)
     # Compile every kernel once so that no table includes compilation.
@@ -448,7 +506,8 @@ def main(argv=None) -> None:
                                                         make_lights(warm, 2))
     if "stages" in args.tables:
         for model in args.models:
-            stage_table(parse_sizes(args.sizes), device, args.repeats, args.render_size, model)
+            stage_table(parse_sizes(args.sizes), device, args.repeats, args.render_size, model,
+                        args.tolerance)
     if "sizes" in args.tables:
         light_size_table(args.light_sizes, device, args.repeats)
     if "residual" in args.tables:
@@ -459,6 +518,8 @@ def main(argv=None) -> None:
         time_series_table(args.series_size, device)
     if "vcycle" in args.tables:
         vcycle_table(args.vcycle_sizes, device, args.repeats)
+    if "tolerance" in args.tables:
+        tolerance_table(parse_sizes(args.sizes), device, args.tolerances, args.render_size)
 
 
 if __name__ == "__main__":

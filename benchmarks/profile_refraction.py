@@ -92,9 +92,18 @@ def main(argv=None) -> None:
                          "settings of the sweep kernels to compare (0: no register cap)")
     ap.add_argument("--save", default=None, help="write the images to this .npz")
     ap.add_argument("--ncu", action="store_true", help="one plane-by-plane frame only (for ncu)")
+    ap.add_argument("--option", nargs="+", default=[], metavar="NAME=VALUE",
+                    help="render options to change, e.g. light_buffer_scale=2 direction_blur=0")
     args = ap.parse_args(argv)
     device = resolve_device(args.device)
     options = {"sample_distance": 1.0, "softness": 0.2}
+    for item in args.option:
+        key, sep, value = item.partition("=")
+        if not sep:
+            ap.error(f"--option takes NAME=VALUE, got {item!r}")
+        options[key] = {"true": True, "false": False}.get(value.lower(), value)
+        if isinstance(options[key], str):
+            options[key] = float(value)
     images = {}
     for name in args.datasets:
         dims = TABLE1[name][0]
