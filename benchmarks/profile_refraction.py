@@ -101,9 +101,14 @@ def main(argv=None) -> None:
         key, sep, value = item.partition("=")
         if not sep:
             ap.error(f"--option takes NAME=VALUE, got {item!r}")
-        options[key] = {"true": True, "false": False}.get(value.lower(), value)
-        if isinstance(options[key], str):
+        flags = {"true": True, "false": False}
+        if value.lower() in flags:
+            options[key] = flags[value.lower()]
+            continue
+        try:
             options[key] = float(value)
+        except ValueError:
+            ap.error(f"--option {key}: expected a number, true or false, got {value!r}")
     images = {}
     for name in args.datasets:
         dims = TABLE1[name][0]
