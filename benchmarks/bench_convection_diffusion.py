@@ -403,7 +403,7 @@ def parse_sizes(values):
     return rows
 
 
-#: The tables ``--tables`` can pick (module docstring, items 1-5).
+#: The tables ``--tables`` can pick (module docstring, items 1-7).
 TABLES = ("stages", "sizes", "residual", "iterated", "series", "vcycle", "tolerance")
 #: Bytes per cell a V(2,2) cycle must move at least on one level (vec3 float32 = 12 bytes
 #: per array and cell): 4 red–black sweeps (each colour reads the whole x and its half of
@@ -497,6 +497,9 @@ def main(argv=None) -> None:
     ap.add_argument("--tolerances", type=float, nargs="+", default=[1e-4, 3e-4, 1e-3],
                     help="tolerances of the tolerance table (the first is the reference)")
     args = ap.parse_args(argv)
+    for tol in [args.tolerance, *args.tolerances]:
+        if not 0.0 < tol < 1.0:
+            ap.error(f"--tolerance and --tolerances must lie in (0, 1), got {tol:g}")
     device = resolve_device(args.device)
     # Compile every kernel once so that no table includes compilation.
     warm = synthetic((12, 12, 12))
