@@ -21,6 +21,8 @@ import time
 import numpy as np
 import warp as wp
 
+from vtkillum.core.device import resolve_device
+
 
 @wp.kernel
 def bump(a: wp.array(dtype=wp.float32)):
@@ -42,9 +44,11 @@ def main(argv=None) -> None:
     ap.add_argument("--launches", type=int, nargs="+", default=[100, 400])
     ap.add_argument("--repeats", type=int, default=9)
     args = ap.parse_args(argv)
-    wp.init()
-    device = wp.get_device(args.device) if args.device in (d.alias for d in wp.get_devices()) else None
-    if device is None or not device.is_cuda:
+    try:
+        device = wp.get_device(resolve_device(args.device))
+    except ValueError as exc:
+        ap.error(str(exc))
+    if not device.is_cuda:
         ap.error(f"--device must be a CUDA device, got {args.device!r}")
     sms = device.sm_count
     cases = [("1 thread", 1, bump), (f"{sms} x 1024 threads, a float each", sms * 1024, touch),

@@ -27,6 +27,7 @@ import warp as wp
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bench_refraction import TABLE1, scene_for, stand_in
 
+from vtkillum.cli import UserError, _parse_options
 from vtkillum.core.device import resolve_device
 from vtkillum.core.refraction import sweep
 from vtkillum.core.refraction.planes import SweepParams, texel_position
@@ -92,23 +93,16 @@ def main(argv=None) -> None:
                          "settings of the sweep kernels to compare (0: no register cap)")
     ap.add_argument("--save", default=None, help="write the images to this .npz")
     ap.add_argument("--ncu", action="store_true", help="one plane-by-plane frame only (for ncu)")
-    ap.add_argument("--option", nargs="+", default=[], metavar="NAME=VALUE",
-                    help="render options to change, e.g. light_buffer_scale=2 direction_blur=0")
+    ap.add_argument("--option", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="render options to change, VALUE in JSON, as vtkillum render's "
+                         "--option (e.g. light_buffer_scale=2 direction_blur=0)")
     args = ap.parse_args(argv)
     device = resolve_device(args.device)
     options = {"sample_distance": 1.0, "softness": 0.2}
-    for item in args.option:
-        key, sep, value = item.partition("=")
-        if not sep:
-            ap.error(f"--option takes NAME=VALUE, got {item!r}")
-        flags = {"true": True, "false": False}
-        if value.lower() in flags:
-            options[key] = flags[value.lower()]
-            continue
-        try:
-            options[key] = float(value)
-        except ValueError:
-            ap.error(f"--option {key}: expected a number, true or false, got {value!r}")
+    try:  # the command line's KEY=VALUE (JSON values) parsing
+        options.update(_parse_options(args.option))
+    except UserError as exc:
+        ap.error(str(exc))
     images = {}
     for name in args.datasets:
         dims = TABLE1[name][0]
