@@ -61,7 +61,6 @@ from vtkillum_paraview.shaders import (
 )
 
 _views: dict = {}  # view global id -> ViewHook
-_warned: list = []
 
 #: Light-grid cells marched exactly towards each light before the transmittance grid is
 #: read (``vtkillum.core.raycast``'s ``near_cells``).
@@ -74,47 +73,72 @@ NEAR_CELLS = 2.0
 JITTER = True
 
 
-#: VTK versions whose GPU ray-caster shader template :mod:`.shaders` is written for
-#: (ParaView 5.11 ships VTK 9.2). Elsewhere the render view keeps ParaView's own volume
-#: (a shader that does not compile would draw nothing) unless VTKILLUM_PARAVIEW_DISPLAY=1.
-SUPPORTED_VTK = ((9, 2),)
+#: Outcome of the one-time check of whether the render-view illumination works here:
+#: None until it ran, "" when it works, else the reason it does not (:func:`enabled`).
+_verdict: list = []
 
 
 def enabled() -> bool:
-    """Whether illumination is drawn in render views here (see :data:`SUPPORTED_VTK`).
+    """Whether illumination is drawn in render views here.
 
+    Decided once per process, at run time: the illuminated volume must compile and
+    draw correctly in this ParaView's VTK (:func:`.probe.self_test`), and the render
+    view must be ParaView's only process (with several MPI ranks each rank renders its
+    own piece, and only this one could be swapped: half the picture would be lit).
+    Otherwise ParaView's own volume is drawn and one message says why and what to do.
     ``VTKILLUM_PARAVIEW_DISPLAY=0`` switches it off (ParaView's own volume, e.g. to
-    compare), ``=1`` on whatever the VTK version.
+    compare), ``=1`` on without the self-test.
     """
     import os
-
-    from vtkmodules.vtkCommonCore import vtkVersion
 
     choice = os.environ.get("VTKILLUM_PARAVIEW_DISPLAY", "").strip()
     if choice in ("0", "1"):
         return choice == "1"
-    return (vtkVersion.GetVTKMajorVersion(), vtkVersion.GetVTKMinorVersion()) in SUPPORTED_VTK
+    if not _verdict:
+        reason = _parallel_reason()
+        if reason is None:
+            from vtkillum_paraview.probe import self_test
+
+            reason = self_test()
+        _verdict.append(reason or "")
+        if reason:
+            _warn(f"vtkIllum: the render view shows ParaView's own (unlit) volume: {reason}. "
+                  "For a lit picture switch the filter's OutputRGBA on and use "
+                  "vtkillum_plugin.ShowIlluminated(filter); VTKILLUM_PARAVIEW_DISPLAY=1 "
+                  "forces the per-sample illumination on.")
+    return not _verdict[0]
+
+
+def _parallel_reason() -> str | None:
+    """Why the per-sample illumination cannot run in this process's render views, if so."""
+    try:
+        from paraview.modules.vtkRemotingCore import vtkProcessModule
+    except ImportError:
+        return None
+    module = vtkProcessModule.GetProcessModule()
+    ranks = module.GetNumberOfLocalPartitions() if module is not None else 1
+    if ranks > 1:
+        return (f"ParaView runs on {ranks} MPI ranks, and the per-sample illumination draws "
+                "only in a single process")
+    return None
 
 
 def hook_views(view_proxies) -> None:
     """Give every render view among ``view_proxies`` a :class:`ViewHook` (once)."""
-    if not enabled():
-        if not _warned:
-            _warned.append(True)
-            _warn("vtkIllum: this ParaView's VTK is not one the render-view illumination was "
-                  "tested with; showing ParaView's own volume. Switch OutputRGBA on and use "
-                  "vtkillum_plugin.ShowIlluminated, or set VTKILLUM_PARAVIEW_DISPLAY=1 to try.")
+    if not any(_is_render_view(view) for view in view_proxies) or not enabled():
         return
     for gid in [gid for gid, hook in _views.items() if hook.view is None]:
         _views.pop(gid).detach()
     for view in view_proxies:
         gid = view.GetGlobalID()
-        if gid in _views:
+        if gid in _views or not _is_render_view(view):
             continue
-        cso = view.GetClientSideObject()
-        if cso is None or not cso.IsA("vtkPVRenderView"):
-            continue
-        _views[gid] = ViewHook(view, cso.GetRenderer())
+        _views[gid] = ViewHook(view, view.GetClientSideObject().GetRenderer())
+
+
+def _is_render_view(view) -> bool:
+    cso = view.GetClientSideObject()
+    return cso is not None and cso.IsA("vtkPVRenderView")
 
 
 def illumination_of(data) -> dict | None:
