@@ -214,3 +214,18 @@ def test_adding_a_light_regenerates_at_once(volume):
     assert edit["edits"] == ["lights-added-or-removed"] and edit["stale_paths"] == 0
     fresh = ManyLightsRenderer(volume, more, SIZE, SIZE, "cpu", **OPTS)
     assert_same_set(renderer, fresh)
+
+
+def test_edits_names_what_update_would_do_without_doing_it(volume):
+    scene = scene_with(volume)
+    renderer = ManyLightsRenderer(volume, scene, SIZE, SIZE, "cpu", **OPTS)
+    state = renderer.state
+    power = state.vls.power()
+    assert state.edits(scene) == []
+    assert state.edits(scene_with(volume, albedo=0.6, colour=(1.0, 0.5, 0.5))) == \
+        ["color", "albedo"]
+    assert state.edits(scene_with(volume, 12.0)) == ["sigma_t"]
+    assert state.edits(scene, density_scale=2.0) == ["density_scale"]
+    np.testing.assert_array_equal(state.vls.power(), power)
+    assert not state.stale
+    assert renderer.update(scene_with(volume, 12.0))["edits"] == ["sigma_t"]

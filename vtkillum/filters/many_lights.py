@@ -23,6 +23,8 @@ _CHOICES = {
     "DistanceSampling": ("distance_sampling", ("delta-tracking", "ray-marching")),
     "PhaseSampling": ("phase_sampling", ("hg", "isotropic")),
 }
+#: Edits that keep the walk: the VLs' powers are re-evaluated (eq. 6), nothing is traced.
+_CONTRIBUTION_ONLY = ("color", "albedo", "light-color")
 
 
 class ManyLightsFilter(IlluminationFilterBase):
@@ -116,6 +118,7 @@ class ManyLightsFilter(IlluminationFilterBase):
         self.state = None
         self._light_outputs: dict = {}
         self._latest_lights = None
+        self._grids = None  # the last scattered fluence and transmittance, see compute
 
     # --- VTK plumbing ---------------------------------------------------------------------
     def FillOutputPortInformation(self, port, info):
@@ -250,6 +253,12 @@ class ManyLightsFilter(IlluminationFilterBase):
         return self._choice["phase_sampling"]
 
     # --- compute --------------------------------------------------------------------------
+    def ClearCache(self) -> None:
+        """Forget the cached outputs and the virtual lights: the next execution walks anew."""
+        super().ClearCache()
+        self.state = None
+        self._grids = None
+
     def compute(self, volume, params):
         step = self._step_size or None
         scene = params.scene(step_size=step)
@@ -259,22 +268,60 @@ class ManyLightsFilter(IlluminationFilterBase):
                        avsm_nodes=self._avsm_nodes)
         opts = parse_options(options, volume, scene)
         params.progress(0.05)
-        state = ManyLightsState(volume, scene, opts, params.device)
+        shape = tuple(params.output_shape)
+        state = self._reusable_state(volume, scene, opts, params.device)
+        if state is None:
+            self._grids = None
+            state = ManyLightsState(volume, scene, opts, params.device)
+        elif state.update(scene)["edits"]:  # eq. 6: the VLs' powers along the stored paths
+            self._grids = self._grids and dict(self._grids, scattered=None)
         params.progress(0.5)
-        vls = state.virtual_lights()
-        gp = gather_params(opts["step_size"], False, opts["seed"], opts["early_termination"], 1,
-                           opts["transmittance"], opts["vl_step"], state.scale)
-        scattered = scattered_fluence(state.medium, vls, state.maps(), gp, params.output_shape,
-                                      volume.extent, params.device)
+        grids = self._grids if self._grids is not None and self._grids["shape"] == shape \
+            else {"shape": shape, "scattered": None, "transmittance": None}
+        if grids["scattered"] is None:
+            vls = state.virtual_lights()
+            gp = gather_params(opts["step_size"], False, opts["seed"],
+                               opts["early_termination"], 1, opts["transmittance"],
+                               opts["vl_step"], state.scale)
+            grids["scattered"] = np.maximum(scattered_fluence(
+                state.medium, vls, state.maps(), gp, shape, volume.extent, params.device), 0.0)
         params.progress(0.8)
-        transmittance, _ = light_transmittance(
-            volume, params.transfer_function, params.unit_distance / state.scale, params.lights,
-            shape=params.output_shape, step_size=step, device=params.device)
+        if grids["transmittance"] is None:  # depends on sigma_t and the lights' geometry only
+            grids["transmittance"], _ = light_transmittance(
+                volume, params.transfer_function, params.unit_distance / state.scale,
+                params.lights, shape=shape, step_size=step, device=params.device)
         self.state = state
+        self._grids = grids
         self._latest_lights = virtual_lights_polydata(state, volume)
-        illumination = IlluminationVolume.for_volume(volume, np.maximum(scattered, 0.0),
-                                                     transmittance)
-        return illumination_arrays(illumination, volume, params.lights, params.output_shape)
+        illumination = IlluminationVolume.for_volume(volume, grids["scattered"],
+                                                     grids["transmittance"])
+        return illumination_arrays(illumination, volume, params.lights, shape)
+
+    def _reusable_state(self, volume, scene, opts, device):
+        """:attr:`state` when the edit since it was made needs no new walk, else ``None``.
+
+        The walk depends on the data, the options, ``sigma_t`` and the lights' geometry;
+        colour, albedo and light colour enter only the VLs' powers, which eq. 6
+        re-evaluates along the stored paths (importance-weighted by the densities the
+        paths were drawn with: unbiased, and identical to a new walk wherever the
+        Russian roulette's survival, ``albedo * max colour``, is unchanged). ``g`` also
+        when the directions are sampled isotropically (section 5.2); with HG sampling a
+        new ``g`` walks anew.
+        """
+        state = self.state
+        if state is None or state.device != device or state.opts != opts:
+            return None
+        old = state.volume
+        if old is not volume and not (
+                old.dims == volume.dims and old.content_key == volume.content_key
+                and np.array_equal(old.spacing, volume.spacing)
+                and np.array_equal(old.origin, volume.origin)
+                and np.array_equal(old.direction, volume.direction)):
+            return None
+        keep = set(_CONTRIBUTION_ONLY)
+        if opts["phase_sampling"] == "isotropic":
+            keep.add("anisotropy")
+        return state if set(state.edits(scene)) <= keep else None
 
 
 def virtual_lights_polydata(state, volume) -> vtkPolyData:

@@ -135,31 +135,12 @@ class ManyLightsState:
         """
         t0 = time.perf_counter()
         new = self._optics(scene)
-        old = self._current
         scale = self.scale if density_scale is None else _positive(density_scale,
                                                                     "density_scale")
-        edits = []
-        sigma = not (np.array_equal(new["sigma"], old["sigma"]) and new["range"] == old["range"])
-        if sigma:
-            edits.append("sigma_t")
-        if not np.array_equal(new["colors"], old["colors"]):
-            edits.append("color")
-        if new["albedo"] != old["albedo"]:
-            edits.append("albedo")
-        if new["g"] != old["g"]:
-            edits.append("anisotropy")
-        structure = [x.kind for x in new["lights"]] != [x.kind for x in old["lights"]]
-        geometry = [_light_geometry(x) for x in new["lights"]] != \
-            [_light_geometry(x) for x in old["lights"]]
-        rgb = [_light_rgb(x) for x in new["lights"]] != [_light_rgb(x) for x in old["lights"]]
-        if structure:
-            edits.append("lights-added-or-removed")
-        elif geometry:
-            edits.append("light-moved")
-        elif rgb:
-            edits.append("light-color")
-        if scale != self.scale:
-            edits.append("density_scale")
+        edits = self._classify(new, scale)
+        sigma = "sigma_t" in edits
+        structure = "lights-added-or-removed" in edits
+        geometry = "light-moved" in edits
         if not edits:
             return {"edits": [], "stale_paths": self.vls.stale_paths, "update_ms": 0.0}
         if sigma:
@@ -181,6 +162,14 @@ class ManyLightsState:
         ms = 1e3 * (time.perf_counter() - t0)
         self.timings = {"update_ms": ms}
         return {"edits": edits, "stale_paths": self.vls.stale_paths, "update_ms": ms}
+
+    def edits(self, scene, density_scale: float | None = None) -> list[str]:
+        """What :meth:`update` would do for ``scene`` (names as in its ``edits``), without
+        doing it: e.g. whether an edit keeps the walk (``color``, ``albedo``,
+        ``light-color``: contributions only)."""
+        scale = self.scale if density_scale is None else _positive(density_scale,
+                                                                    "density_scale")
+        return self._classify(self._optics(scene), scale)
 
     def environment(self) -> Environment:
         """The :class:`Environment` of the current optics and options."""
@@ -254,6 +243,28 @@ class ManyLightsState:
         return {"tf": tf, "u": float(u), "sigma": sig, "colors": col, "range": (lo, hi),
                 "albedo": float(scene.albedo), "g": float(scene.anisotropy),
                 "lights": list(scene.lights)}
+
+    def _classify(self, new: dict, scale: float) -> list[str]:
+        old = self._current
+        edits = []
+        if not (np.array_equal(new["sigma"], old["sigma"]) and new["range"] == old["range"]):
+            edits.append("sigma_t")
+        if not np.array_equal(new["colors"], old["colors"]):
+            edits.append("color")
+        if new["albedo"] != old["albedo"]:
+            edits.append("albedo")
+        if new["g"] != old["g"]:
+            edits.append("anisotropy")
+        if [x.kind for x in new["lights"]] != [x.kind for x in old["lights"]]:
+            edits.append("lights-added-or-removed")
+        elif [_light_geometry(x) for x in new["lights"]] != \
+                [_light_geometry(x) for x in old["lights"]]:
+            edits.append("light-moved")
+        elif [_light_rgb(x) for x in new["lights"]] != [_light_rgb(x) for x in old["lights"]]:
+            edits.append("light-color")
+        if scale != self.scale:
+            edits.append("density_scale")
+        return edits
 
     def _set_optics(self, optics: dict) -> None:
         self._current = optics
