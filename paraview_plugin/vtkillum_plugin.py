@@ -727,6 +727,8 @@ if _links is not None:
 from vtkillum_paraview import tables as _tables  # noqa: E402
 
 _tables.install()
+# Oriented NIfTI/NRRD/MetaImage/DICOM readers (readers.py); ParaView registers imported classes.
+from vtkillum_paraview.readers import DICOMDirectoryReader, MedicalImageReader  # noqa: E402, F401
 
 
 __all__ = [

@@ -44,6 +44,10 @@ PLUGIN = ROOT / "paraview_plugin" / "vtkillum_plugin.py"
 sys.path.insert(0, str(ROOT / "paraview_plugin"))
 from vtkillum_paraview import x11
 
+#: Part of the main window's title ("ParaView 5.11.0", "ParaView 6.1.1"): the largest
+#: top-level window whose title has it is the main window.
+WINDOW_TITLE = "ParaView"
+
 LABELS = ["vtkIllum Optical Properties", "vtkIllum Light Transmittance",
           "vtkIllum Convection-Diffusion Light", "vtkIllum Ambient Extinction",
           "vtkIllum Photon Density", "vtkIllum Many Lights"]
@@ -61,13 +65,26 @@ def constructor(label: str):
     return globals()[label.replace(" ", "").replace("-", "")]  # from LoadPlugin(ns=globals())
 
 
+def preset(*names: str) -> str:
+    """The first of ``names`` that is a colour-map preset of this ParaView ("Inferno
+    (matplotlib)" in 5.x is "Inferno" in 6.x; ``ApplyPreset`` of an unknown name returns
+    True in 5.11 and changes nothing)."""
+    from paraview import servermanager
+
+    presets = servermanager.vtkSMTransferFunctionPresets.GetInstance()
+    found = [name for name in names if presets.HasPreset(name)]
+    if not found:
+        raise RuntimeError(f"none of the presets {names} exists in this ParaView")
+    return found[0]
+
+
 def view():
     return simple.GetActiveViewOrCreate("RenderView")
 
 
 def grab_window(name: str) -> None:
     with x11.Display() as display:
-        window = display.find_window("ParaView 5")
+        window = display.find_window(WINDOW_TITLE)
         image = display.grab(window)
     x11.write_png(OUT / name, image)
     summary.setdefault("window_grabs", []).append(name)
@@ -207,9 +224,13 @@ def step_grab_refraction():
     log("window grabbed with the refraction render")
 
 
-def step_setup():
+def step_window_size():
     with x11.Display() as display:  # room for the panels and the view
-        display.move_resize(display.find_window("ParaView 5"), 0, 0, 1600, 1000)
+        display.move_resize(display.find_window(WINDOW_TITLE), 0, 0, 1600, 1000)
+
+
+def step_setup():
+    step_window_size()
     wavelet = simple.FindSource("Wavelet1") or simple.Wavelet(registrationName="Wavelet1")
     state["wavelet"] = wavelet
     v = view()
@@ -266,7 +287,7 @@ def step_show_one():
     misses = lt.GetClientSideObject().GetCacheStatistics().misses
     summary["illuminated_volumes_in_view"] = swapped_volumes(v)
     lut = simple.GetColorTransferFunction("RTData")
-    lut.ApplyPreset("Inferno (matplotlib)", True)
+    lut.ApplyPreset(preset("Inferno (matplotlib)", "Inferno"), True)
     simple.GetOpacityTransferFunction("RTData").Points = [37.35, 0.0, 0.5, 0.0, 120.0, 0.0, 0.5, 0.0,
                                                           200.0, 0.3, 0.5, 0.0, 276.8, 1.0, 0.5, 0.0]
     simple.Render(v)
@@ -368,7 +389,7 @@ def step_finish():
     (OUT / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     (OUT / "done").write_text("the GUI session reached its end\n")
     with x11.Display() as display:
-        display.request_close(display.find_window("ParaView 5"))
+        display.request_close(display.find_window(WINDOW_TITLE))
 
 
 STEPS = ([step_wait_for_the_menu_clicks, step_refraction_from_the_menu, step_grab_refraction,
@@ -377,6 +398,8 @@ STEPS = ([step_wait_for_the_menu_clicks, step_refraction_from_the_menu, step_gra
          + [make_edit_step(label) for label in LABELS[1:]]
          + [step_show_one, step_grab_1, step_bad_light, step_save_delete, step_load,
             step_select_loaded, step_grab_2, step_ct, step_grab_ct, step_finish])
+if os.environ.get("VTKILLUM_GUI_ONLY_CT"):  # make_gui_screenshot.py: only the CT picture
+    STEPS = [step_window_size, step_ct, step_grab_ct, step_finish]
 
 
 # === the driver: one step per timer tick, the GUI's event loop in between ====================

@@ -23,6 +23,10 @@ ROOT = Path(os.environ["VTKILLUM_ROOT"])
 sys.path.insert(0, str(ROOT / "paraview_plugin"))
 from vtkillum_paraview import x11
 
+#: Part of the main window's title ("ParaView 5.11.0", "ParaView 6.1.1"): the largest
+#: top-level window whose title has it is the main window.
+WINDOW_TITLE = "ParaView"
+
 summary = {"errors": [], "steps": []}
 state = {}
 
@@ -75,7 +79,7 @@ def step_after():
     simple.SaveScreenshot(str(OUT / "after.png"), simple.GetActiveView(),
                           ImageResolution=[400, 300])
     with x11.Display() as display:
-        x11.write_png(OUT / "window.png", display.grab(display.find_window("ParaView 5")))
+        x11.write_png(OUT / "window.png", display.grab(display.find_window(WINDOW_TITLE)))
     log("after")
 
 
@@ -83,7 +87,7 @@ def step_finish():
     (OUT / "summary.json").write_text(json.dumps(summary, indent=1, default=str))
     (OUT / "done").write_text("done\n")
     with x11.Display() as display:
-        display.request_close(display.find_window("ParaView 5"))
+        display.request_close(display.find_window(WINDOW_TITLE))
 
 
 STEPS = [step_apply, step_screenshot, step_show_rendered, step_after, step_finish]

@@ -1,4 +1,4 @@
-"""pvbatch script driven by ``test_pvbatch.py``: every plugin filter in ParaView 5.11.
+"""pvbatch script driven by ``test_pvbatch.py``: every plugin filter in ParaView (5.11 to 6.x).
 
 Run as ``xvfb-run -a pvbatch pvbatch_filters.py OUT_DIR`` with the environment of
 ``paraview_plugin/pvbatch_env.py``. It writes screenshots and ``summary.json`` to
@@ -24,7 +24,7 @@ import sys
 import time
 from pathlib import Path
 
-from paraview import simple
+from paraview import servermanager, simple
 
 OUT = Path(sys.argv[1])
 OUT.mkdir(parents=True, exist_ok=True)
@@ -45,7 +45,10 @@ from vtkillum.data.procedural import plume_series, smoke_plume
 from vtkillum.filters.base import IlluminationFilterBase
 from vtkillum.io.convert import image_data_from_volume
 
-summary = {"paraview": simple.GetParaViewVersion().GetVersion(), "filters": {}, "series": {}}
+# GetParaViewVersion().GetVersion() is gone in 6.x; the server manager has the numbers in both.
+_pm = servermanager.vtkSMProxyManager
+summary = {"paraview": [_pm.GetVersionMajor(), _pm.GetVersionMinor(), _pm.GetVersionPatch()],
+           "filters": {}, "series": {}}
 # Plume transfer function: transparent air, wisps, body, core (data in [0, 1]).
 OPACITY = [0.0, 0.0, 0.5, 0.0, 0.02, 0.0, 0.5, 0.0, 0.3, 0.35, 0.5, 0.0, 1.0, 0.95, 0.5, 0.0]
 COLORS = [0.0, 1.0, 1.0, 1.0, 0.5, 1.0, 0.85, 0.7, 1.0, 1.0, 0.7, 0.5]
@@ -101,11 +104,12 @@ def configure(proxy, colors=COLORS) -> None:
 
 
 def filter_proxies() -> dict:
-    """label -> proxy constructor, for every filter the plugin declares."""
+    """label -> proxy constructor, for every filter the plugin declares (its readers,
+    proxies of group "sources", are left out)."""
     found = {}
     for name, obj in vars(plugin).items():
         original = getattr(obj, "_pv_original_func", obj)
-        if hasattr(original, "_pvsm_proxy_xml"):
+        if '<ProxyGroup name="filters">' in getattr(original, "_pvsm_proxy_xml", ""):
             label = original._pvsm_proxy_xml.split('label="')[1].split('"')[0]
             found[label] = (name, original)
     return found
