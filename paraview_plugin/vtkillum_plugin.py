@@ -726,9 +726,10 @@ if _links is not None:
 # not a whole number of rows is refused with an error, not cut short (tables.py).
 from vtkillum_paraview import tables as _tables  # noqa: E402
 
-_tables.install()
 # Oriented NIfTI/NRRD/MetaImage/DICOM readers (readers.py); ParaView registers imported classes.
-from vtkillum_paraview.readers import DICOMDirectoryReader, MedicalImageReader  # noqa: E402, F401
+from vtkillum_paraview.readers import DICOMDirectoryReader, MedicalImageReader  # noqa: F401
+
+_tables.install()
 
 
 __all__ = [
