@@ -106,35 +106,43 @@ def missing_tools() -> list[str]:
     return [tool for tool in ("pvbatch", "xvfb-run") if shutil.which(tool) is None]
 
 
-def pvbatch_command(script, *args) -> list[str]:
-    """``xvfb-run -a pvbatch script args...`` (ParaView 5.11 needs an X server)."""
+def pvbatch_command(script, *args, ranks: int = 1) -> list[str]:
+    """``xvfb-run -a pvbatch script args...`` (ParaView 5.11 needs an X server); with
+    ``ranks`` > 1 pvbatch runs under ``mpirun -np ranks`` (ParaView's MPI engine)."""
+    if ranks > 1:
+        mpi = ["mpirun", "-np", str(ranks), "--oversubscribe"]
+        if os.geteuid() == 0:
+            mpi.append("--allow-run-as-root")  # Open MPI refuses root otherwise (CI runs as root)
+        return ["xvfb-run", "-a", *mpi, "pvbatch", str(script), *map(str, args)]
     return ["xvfb-run", "-a", "pvbatch", str(script), *map(str, args)]
 
 
-def run_pvbatch(script, *args, shim_dir=None, timeout=None, **kwargs) -> subprocess.CompletedProcess:
+def run_pvbatch(script, *args, shim_dir=None, timeout=None, ranks: int = 1,
+                **kwargs) -> subprocess.CompletedProcess:
     """Run ``script`` under ``xvfb-run -a pvbatch`` with the shim environment.
 
-    Extra keyword arguments go to :func:`subprocess.run` (e.g. ``capture_output=True``).
-    Raises ``RuntimeError`` naming the missing program when pvbatch or xvfb-run is absent.
+    ``ranks`` > 1 runs it on that many MPI ranks (:func:`pvbatch_command`). Extra keyword
+    arguments go to :func:`subprocess.run` (e.g. ``capture_output=True``). Raises
+    ``RuntimeError`` naming the missing program when pvbatch or xvfb-run is absent.
     """
-    missing = missing_tools()
+    missing = missing_tools() + (["mpirun"] if ranks > 1 and not shutil.which("mpirun") else [])
     if missing:
         raise RuntimeError(
             f"{', '.join(missing)} not found; install Debian's ParaView and xvfb "
             "(apt-get install paraview python3-paraview xvfb)"
         )
     shim = make_shim_dir(shim_dir)
-    return subprocess.run(pvbatch_command(script, *args), env=pvbatch_environment(shim),
-                          timeout=timeout, **kwargs)
+    return subprocess.run(pvbatch_command(script, *args, ranks=ranks),
+                          env=pvbatch_environment(shim), timeout=timeout, **kwargs)
 
 
-def run_pvbatch_logged(script, *args, shim_dir=None, timeout=None,
-                       attempts: int = 2) -> tuple[subprocess.CompletedProcess, str]:
+def run_pvbatch_logged(script, *args, shim_dir=None, timeout=None, attempts: int = 2,
+                       ranks: int = 1) -> tuple[subprocess.CompletedProcess, str]:
     """:func:`run_pvbatch` with its output captured, tried again (up to ``attempts`` runs)
     when ``xvfb-run -a`` lost the race for a display number; returns the process and its
     stdout + stderr."""
     for _ in range(max(1, attempts)):
-        proc = run_pvbatch(script, *args, shim_dir=shim_dir, timeout=timeout,
+        proc = run_pvbatch(script, *args, shim_dir=shim_dir, timeout=timeout, ranks=ranks,
                            capture_output=True, text=True)
         log = proc.stdout + proc.stderr
         if proc.returncode == 0 or "bad X server connection" not in log:

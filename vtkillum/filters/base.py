@@ -224,6 +224,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         self._pass_input_arrays = True
         self._cache = TimeStepCache(int(DEFAULT_CACHE_MB * 2**20))
         self._pending = None  # (key, cached output or None), from RequestUpdateExtent
+        self._piece_messages: set = set()  # parallel modes already reported (see _deliver)
         self._last_error: Exception | None = None
         self._interrupt: KeyboardInterrupt | None = None  # caught in RequestData, see module doc
         self.SetInputArrayToProcess(0, 0, 0, vtkDataObject.FIELD_ASSOCIATION_POINTS,
@@ -541,6 +542,11 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         out_info = outInfo.GetInformationObject(0)
         if in_info.Has(SDDP.WHOLE_EXTENT()):
             in_info.Set(SDDP.UPDATE_EXTENT(), in_info.Get(SDDP.WHOLE_EXTENT()), 6)
+        # Light crosses pieces: the whole volume as one piece, whatever piece the output is
+        # (in parallel every rank computes it and keeps its own piece, see _deliver).
+        in_info.Set(SDDP.UPDATE_PIECE_NUMBER(), 0)
+        in_info.Set(SDDP.UPDATE_NUMBER_OF_PIECES(), 1)
+        in_info.Set(SDDP.UPDATE_NUMBER_OF_GHOST_LEVELS(), 0)
         self._pending = None
         if self._cache.max_bytes == 0:
             return 1
@@ -564,7 +570,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
                 cached = self._execute(image, out_info)
                 if key is not None:
                     self._cache.store(key, cached, cached.GetActualMemorySize() * 1024)
-            output.ShallowCopy(cached)
+            self._deliver(output, cached, out_info)
             info = cached.GetInformation()
             if info.Has(vtkDataObject.DATA_TIME_STEP()):
                 output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(),
@@ -584,6 +590,39 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             return 0
 
     # === internals ==============================================================================
+    def _deliver(self, output, whole, out_info) -> None:
+        """Copy ``whole`` (the output for the whole volume) into ``output``, cut to the piece
+        the pipeline asked for.
+
+        In a parallel pipeline (ParaView under MPI: ``UPDATE_NUMBER_OF_PIECES`` > 1) each
+        rank asks for its own piece; the filter computed the whole volume (shadows and
+        scattered light cross pieces), so every rank holds the same result as one process
+        and keeps its piece of it (ghost levels, if asked for, marked in ``vtkGhostType``),
+        and the pieces composite without a seam. Memory and compute are those of the whole
+        volume on every rank: the simplest correct parallel mode.
+        """
+        pieces = out_info.Get(SDDP.UPDATE_NUMBER_OF_PIECES()) \
+            if out_info.Has(SDDP.UPDATE_NUMBER_OF_PIECES()) else 1
+        if pieces <= 1:
+            output.ShallowCopy(whole)
+            return
+        piece = out_info.Get(SDDP.UPDATE_PIECE_NUMBER())
+        ghosts = out_info.Get(SDDP.UPDATE_NUMBER_OF_GHOST_LEVELS()) \
+            if out_info.Has(SDDP.UPDATE_NUMBER_OF_GHOST_LEVELS()) else 0
+        extent, owned = piece_extents(whole.GetExtent(), piece, pieces, ghosts)
+        output.ShallowCopy(whole)
+        output.Crop(extent)
+        if ghosts and extent != owned:
+            output.GenerateGhostArray(list(owned))
+        message = (f"{self._label()}: piece {piece + 1} of {pieces}: illumination computed on "
+                   "the whole volume on this rank and cut to its piece")
+        if message not in self._piece_messages:  # once per piece layout, not per update
+            self._piece_messages.add(message)
+            vtkOutputWindow.GetInstance().DisplayText(message + "\n")
+
+    def _label(self) -> str:
+        return getattr(self, "paraview_label", type(self).__name__)
+
     def _execute(self, image, out_info) -> vtkImageData:
         """Convert, compute and assemble one output (a new vtkImageData)."""
         check_image_data(image)
@@ -760,6 +799,26 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             self.InvokeEvent("ErrorEvent", message)
         else:
             vtkOutputWindow.GetInstance().DisplayErrorText(message + "\n")
+
+
+def piece_extents(whole, piece: int, pieces: int, ghost_levels: int = 0) -> tuple:
+    """(extent with ghost levels, extent owned) of ``piece`` of ``pieces`` of ``whole``.
+
+    Split as VTK's default extent translator splits structured data (blocks along the
+    longest axes), so the pieces tile the whole extent sharing their boundary points.
+    """
+    from vtkmodules.vtkCommonExecutionModel import vtkExtentTranslator
+
+    translator = vtkExtentTranslator()
+    result = []
+    for ghosts in (ghost_levels, 0):
+        translator.SetWholeExtent(*whole)
+        translator.SetPiece(int(piece))
+        translator.SetNumberOfPieces(int(pieces))
+        translator.SetGhostLevel(int(ghosts))
+        translator.PieceToExtent()
+        result.append(tuple(translator.GetExtent()))
+    return result[0], result[1]
 
 
 def _make_light(kind: str, vector, rgb):
