@@ -415,7 +415,11 @@ def _choice(name: str, doc: str) -> str:
                 "Ray-marching step (world units); 0: half the smallest spacing.", lo=0.0,
                 advanced=True),
         output_xml(scale_default=0.5),
-        ports=("Illumination", "Virtual Lights"))
+        ports=("Illumination", "Virtual Lights"),
+        # Apply shows the illumination only: the VLs' points would stay in every later view
+        # (View type None: not shown on Apply; the eye in the Pipeline Browser shows them,
+        # and the Pipeline Browser gives "None" the render view's icon).
+        hints='<View type="None" port="1" />')
 class ManyLights(IlluminatedRGBAOutput, ParaViewGlue, ManyLightsFilter):
     """Weber et al.'s virtual spherical lights gathered onto a light volume (port 0); the
     virtual lights as points (port 1)."""

@@ -100,7 +100,7 @@ def _scan(pxm) -> None:
             if gid in _displays or not proxy.GetProperty("Input"):
                 continue
             source = _input_proxy(proxy)
-            if source is not None and source.GetGlobalID() in _filters:
+            if source is not None and source.GetGlobalID() in _filters and _followed_display(proxy):
                 picture = IMAGE_FILTERS.get(source.GetXMLName())
                 _displays[gid] = (ImageDisplayLink(proxy, picture) if picture
                                   else DisplayLink(proxy, _filters[source.GetGlobalID()]))
@@ -145,6 +145,19 @@ def _proxies(pxm, group: str) -> list:
 def _input_proxy(representation):
     prop = representation.GetProperty("Input")
     return prop.GetProxy(0) if prop is not None and prop.GetNumberOfProxies() else None
+
+
+def _followed_display(representation) -> bool:
+    """Whether the links follow a display of a vtkIllum filter: one of its port 0 (the
+    illumination, or the refraction render's picture) with a colour map and an opacity
+    function. Other ports (Many Lights' virtual-light points: a polydata display without
+    ``ScalarOpacityFunction``) are left alone: following them asked for a property they
+    lack and coloured them by an array they do not have (two warnings on every Apply)."""
+    prop = representation.GetProperty("Input")
+    if prop is None or not prop.GetNumberOfProxies() or prop.GetOutputPortForConnection(0) != 0:
+        return False
+    return all(representation.GetProperty(name) is not None
+               for name in ("ColorArrayName", "LookupTable", "ScalarOpacityFunction"))
 
 
 class _Link:
@@ -340,8 +353,8 @@ class DisplayLink(_Link):
             scalars = name
         if name and name == scalars:  # (a display of another array, e.g. the baked RGBA, is
             # left alone: its colour map and unit distance are not the filter's)
-            lut = vtkSMPropertyHelper(proxy, "LookupTable").GetAsProxy()
-            opacity = vtkSMPropertyHelper(proxy, "ScalarOpacityFunction").GetAsProxy()
+            lut = vtkSMPropertyHelper(proxy, "LookupTable", True).GetAsProxy()
+            opacity = vtkSMPropertyHelper(proxy, "ScalarOpacityFunction", True).GetAsProxy()
             if lut is not None:
                 self.filter.link_transfer_functions(lut, opacity)
             self._follow_unit_distance()
