@@ -177,6 +177,11 @@ LIGHTS = """
   </Hints>
 </DoubleVectorProperty>"""
 
+CACHE_DOC = (f"Memory (MB) for outputs kept per time step, so stepping back through a "
+             f"series does not recompute (0: no cache). Default: a quarter of the memory "
+             f"free when the plugin was loaded ({DEFAULT_CACHE_MB:.0f} MB here); a message "
+             f"says when a series does not fit.")
+
 CACHE_STATISTICS = """
 <DoubleVectorProperty name="CacheStatistics" command="GetCacheStatisticsVector"
                       information_only="1" number_of_elements="4" default_values="0 0 0 0"
@@ -241,8 +246,7 @@ def output_xml(scale_command="SetOutputScale", scale_default=1.0, rgba=True) -> 
         ]
     parts += [
         _number("double", "CacheSizeMB", "SetCacheSizeMB", DEFAULT_CACHE_MB,
-                "Memory for outputs kept per time step (0: no cache).", lo=0.0, hi=65536.0,
-                advanced=True),
+                CACHE_DOC, lo=0.0, hi=1048576.0),
         CACHE_STATISTICS,
     ]
     return "".join(parts)
@@ -284,8 +288,7 @@ def _proxy(name: str, label: str, *property_xmls: str, ports=("Illumination",),
         _number("double", "OutputScale", "SetOutputScale", 1.0,
                 "Output resolution relative to the data, in (0, 1].", lo=0.05, hi=1.0),
         _number("double", "CacheSizeMB", "SetCacheSizeMB", DEFAULT_CACHE_MB,
-                "Memory for outputs kept per time step (0: no cache).", lo=0.0, hi=65536.0,
-                advanced=True),
+                CACHE_DOC, lo=0.0, hi=1048576.0),
         CACHE_STATISTICS)
 class OpticalProperties(ParaViewGlue, OpticalPropertiesFilter):
     """sigma_t, scattering colour, sigma_s and sigma_a per point (OpticalPropertiesFilter)."""
@@ -526,8 +529,7 @@ def refraction_xml() -> str:
                      "Warp device: auto (CUDA when present, else CPU; VTKILLUM_DEVICE "
                      "overrides), cpu or cuda.", advanced=True),
         _number("double", "CacheSizeMB", "SetCacheSizeMB", DEFAULT_CACHE_MB,
-                "Memory for images kept per time step (0: no cache).", lo=0.0, hi=65536.0,
-                advanced=True),
+                CACHE_DOC, lo=0.0, hi=1048576.0),
         CACHE_STATISTICS,
         _group("Refraction", "RefractiveIndex", "MediumColor"),
         _group("Light", "LightDirection", "LightIrradiance", "Softness", "Anisotropy"),

@@ -391,3 +391,42 @@ def test_filter_and_transfer_functions_are_released():
     assert ref.Get() is None  # the observer does not keep the filter alive
     otf.AddPoint(1.0, 1.0)  # the orphaned observer does nothing but remove itself
     assert not otf.HasObserver("ModifiedEvent")
+
+
+def test_default_cache_is_a_share_of_free_memory(monkeypatch):
+    from vtkillum.filters import time_cache
+
+    monkeypatch.setattr(time_cache, "available_memory_mb", lambda: 64000.0)
+    assert time_cache.default_cache_mb() == 16000.0
+    monkeypatch.setattr(time_cache, "available_memory_mb", lambda: 1000.0)
+    assert time_cache.default_cache_mb() == time_cache.FLOOR_MB  # never below the floor
+    monkeypatch.setattr(time_cache, "available_memory_mb", lambda: None)
+    assert time_cache.default_cache_mb() == time_cache.FLOOR_MB
+    assert Recorder().GetCacheSizeMB() >= time_cache.FLOOR_MB
+
+
+def test_a_series_that_does_not_fit_is_reported_once(time_source):
+    from vtkmodules.vtkCommonCore import vtkOutputWindow, vtkStringOutputWindow
+
+    previous = vtkOutputWindow.GetInstance()
+    previous.Register(None)
+    said = vtkStringOutputWindow()
+    vtkOutputWindow.SetInstance(said)
+    try:
+        f = Recorder()
+        f.SetInputConnection(time_source.GetOutputPort())
+        out = f.execute(time=0.0)
+        entry_mb = out.GetActualMemorySize() / 1024
+        f.SetCacheSizeMB(1.5 * entry_mb)  # room for one of the three steps
+        for t in (0.0, 1.0, 2.0, 1.0):
+            f.execute(time=t)
+        text = said.GetOutput()
+        assert text.count("keeps 1 of the 3 time steps") == 1, text
+        assert "CacheSizeMB" in text
+        f.SetCacheSizeMB(4 * entry_mb)  # all three fit: nothing more is said
+        for t in (0.0, 1.0, 2.0):
+            f.execute(time=t)
+        assert said.GetOutput() == text
+    finally:
+        vtkOutputWindow.SetInstance(previous)
+        previous.UnRegister(None)

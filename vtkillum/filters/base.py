@@ -80,7 +80,7 @@ from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
 from vtkillum.core.lights import DirectionalLight, PointLight
 from vtkillum.core.scene import Scene
 from vtkillum.core.transfer_function import TransferFunction
-from vtkillum.filters.time_cache import CacheStatistics, TimeStepCache
+from vtkillum.filters.time_cache import CacheStatistics, TimeStepCache, default_cache_mb
 from vtkillum.io.convert import (
     add_point_array,
     check_image_data,
@@ -92,8 +92,9 @@ from vtkillum.io.convert import (
 )
 from vtkillum.io.illumination_arrays import add_lights_field
 
-#: Default memory budget of the per-time-step cache.
-DEFAULT_CACHE_MB = 512.0
+#: Default memory budget of the per-time-step cache: a share of the memory available at
+#: import (:func:`~vtkillum.filters.time_cache.default_cache_mb`).
+DEFAULT_CACHE_MB = default_cache_mb()
 
 DEVICES = ("auto", "cpu", "cuda")
 
@@ -224,7 +225,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         self._pass_input_arrays = True
         self._cache = TimeStepCache(int(DEFAULT_CACHE_MB * 2**20))
         self._pending = None  # (key, cached output or None), from RequestUpdateExtent
-        self._piece_messages: set = set()  # parallel modes already reported (see _deliver)
+        self._notes_given: set = set()  # notes already given (_deliver, _check_series_fits)
         self._last_error: Exception | None = None
         self._interrupt: KeyboardInterrupt | None = None  # caught in RequestData, see module doc
         self.SetInputArrayToProcess(0, 0, 0, vtkDataObject.FIELD_ASSOCIATION_POINTS,
@@ -569,7 +570,9 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
                 image = inInfo[0].GetInformationObject(0).Get(vtkDataObject.DATA_OBJECT())
                 cached = self._execute(image, out_info)
                 if key is not None:
-                    self._cache.store(key, cached, cached.GetActualMemorySize() * 1024)
+                    nbytes = cached.GetActualMemorySize() * 1024
+                    self._cache.store(key, cached, nbytes)
+                    self._check_series_fits(inInfo[0].GetInformationObject(0), nbytes)
             self._deliver(output, cached, out_info)
             info = cached.GetInformation()
             if info.Has(vtkDataObject.DATA_TIME_STEP()):
@@ -616,8 +619,25 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             output.GenerateGhostArray(list(owned))
         message = (f"{self._label()}: piece {piece + 1} of {pieces}: illumination computed on "
                    "the whole volume on this rank and cut to its piece")
-        if message not in self._piece_messages:  # once per piece layout, not per update
-            self._piece_messages.add(message)
+        if message not in self._notes_given:  # once per piece layout, not per update
+            self._notes_given.add(message)
+            vtkOutputWindow.GetInstance().DisplayText(message + "\n")
+
+    def _check_series_fits(self, in_info, nbytes: int) -> None:
+        """Say once (per series length, output size and budget) when the time cache cannot
+        hold every step of the input's time series, and what CacheSizeMB would."""
+        steps = in_info.Get(SDDP.TIME_STEPS()) if in_info.Has(SDDP.TIME_STEPS()) else None
+        n = len(steps) if steps is not None else 0
+        budget = self._cache.max_bytes
+        if n < 2 or nbytes <= 0 or n * nbytes <= budget:
+            return
+        mb = nbytes / 2**20
+        message = (f"{self._label()}: CacheSizeMB {budget / 2**20:.0f} keeps {budget // nbytes} "
+                   f"of the {n} time steps ({mb:.0f} MB each): stepping back to a step it "
+                   f"dropped computes it again. CacheSizeMB {np.ceil(n * mb):.0f} keeps them "
+                   "all.")
+        if message not in self._notes_given:
+            self._notes_given.add(message)
             vtkOutputWindow.GetInstance().DisplayText(message + "\n")
 
     def _label(self) -> str:
