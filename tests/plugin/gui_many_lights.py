@@ -121,7 +121,7 @@ def run_next(interactor, event=None):
             interactor.CreateOneShotTimer(600)
             return
         STEPS.pop(0)
-    except Exception:  # recorded; the pytest side fails on it
+    except Exception:  # noqa: BLE001 - recorded; the pytest side fails on it
         summary["errors"].append(f"{step.__name__}: {traceback.format_exc()}")
         STEPS[:] = [] if step is step_finish else [step_finish]
     finally:
@@ -136,6 +136,6 @@ try:
     _interactor = view().GetRenderWindow().GetInteractor()
     _interactor.AddObserver("TimerEvent", run_next)
     _interactor.CreateOneShotTimer(500)
-except Exception:
+except Exception:  # noqa: BLE001 - recorded; the pytest side fails on it
     summary["errors"].append(f"driver: {traceback.format_exc()}")
     step_finish()

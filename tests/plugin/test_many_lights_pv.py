@@ -45,7 +45,7 @@ def stages(log: str) -> dict:
 
 
 def test_applying_and_editing_warn_nothing(run):
-    _, summary, log = run
+    log = run[2]
     assert "end" in stages(log)
     for name, lines in stages(log).items():
         warnings = [line for line in lines if "WARN|" in line or "ERR|" in line
@@ -97,7 +97,7 @@ def gui(tmp_path_factory):
                f"--test-script={here / 'gui_many_lights.xml'}"]
     for _ in range(2):  # xvfb-run -a occasionally loses the race for a display number
         proc = subprocess.run(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
-                              text=True, timeout=400)
+                              text=True, timeout=400, check=False)
         if "bad X server connection" not in proc.stdout:
             break
     assert proc.returncode == 0 and (out / "done").exists(), proc.stdout[-3000:]
