@@ -285,3 +285,15 @@ def test_new_data_walks_anew(blob, make_image, launches):
     other.SetDirectionMatrix(*ROTATION.reshape(-1))
     f.execute(other)
     assert launches["walk_kernel"] > 0
+
+
+def test_another_output_grid_keeps_the_walk(blob, launches):
+    f = make_filter()
+    f.execute(blob)
+    launches.clear()
+    f.SetOutputScale(0.5)
+    after = arrays(f, f.execute(blob))
+    assert not WALK & set(launches) and launches["transmittance_kernel"] > 0
+    fresh = make_filter()
+    fresh.SetOutputScale(0.5)
+    assert_same(after, arrays(fresh, fresh.execute(blob)))
