@@ -98,7 +98,12 @@ class ManyLightsFilter(IlluminationFilterBase):
     unit²); ``radiance`` of a VL in those units times world units². Cost: the walks,
     ``Count`` x 6 x ``AVSMResolution``² texel rays, and ``Count`` lookups per output
     point. The VLs of the last execution are kept in :attr:`state` (a
-    :class:`~vtkillum.core.many_lights.cache.ManyLightsState`).
+    :class:`~vtkillum.core.many_lights.cache.ManyLightsState`). The next execution walks
+    anew only when the walk depends on what changed: after an edit of the colours, the
+    albedo or a light's colour (``Anisotropy`` too with isotropic ``PhaseSampling``) the
+    VLs' powers are re-evaluated along the stored paths (eq. 6) and gathered again, the
+    transmittance is kept; with nothing changed nothing is launched
+    (``docs/many_lights.md``). :meth:`ClearCache` forgets the VLs.
     """
 
     def __init__(self) -> None:
