@@ -190,8 +190,20 @@ except Exception as err:  # noqa: BLE001 - reported to the test
     result["error"] = repr(err)
 with open(os.path.join(out, "gui.json"), "w") as f:
     json.dump(result, f)
-from paraview.qt import QtWidgets  # noqa: E402 - GUI only
-QtWidgets.QApplication.instance().quit()
+
+
+def close(caller, event):
+    # Once the event loop runs: close the main window as a window manager would, so
+    # ParaView exits through its normal shutdown (as gui_session.py does).
+    from vtkillum_paraview import x11
+
+    with x11.Display() as display:
+        display.request_close(display.find_window("ParaView"))
+
+
+interactor = GetActiveViewOrCreate("RenderView").GetRenderWindow().GetInteractor()
+interactor.AddObserver("TimerEvent", close)
+interactor.CreateOneShotTimer(500)
 '''
 
 
@@ -397,6 +409,7 @@ def test_gui_opens_a_nifti(files, tmp_path):
             break
     result_file = tmp_path / "gui.json"
     assert result_file.exists(), log[-4000:]
+    assert proc.returncode == 0, log[-4000:]
     result = json.loads(result_file.read_text())
     assert "error" not in result, result.get("error")
     assert result["can_read"] and result["reader"] == "vtkIllumMedicalImageReader"
