@@ -279,6 +279,7 @@ class _VolumeReader(VTKPythonAlgorithmBase):
         self._image = None  # (key, image, warnings) of the last read
         self._times: list[float] = []
         self._last_error: str | None = None
+        self._failed = False  # RequestInformation could not read the file
 
     # --- properties (ParaView calls these) ---------------------------------------------------
     def _set_file_name(self, name) -> None:
@@ -302,10 +303,15 @@ class _VolumeReader(VTKPythonAlgorithmBase):
             self._times = nifti_times(path)
             image, _ = self._read(path, 0)
         except Exception as err:  # noqa: BLE001 - shown as a message, see _report
+            # Reported once, here; an empty extent and success (not 0) keep VTK's executive
+            # from adding its own request dumps, and RequestData leaves the output empty.
             self._report(err)
+            self._failed = True
+            info.Set(SDDP.WHOLE_EXTENT(), (0, -1, 0, -1, 0, -1), 6)
             info.Remove(SDDP.TIME_STEPS())
             info.Remove(SDDP.TIME_RANGE())
-            return 0
+            return 1
+        self._failed = False
         info.Set(SDDP.WHOLE_EXTENT(), image.GetExtent(), 6)
         info.Set(vtkDataObject.ORIGIN(), image.GetOrigin(), 3)
         info.Set(vtkDataObject.SPACING(), image.GetSpacing(), 3)
@@ -323,6 +329,9 @@ class _VolumeReader(VTKPythonAlgorithmBase):
     def RequestData(self, request, inInfo, outInfo):
         info = outInfo.GetInformationObject(0)
         output = vtkImageData.GetData(info)
+        if self._failed:  # already reported by RequestInformation
+            output.Initialize()
+            return 1
         try:
             index = 0
             if self._times and info.Has(SDDP.UPDATE_TIME_STEP()):
@@ -334,7 +343,7 @@ class _VolumeReader(VTKPythonAlgorithmBase):
         except Exception as err:  # noqa: BLE001 - shown as a message, see _report
             output.Initialize()
             self._report(err)
-            return 0
+            return 1  # an empty output and the message only (see RequestInformation)
         output.ShallowCopy(image)
         if self._times:
             output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), self._times[index])
