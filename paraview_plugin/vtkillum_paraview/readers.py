@@ -30,6 +30,7 @@ included: ``paraview.detail.pythonalgorithm.get_plugin_xmls``).
 
 from __future__ import annotations
 
+import functools
 import re
 from pathlib import Path
 
@@ -238,28 +239,35 @@ def nifti_times(path) -> list[float]:
 def _nifti_time_step(path: Path, first, index: int):
     """Volume ``index`` of a 4-D NIfTI, on the grid of ``first`` (its volume 0 as
     ``read_volume`` read it: same geometry and ``scl_slope``/``scl_inter``)."""
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-    from vtkmodules.vtkIOImage import vtkNIFTIImageReader
-
     from vtkillum.core.volume import Volume
 
-    reader = vtkNIFTIImageReader()
-    reader.SetFileName(str(path))
-    reader.TimeAsVectorOn()  # volume t = components [t * v, (t + 1) * v) of each voxel
-    reader.Update()
-    image = reader.GetOutput()
-    count = int(reader.GetTimeDimension())
-    values = vtk_to_numpy(image.GetPointData().GetScalars())
-    per_time = values.shape[1] // count if values.ndim == 2 else 1
-    block = values.reshape(len(values), -1)[:, index * per_time:(index + 1) * per_time]
+    stat = path.stat()
+    values, per_time, slope, inter = _nifti_volumes(str(path), stat.st_mtime_ns, stat.st_size)
+    block = values[:, index * per_time:(index + 1) * per_time]
     block = np.linalg.norm(block.astype(np.float64), axis=1) if per_time > 1 else block[:, 0]
-    header = reader.GetNIFTIHeader()
-    slope, inter = header.GetSclSlope(), header.GetSclInter()
     scalars = block.astype(np.float32)
     if slope not in (0.0, 1.0) or inter != 0.0:  # as read_volume scales volume 0
         scalars = scalars * np.float32(slope if slope != 0.0 else 1.0) + np.float32(inter)
     scalars = scalars.reshape(first.dims, order="F")
     return Volume(scalars, first.spacing, first.origin, first.direction, nan_policy="fill")
+
+
+@functools.lru_cache(maxsize=1)
+def _nifti_volumes(path: str, mtime_ns: int, size: int):
+    """Every volume of a 4-D NIfTI, read once per file state (stepping through time
+    then costs no file reading): ``(values (points, T * v), v, scl_slope, scl_inter)``."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkIOImage import vtkNIFTIImageReader
+
+    reader = vtkNIFTIImageReader()
+    reader.SetFileName(path)
+    reader.TimeAsVectorOn()  # volume t = components [t * v, (t + 1) * v) of each voxel
+    reader.Update()
+    values = vtk_to_numpy(reader.GetOutput().GetPointData().GetScalars())
+    values = values.reshape(len(values), -1)
+    per_time = max(1, values.shape[1] // max(1, int(reader.GetTimeDimension())))
+    header = reader.GetNIFTIHeader()
+    return values, per_time, header.GetSclSlope(), header.GetSclInter()
 
 
 class _VolumeReader(VTKPythonAlgorithmBase):
@@ -339,7 +347,7 @@ class _VolumeReader(VTKPythonAlgorithmBase):
                 time = info.Get(SDDP.UPDATE_TIME_STEP())
                 index = max(0, int(np.searchsorted(self._times, time + 1e-9 * abs(time),
                                                    side="right")) - 1)
-            image, warnings = self._read(self._path(), index)
+            image, _ = self._read(self._path(), index)
         except Exception as err:  # noqa: BLE001 - shown as a message, see _report
             output.Initialize()
             self._report(err)
@@ -347,8 +355,6 @@ class _VolumeReader(VTKPythonAlgorithmBase):
         output.ShallowCopy(image)
         if self._times:
             output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), self._times[index])
-        for text in warnings:
-            vtkOutputWindow.GetInstance().DisplayWarningText(f"{self.label}: {text}\n")
         self._last_error = None
         return 1
 
@@ -366,9 +372,11 @@ class _VolumeReader(VTKPythonAlgorithmBase):
         except OSError:
             key = None  # read_volume says what is wrong
         if key is not None and self._image is not None and self._image[0] == key:
-            return self._image[1], []  # warnings were shown with the first read
+            return self._image[1], []  # its warnings were shown when it was read
         image, warnings = read_image(path, index)
         self._image = (key, image, warnings)
+        for text in warnings:  # once per read, whichever request read the file
+            vtkOutputWindow.GetInstance().DisplayWarningText(f"{self.label}: {text}\n")
         return image, warnings
 
     def _report(self, err: Exception) -> None:

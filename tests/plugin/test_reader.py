@@ -155,6 +155,12 @@ for name, relative in bad.items():
     except Exception as err:  # noqa: BLE001 - recorded for the test
         summary["bad"][name] = {"raised": repr(err)}
     sys.stderr.flush()
+# Files read with a warning: several components (their magnitude), NaN samples (filled).
+for name in ("rgb", "nan"):
+    sys.stderr.write(f"@@warn {name}\n")
+    sys.stderr.flush()
+    save(name, vtkIllumMedicalImageReader(FileName=f"{data}/{name}.mha"))
+    sys.stderr.flush()
 sys.stderr.write("@@end\n")
 
 Delete(view)
@@ -213,7 +219,7 @@ def files(tmp_path_factory):
     from test_readers import write_dicom_series
     from vtkmodules.vtkCommonDataModel import vtkImageData
     from vtkmodules.vtkCommonMath import vtkMatrix4x4
-    from vtkmodules.vtkIOImage import vtkNIFTIImageWriter
+    from vtkmodules.vtkIOImage import vtkMetaImageWriter, vtkNIFTIImageWriter
 
     from vtkillum.cli import write_volume
     from vtkillum.core.volume import Volume
@@ -257,6 +263,18 @@ def files(tmp_path_factory):
     writer.SetSFormMatrix(affine)
     writer.SetFileName(str(data / "t4.nii.gz"))
     writer.Write()
+    # Three components per voxel, and a NaN sample.
+    rgb = np.stack([values, 2 * values, values[::-1]], -1)
+    from vtkillum.io.convert import image_data_from_volume
+
+    for name, array in (("rgb", rgb), ("nan", np.where(values == 7, np.nan, values))):
+        image = image_data_from_volume(volume)
+        image.GetPointData().RemoveArray("scalars")
+        add_point_array(image, name, array.astype(np.float32), set_active=True)
+        writer = vtkMetaImageWriter()
+        writer.SetInputData(image)
+        writer.SetFileName(str(data / f"{name}.mha"))
+        writer.Write()
     # Bad files.
     (data / "garbage.nii.gz").write_bytes(b"this is not a NIfTI file\n" * 20)
     (data / "truncated.nrrd").write_bytes(header.encode() + b"\x1f\x8b\x08\x00cut")
@@ -368,6 +386,25 @@ def test_volume_is_drawn_where_the_oriented_grid_is(run):
     drawn = mask_box(out, "volume")
     assert np.abs(drawn - rotated).max() <= 3, (drawn, rotated)
     assert np.abs(drawn - unrotated).max() > 10, (drawn, unrotated)
+
+
+@pytest.mark.parametrize("name,options,what", [
+    ("rgb", {"component": "magnitude"}, "their magnitude (Euclidean norm) is read"),
+    ("nan", {"nan_policy": "fill"}, "NaN/Inf samples were replaced by the smallest finite"),
+])
+def test_components_and_nan_are_read_with_a_warning(run, name, options, what):
+    """What ParaView has no setting for is read as vtkillum would be told to, with one
+    warning naming the file."""
+    data, _, out, _, log = run
+    from vtkillum.io.readers import read_volume
+
+    want = read_volume(data / f"{name}.mha", **options)
+    got = load(out, name)
+    np.testing.assert_allclose(got["direction"], ROTATION, atol=1e-6)
+    np.testing.assert_allclose(got["scalars"], want.scalars.reshape(-1, order="F"), rtol=1e-6)
+    section = log.split(f"@@warn {name}\n", 1)[1].split("@@", 1)[0]
+    assert f"vtkIllum Medical Image Reader: {data / name}.mha: " in section, section
+    assert what in section and "Traceback" not in section, section
 
 
 @pytest.mark.parametrize("name,what", [
