@@ -106,7 +106,7 @@ for t, time in enumerate(times):
     save(f"t4_{t}", reader, time)
 
 # Illumination on the NIfTI: vtkIllum Light Transmittance runs and lights it.
-nifti = FindSource("ct.nii.gz") or OpenDataFile(f"{data}/ct.nii.gz")
+nifti = OpenDataFile(f"{data}/ct.nii.gz")
 lit = vtkIllumLightTransmittance(Input=nifti)
 lit.Lights = [0, 0, -1, -1, 1, 1, 1, 0]
 lit.UpdatePipeline()
@@ -165,7 +165,18 @@ for name in ("rgb", "nan"):
     sys.stderr.flush()
 sys.stderr.write("@@end\n")
 
-Delete(view)
+# A state file keeps the reader: saved, the session reset, loaded, it reads the file again.
+SaveState(f"{out}/state.pvsm")
+ResetSession()
+LoadState(f"{out}/state.pvsm")
+loaded = next((proxy for proxy in GetSources().values()
+               if proxy.GetXMLName() == "vtkIllumMedicalImageReader"
+               and str(proxy.FileName).endswith("ct.nii.gz")), None)
+summary["state"] = {"proxy": loaded.GetXMLName() if loaded else None}
+if loaded:
+    loaded.UpdatePipeline()
+    summary["state"]["points"] = loaded.GetDataInformation().GetNumberOfPoints()
+
 with open(f"{out}/summary.json", "w") as f:
     json.dump(summary, f)
 '''
@@ -191,7 +202,17 @@ try:
     result["points"] = reader.GetDataInformation().GetNumberOfPoints()
     result["bounds"] = list(reader.GetDataInformation().GetBounds())
     Show(reader)
+    SetActiveSource(reader)  # its Properties panel is built
     Render()
+    # The DICOM directory reader from Sources → vtkIllum: its panel (a directory chooser).
+    series = vtkIllumDICOMDirectoryReader(DirectoryName=f"{data}/series")
+    SetActiveSource(series)
+    series.UpdatePipeline()
+    result["series_points"] = series.GetDataInformation().GetNumberOfPoints()
+    definitions = session.GetProxyDefinitionManager()
+    hints = definitions.GetProxyDefinition("sources", "vtkIllumDICOMDirectoryReader"
+                                           ).FindNestedElementByName("Hints")
+    result["series_menu"] = hints.FindNestedElementByName("ShowInMenu").GetAttribute("category")
     # The reader is listed by the dialog's own code path: pqFileDialog takes its filter
     # list from pqLoadDataReaction / the reader factory (GetSupportedFileTypes).
 except Exception as err:  # noqa: BLE001 - reported to the test
@@ -339,6 +360,12 @@ def test_readers_are_offered_for_their_files(run):
     assert cases["dicom_dir"]["proxy"] == "vtkIllumDICOMDirectoryReader"
 
 
+def test_state_file_keeps_the_reader(run):
+    _, _, _, summary, _ = run
+    assert summary["state"] == {"proxy": "vtkIllumMedicalImageReader",
+                                "points": int(np.prod(SHAPE))}
+
+
 def test_4d_nifti_has_a_time_step_per_volume(run):
     data, _, out, summary, _ = run
     from vtkillum.io.readers import read_volume
@@ -458,3 +485,5 @@ def test_gui_opens_a_nifti(files, tmp_path):
     assert "*.nii.gz" in result["filters"]
     assert "Medical images, oriented (vtkIllum" in result["filters"]
     assert result["points"] == int(np.prod(SHAPE))
+    assert result["series_points"] == int(np.prod(SHAPE))
+    assert result["series_menu"] == "vtkIllum"
