@@ -62,6 +62,7 @@ Once either MTime moves on, older entries can never be hit and are dropped.
 
 from __future__ import annotations
 
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -91,6 +92,10 @@ from vtkillum.io.convert import (
     volume_from_image_data,
 )
 from vtkillum.io.illumination_arrays import add_lights_field
+
+#: One lock for every vtkillum filter: VTK's pipeline is not thread-safe (an executive keeps
+#: the request of the update in flight), and filters may share an upstream source.
+PIPELINE_LOCK = threading.RLock()
 
 #: Default memory budget of the per-time-step cache: a share of the memory available at
 #: import (:func:`~vtkillum.filters.time_cache.default_cache_mb`).
@@ -225,6 +230,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         self._pass_input_arrays = True
         self._cache = TimeStepCache(int(DEFAULT_CACHE_MB * 2**20))
         self._pending = None  # (key, cached output or None), from RequestUpdateExtent
+        self._steps_seen: dict = {}  # (requested time, upstream MTime) -> step computed
         self._notes_given: set = set()  # notes already given (_deliver, _check_series_fits)
         self._last_error: Exception | None = None
         self._interrupt: KeyboardInterrupt | None = None  # caught in RequestData, see module doc
@@ -254,16 +260,19 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
     def set_parameter(self, attribute: str, value) -> bool:
         """Set ``self.<attribute>`` and call ``Modified()`` only if the value changed.
 
-        Subclasses use it for their own properties. Returns whether it changed.
+        Subclasses use it for their own properties. Returns whether it changed. Waits for an
+        update in flight in another thread (:data:`PIPELINE_LOCK`): that update computes
+        with the old value, the next with the new one, never a mix.
         """
-        old = getattr(self, attribute)
-        same = (np.array_equal(np.asarray(old), np.asarray(value))
-                if isinstance(value, (tuple, list, np.ndarray)) else old == value)
-        if same and type(old) is type(value):
-            return False
-        setattr(self, attribute, value)
-        self.Modified()
-        return True
+        with PIPELINE_LOCK:
+            old = getattr(self, attribute)
+            same = (np.array_equal(np.asarray(old), np.asarray(value))
+                    if isinstance(value, (tuple, list, np.ndarray)) else old == value)
+            if same and type(old) is type(value):
+                return False
+            setattr(self, attribute, value)
+            self.Modified()
+            return True
 
     def SetColorTransferFunction(self, function) -> None:
         if function is not None and not isinstance(function, vtkColorTransferFunction):
@@ -286,8 +295,9 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         from vtkillum.io.convert import transfer_function_to_vtk
 
         color_tf, opacity_tf = transfer_function_to_vtk(tf)
-        self.SetColorTransferFunction(color_tf)
-        self.SetScalarOpacity(opacity_tf)
+        with PIPELINE_LOCK:  # both or neither, for an update in another thread
+            self.SetColorTransferFunction(color_tf)
+            self.SetScalarOpacity(opacity_tf)
 
     def SetScalarOpacityUnitDistance(self, u: float) -> None:
         u = float(u)
@@ -459,46 +469,54 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         time : float, optional
             Time to request (``UpdateTimeStep``).
         """
-        if data is not None:
-            self.SetInputData(data)
-        if self.GetNumberOfInputConnections(0) == 0:
-            raise ValueError(f"{type(self).__name__} has no input; pass data or connect one")
-        self._last_error = None
-        # Update()'s return value differs between VTK versions (void in 9.2): check the output.
-        # Both re-raise a KeyboardInterrupt caught in RequestData.
-        if time is None:
-            self.Update()
-        else:
-            self.UpdateTimeStep(float(time))
-        if self._last_error is not None:
-            raise self._last_error
-        output = self.GetOutputDataObject(0)
-        if output is None or output.GetNumberOfPoints() == 0:
-            raise RuntimeError(f"{type(self).__name__}: the pipeline update failed "
-                               "(see VTK errors)")
-        return output
+        with PIPELINE_LOCK:  # the update and the output it returns belong together
+            if data is not None:
+                self.SetInputData(data)
+            if self.GetNumberOfInputConnections(0) == 0:
+                raise ValueError(f"{type(self).__name__} has no input; pass data or connect "
+                                 "one")
+            self._last_error = None
+            # Update()'s return value differs between VTK versions (void in 9.2): check the
+            # output. Both re-raise a KeyboardInterrupt caught in RequestData.
+            if time is None:
+                self.Update()
+            else:
+                self.UpdateTimeStep(float(time))
+            if self._last_error is not None:
+                raise self._last_error
+            output = self.GetOutputDataObject(0)
+            if output is None or output.GetNumberOfPoints() == 0:
+                raise RuntimeError(f"{type(self).__name__}: the pipeline update failed "
+                                   "(see VTK errors)")
+            result = type(output)()  # a copy of its own: a later update does not change it
+            result.ShallowCopy(output)
+            result.GetInformation().Copy(output.GetInformation())
+            return result
 
     # === Ctrl-C through the pipeline (see the module docstring) ==================================
     def Update(self, *args):
         """``vtkAlgorithm.Update``; re-raises a ``KeyboardInterrupt`` caught in ``RequestData``."""
-        self._interrupt = None
-        result = super().Update(*args)
-        self._reraise_interrupt()
-        return result
+        with PIPELINE_LOCK:
+            self._interrupt = None
+            result = super().Update(*args)
+            self._reraise_interrupt()
+            return result
 
     def UpdateTimeStep(self, *args):
         """``vtkAlgorithm.UpdateTimeStep``; re-raises a caught ``KeyboardInterrupt``."""
-        self._interrupt = None
-        result = super().UpdateTimeStep(*args)
-        self._reraise_interrupt()
-        return result
+        with PIPELINE_LOCK:
+            self._interrupt = None
+            result = super().UpdateTimeStep(*args)
+            self._reraise_interrupt()
+            return result
 
     def UpdateWholeExtent(self, *args):
         """``vtkAlgorithm.UpdateWholeExtent``; re-raises a caught ``KeyboardInterrupt``."""
-        self._interrupt = None
-        result = super().UpdateWholeExtent(*args)
-        self._reraise_interrupt()
-        return result
+        with PIPELINE_LOCK:
+            self._interrupt = None
+            result = super().UpdateWholeExtent(*args)
+            self._reraise_interrupt()
+            return result
 
     def _reraise_interrupt(self) -> None:
         interrupt, self._interrupt = self._interrupt, None
@@ -567,12 +585,12 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         try:
             self._last_error = None
             if cached is None:
-                image = inInfo[0].GetInformationObject(0).Get(vtkDataObject.DATA_OBJECT())
+                in_info = inInfo[0].GetInformationObject(0)
+                image = in_info.Get(vtkDataObject.DATA_OBJECT())
+                requested = self._checked_time(image, in_info, out_info)
                 cached = self._execute(image, out_info)
                 if key is not None:
-                    nbytes = cached.GetActualMemorySize() * 1024
-                    self._cache.store(key, cached, nbytes)
-                    self._check_series_fits(inInfo[0].GetInformationObject(0), nbytes)
+                    self._store(key, requested, cached, in_info)
             self._deliver(output, cached, out_info)
             info = cached.GetInformation()
             if info.Has(vtkDataObject.DATA_TIME_STEP()):
@@ -622,6 +640,54 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         if message not in self._notes_given:  # once per piece layout, not per update
             self._notes_given.add(message)
             vtkOutputWindow.GetInstance().DisplayText(message + "\n")
+
+    def _checked_time(self, image, in_info, out_info):
+        """The time requested of this update (None: not a time series); raises when the input
+        delivered another of its own time steps than the one requested.
+
+        A request between two steps gets the step the input delivers (a reader's own rule;
+        VTK's readers take the step at or before it), and the output's ``DATA_TIME_STEP``
+        says which. A request for one of the input's steps must get exactly that step:
+        anything else means the step is missing or unreadable, or another thread updated
+        the same input, and the illumination of another step must not be passed off (or
+        cached) as this one's.
+        """
+        if not (out_info.Has(SDDP.UPDATE_TIME_STEP()) and out_info.Has(SDDP.TIME_RANGE())):
+            return None
+        requested = out_info.Get(SDDP.UPDATE_TIME_STEP())
+        info = image.GetInformation() if image is not None else None
+        if info is None or not info.Has(vtkDataObject.DATA_TIME_STEP()):
+            return requested
+        delivered = info.Get(vtkDataObject.DATA_TIME_STEP())
+        steps = in_info.Get(SDDP.TIME_STEPS()) if in_info.Has(SDDP.TIME_STEPS()) else ()
+        scale = max([abs(v) for v in steps] + [abs(requested), 1.0])
+        tolerance = 1e-12 * scale
+        if abs(delivered - requested) > tolerance and \
+                any(abs(step - requested) <= tolerance for step in steps):
+            shown = ", ".join(f"{step:g}" for step in steps[:12]) + \
+                (f", ... ({len(steps)} steps)" if len(steps) > 12 else "")
+            raise ValueError(
+                f"time {requested:g} was requested, one of the input's time steps ({shown}), "
+                f"but the input delivered time {delivered:g}: that step is missing or could "
+                "not be read (or another thread updated the same input; update vtkillum "
+                "filters from one thread at a time, or through execute()/Update(), which "
+                "hold vtkillum.filters.base.PIPELINE_LOCK)")
+        return requested
+
+    def _store(self, key, requested, output, in_info) -> None:
+        """Cache ``output`` under the time it was computed for (its ``DATA_TIME_STEP``), never
+        the time requested, and only if no parameter changed while it was computed."""
+        if self.GetMTime() != key[2]:  # edited meanwhile (another thread): not this key's
+            return
+        info = output.GetInformation()
+        computed = info.Get(vtkDataObject.DATA_TIME_STEP()) \
+            if key[0] is not None and info.Has(vtkDataObject.DATA_TIME_STEP()) else key[0]
+        if requested is not None and computed != requested:
+            self._steps_seen = {k: v for k, v in self._steps_seen.items() if k[1] == key[1]}
+            self._steps_seen[(requested, key[1])] = computed
+        nbytes = output.GetActualMemorySize() * 1024
+        self._cache.store((computed, key[1], key[2]), output, nbytes)
+        self._check_series_fits(in_info, nbytes)
 
     def _check_series_fits(self, in_info, nbytes: int) -> None:
         """Say once (per series length, output size and budget) when the time cache cannot
@@ -754,6 +820,9 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         time = out_info.Get(SDDP.UPDATE_TIME_STEP()) if temporal else None
         upstream = self.GetInputAlgorithm(0, 0).GetExecutive().GetPipelineMTime() \
             if self.GetNumberOfInputConnections(0) else 0
+        # Entries are keyed by the step computed: a request between steps looks up the step
+        # the input delivered for it before (_store), else it misses.
+        time = self._steps_seen.get((time, upstream), time)
         return (time, upstream, self.GetMTime())
 
     @staticmethod
@@ -785,6 +854,10 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         removed when the function is replaced, or at the function's first edit after
         the filter is gone.
         """
+        with PIPELINE_LOCK:
+            self._observe_locked(attribute, function)
+
+    def _observe_locked(self, attribute: str, function) -> None:
         old = getattr(self, attribute)
         if old is function:
             return
