@@ -343,7 +343,7 @@ class _VolumeReader(VTKPythonAlgorithmBase):
         try:
             index = 0
             if self._times and info.Has(SDDP.UPDATE_TIME_STEP()):
-                # The volume whose time is nearest the requested one (at or before it).
+                # The last volume at or before the requested time (ParaView's convention).
                 time = info.Get(SDDP.UPDATE_TIME_STEP())
                 index = max(0, int(np.searchsorted(self._times, time + 1e-9 * abs(time),
                                                    side="right")) - 1)
