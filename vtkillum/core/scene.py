@@ -18,12 +18,19 @@ Fields (unknown ones are an error, missing ones take the defaults below)::
     shading                Phong terms of the illumination-volume shading (Zhang & Ma eq. 24):
                            {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0, "shininess": 32}
     <method sections>      per-method options, see ``METHOD_OPTIONS``
+
+Scene files are parsed by :func:`parse_json`, which bounds what plain ``json`` does not:
+nesting (:data:`MAX_JSON_DEPTH` levels), integers (:data:`MAX_INTEGER_DIGITS` digits),
+number literals (:data:`MAX_NUMBER_CHARS` characters) and refuses ``NaN``/``Infinity`` and
+numbers beyond the float range, each in one message naming the line and column. A file is
+read once (:func:`read_scene_data`), so a pipe such as ``/dev/stdin`` works.
 """
 
 from __future__ import annotations
 
 import copy
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -81,8 +88,9 @@ METHOD_OPTIONS: dict[str, dict] = {
 SHADING_DEFAULTS = {"ambient": 1.0, "diffuse": 0.0, "specular": 0.0, "shininess": 32.0}
 
 
-def _integer(lo: int):
-    return lambda v: float(v).is_integer() and v >= lo
+def _integer(lo: int, hi: int = 2**63 - 1):
+    # Bounded above too: the kernels take 64-bit integers at most.
+    return lambda v: float(v).is_integer() and lo <= v <= hi
 
 
 def _number(lo: float, hi: float = np.inf, lo_open: bool = False, hi_open: bool = False):
@@ -126,23 +134,170 @@ NUMERIC_LIGHT_FIELDS = {"direction", "irradiance", "position", "intensity", "rad
 
 def _real(value) -> bool:
     """A finite real number (not a bool, not a string)."""
-    return (isinstance(value, (int, float, np.integer, np.floating))
-            and not isinstance(value, (bool, np.bool_)) and bool(np.isfinite(value)))
+    if isinstance(value, (bool, np.bool_)):
+        return False
+    if isinstance(value, (int, np.integer)):
+        return True  # (np.isfinite refuses Python integers beyond 64 bits)
+    return isinstance(value, (float, np.floating)) and bool(np.isfinite(value))
 
 
-def _check_numbers(value, where: str, shape=None) -> None:
+def _check_numbers(value, where: str, depth: int = 0) -> None:
     """Refuse anything but (nested lists of) numbers: strings such as "0.5" included."""
     items = value if isinstance(value, (list, tuple)) else [value]
     for item in items:
         if isinstance(item, (list, tuple)):
-            _check_numbers(item, where)
+            if depth >= 2:  # vectors and lists of vectors at most: no deep recursion
+                raise ValueError(f"{where} must hold numbers (or lists of numbers), got lists "
+                                 f"nested deeper: {_short(value)}")
+            _check_numbers(item, where, depth + 1)
         elif not _real(item):
             raise ValueError(f"{where} must hold finite numbers, got {_short(value)}")
 
 
+#: Characters of a user-supplied value that an error message shows at most.
+MAX_SHOWN = 300
+
+
 def _short(value, limit: int = 80) -> str:
+    """``repr(value)``, cut to ``limit`` characters (the length said when cut)."""
     text = repr(value)
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+    if len(text) <= limit:
+        return text
+    return f"{text[: limit - 30]}... ({len(text)} characters)"
+
+
+def _names(keys) -> str:
+    """Field names for a message: each cut to 60 characters, at most ten of them."""
+    keys = sorted(str(k) for k in keys)
+    shown = [_short(k, 60) for k in keys[:10]]
+    more = f", ... ({len(keys) - 10} more)" if len(keys) > 10 else ""
+    return f"[{', '.join(shown)}{more}]"
+
+
+def shorten_message(text: str, limit: int = MAX_SHOWN) -> str:
+    """``text`` with every run of more than ``limit`` non-blank characters cut.
+
+    A safety net for messages that quote what the user typed (a 100 kB key, a number of
+    5000 digits): the head and tail of the run stay, the middle says how long it was.
+    The whole message is also kept under ``4 * limit`` characters.
+    """
+    def cut(match):
+        run = match.group()
+        return f"{run[: limit // 2]}...({len(run)} characters)...{run[-limit // 6:]}"
+
+    text = re.sub(rf"\S{{{limit + 1},}}", cut, text)
+    if len(text) > 4 * limit:
+        text = f"{text[: 3 * limit]} ...({len(text)} characters)... {text[-limit // 2:]}"
+    return text
+
+
+# --- bounded JSON -------------------------------------------------------------------------------
+#: Deepest nesting of arrays and objects accepted: a scene needs four levels; the bound
+#: keeps every parser and check far from Python's recursion limit.
+MAX_JSON_DEPTH = 64
+#: Longest integer accepted, in digits (Python refuses to convert more than 4300 and
+#: no field needs more than a 64-bit seed).
+MAX_INTEGER_DIGITS = 30
+#: Longest number literal of any kind accepted, in characters.
+MAX_NUMBER_CHARS = 100
+
+#: What the scan of :func:`parse_json` looks at: strings (skipped, also unterminated
+#: ones), brackets, the non-standard constants and number literals.
+_JSON_TOKENS = re.compile(r'"(?:[^"\\]|\\.)*"?|[\[{\]}]|-?Infinity|NaN|-?[0-9][0-9.eE+\-]*')
+
+
+class JSONLimitError(ValueError):
+    """Valid JSON (to Python) beyond what vtkillum accepts: too deep, a number too long or
+    not finite. Raised before any conversion, naming the place."""
+
+
+def parse_json(text: str, what: str = "JSON"):
+    """``json.loads(text)`` with bounds on nesting and numbers, finite numbers only.
+
+    Parameters
+    ----------
+    text : str
+        The JSON text.
+    what : str
+        What the text is, for messages (a file name, ``--option step_size``).
+
+    Raises
+    ------
+    JSONLimitError
+        Nesting deeper than :data:`MAX_JSON_DEPTH`, an integer longer than
+        :data:`MAX_INTEGER_DIGITS` digits, a number literal longer than
+        :data:`MAX_NUMBER_CHARS`, ``NaN``/``Infinity`` or a number beyond the float range;
+        the message names the line and column and shows at most a short part of the value.
+    json.JSONDecodeError
+        Not JSON.
+    """
+    depth = 0
+    for match in _JSON_TOKENS.finditer(text):
+        token = match.group()
+        first = token[0]
+        if first == '"':
+            continue
+        if first in "[{":
+            depth += 1
+            if depth > MAX_JSON_DEPTH:
+                raise JSONLimitError(
+                    f"{what}: arrays/objects nested more than {MAX_JSON_DEPTH} levels deep "
+                    f"({_position(text, match.start())}); a scene needs only a few levels")
+        elif first in "]}":
+            depth = max(depth - 1, 0)
+        elif token.lstrip("-") in ("NaN", "Infinity"):
+            raise JSONLimitError(f"{what}: {token} ({_position(text, match.start())}) is not a "
+                                 "number vtkillum accepts; give finite numbers")
+        else:
+            _check_number_literal(token, what, text, match.start())
+    return json.loads(text, parse_int=_parse_int, parse_float=_parse_float,
+                      parse_constant=_parse_constant)
+
+
+def _position(text: str, index: int) -> str:
+    line = text.count("\n", 0, index) + 1
+    column = index - text.rfind("\n", 0, index)
+    return f"line {line}, column {column}"
+
+
+def _check_number_literal(token: str, what: str, text: str, index: int) -> None:
+    digits = sum(c.isdigit() for c in token)
+    integer = not any(c in token for c in ".eE")
+    shown = token if len(token) <= 40 else f"{token[:20]}...{token[-10:]}"
+    if integer and digits > MAX_INTEGER_DIGITS:
+        raise JSONLimitError(f"{what}: an integer of {digits} digits ({shown}, "
+                             f"{_position(text, index)}); integers may have at most "
+                             f"{MAX_INTEGER_DIGITS} digits")
+    if len(token) > MAX_NUMBER_CHARS:
+        raise JSONLimitError(f"{what}: a number of {len(token)} characters ({shown}, "
+                             f"{_position(text, index)}); numbers may have at most "
+                             f"{MAX_NUMBER_CHARS}")
+    try:
+        value = float(token)
+    except ValueError:
+        return  # not a number after all: json.loads reports it
+    if not np.isfinite(value):
+        raise JSONLimitError(f"{what}: {shown} ({_position(text, index)}) is beyond the range "
+                             "of floating-point numbers (about 1.8e308)")
+
+
+# Backstops of the scan (json.loads calls them for every number and constant).
+def _parse_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_INTEGER_DIGITS:
+        raise JSONLimitError(f"an integer of {len(text.lstrip('-'))} digits; integers may have "
+                             f"at most {MAX_INTEGER_DIGITS} digits")
+    return int(text)
+
+
+def _parse_float(text: str) -> float:
+    value = float(text)
+    if not np.isfinite(value):
+        raise JSONLimitError(f"{text[:40]} is beyond the range of floating-point numbers")
+    return value
+
+
+def _parse_constant(text: str):
+    raise JSONLimitError(f"{text} is not a number vtkillum accepts; give finite numbers")
 
 TOP_LEVEL = {"transfer_function", "opacity_unit_distance", "albedo", "anisotropy", "lights",
              "camera", "background", "step_size", "shading"} | set(METHOD_OPTIONS)
@@ -174,8 +329,11 @@ class Scene:
         self.albedo, self.anisotropy = float(self.albedo), float(self.anisotropy)
         if self.opacity_unit_distance is not None:
             self.opacity_unit_distance = check_unit_distance(self.opacity_unit_distance)
-        if self.step_size is not None and not (np.isfinite(self.step_size) and self.step_size > 0):
-            raise ValueError(f"step_size must be positive, got {self.step_size}")
+        if self.step_size is not None:
+            step = float(self.step_size)  # (np.isfinite refuses Python integers beyond 64 bits)
+            if not (np.isfinite(step) and step > 0):
+                raise ValueError(f"step_size must be positive, got {_short(self.step_size)}")
+            self.step_size = step
         if np.asarray(self.background).dtype.kind not in "iuf":
             raise ValueError(f"background must be three non-negative numbers, got "
                              f"{_short(self.background)}")
@@ -189,7 +347,8 @@ class Scene:
         merged = copy.deepcopy(METHOD_OPTIONS)
         for name, opts in (self.options or {}).items():
             if name not in METHOD_OPTIONS:
-                raise ValueError(f"unknown method section {name!r}; known: {sorted(METHOD_OPTIONS)}")
+                raise ValueError(f"unknown method section {_short(name, 60)}; known: "
+                                 f"{sorted(METHOD_OPTIONS)}")
             merged[name] = _merge(name, METHOD_OPTIONS[name], opts)
         self.options = merged
         if self.optics is not None:
@@ -244,7 +403,8 @@ class Scene:
             raise ValueError("a scene must be a JSON object")
         unknown = set(d) - TOP_LEVEL
         if unknown:
-            raise ValueError(f"unknown scene field(s) {sorted(unknown)}; known: {sorted(TOP_LEVEL)}")
+            raise ValueError(f"unknown scene field(s) {_names(unknown)}; known: "
+                             f"{sorted(TOP_LEVEL)}")
         kw = {}
         if "transfer_function" in d:
             from vtkillum.core.refraction.optics import split_transfer_function
@@ -270,7 +430,7 @@ class Scene:
         for key in ("opacity_unit_distance", "albedo", "anisotropy", "step_size"):
             if key in d:
                 if not isinstance(d[key], (int, float)) or isinstance(d[key], bool):
-                    raise ValueError(f"{key} must be a number, got {d[key]!r}")
+                    raise ValueError(f"{key} must be a number, got {_short(d[key])}")
                 kw[key] = d[key]
         if "background" in d:
             kw["background"] = d["background"]
@@ -288,32 +448,37 @@ def _merge(section: str, defaults: dict, given) -> dict:
         raise ValueError(f"{section} must be an object")
     unknown = set(given) - set(defaults)
     if unknown:
-        raise ValueError(f"{section}: unknown field(s) {sorted(unknown)}; known: {sorted(defaults)}")
+        raise ValueError(f"{section}: unknown field(s) {_names(unknown)}; known: "
+                         f"{sorted(defaults)}")
     out = dict(defaults)
     for key, value in given.items():
         ref = defaults[key]
         if isinstance(ref, bool):
             ok = isinstance(value, bool)
         elif isinstance(ref, (int, float)):
-            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
+            ok = _real(value) and isinstance(value, (int, float))
         elif isinstance(ref, list):
             ok = isinstance(value, list) and len(value) == len(ref)
         else:
             ok = isinstance(value, type(ref))
         if not ok:
-            raise ValueError(f"{section}.{key}: expected a value like {ref!r}, got {value!r}")
+            raise ValueError(f"{section}.{key}: expected a value like {ref!r}, got "
+                             f"{_short(value)}")
+        if isinstance(ref, list) and not all(_real(v) for v in value if not isinstance(v, str)):
+            raise ValueError(f"{section}.{key} must hold finite numbers, got {_short(value)}")
         check = OPTION_CHECKS.get((section, key))
         if check is not None and not check[0](value):
-            raise ValueError(f"{section}.{key} must be {check[1]}, got {value!r}")
+            raise ValueError(f"{section}.{key} must be {check[1]}, got {_short(value)}")
         out[key] = value
     return out
 
 
-def load_scene(path) -> Scene:
-    """Read and validate a scene file; errors name the file and the field."""
+def read_scene_data(path):
+    """The JSON value of the scene file ``path``, read once (pipes such as ``/dev/stdin``
+    work) and parsed with :func:`parse_json`; errors name the file."""
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise FileNotFoundError(f"scene file {path} does not exist") from None
     except IsADirectoryError:
@@ -322,12 +487,27 @@ def load_scene(path) -> Scene:
         raise ValueError(f"{path}: not a JSON scene file (binary data: byte "
                          f"0x{err.object[err.start]:02x} at position {err.start} is not UTF-8 "
                          "text)") from None
+    try:
+        return parse_json(text, str(path))
+    except JSONLimitError:
+        raise
     except json.JSONDecodeError as err:
         raise ValueError(f"{path}: not valid JSON ({err})") from err
+
+
+def scene_from_data(data, path=None) -> Scene:
+    """:meth:`Scene.from_dict` of a scene file's JSON value; errors name ``path`` and are
+    cut to a readable length (:func:`shorten_message`)."""
     try:
         return Scene.from_dict(data)
     except ValueError as err:
-        raise ValueError(f"{path}: {err}") from err
+        where = f"{path}: " if path is not None else ""
+        raise ValueError(shorten_message(f"{where}{err}")) from err
+
+
+def load_scene(path) -> Scene:
+    """Read and validate a scene file; errors name the file and the field."""
+    return scene_from_data(read_scene_data(path), path)
 
 
 def scene_json(scene: Scene) -> str:

@@ -55,8 +55,8 @@ class TransferFunction:
                 f"transfer_function.opacity: {a.size} values for {s.size} control points; "
                 "give one opacity per scalar control point"
             )
-        if not (np.all(np.isfinite(s)) and np.all(np.isfinite(a))):
-            raise ValueError("transfer_function: control points and opacities must be finite")
+        _check_finite(s, "scalars")
+        _check_finite(a, "opacity")
         with np.errstate(over="ignore"):  # points at ±1e308: the gap overflows, still > 0
             increasing = np.all(np.diff(s) > 0)
         if not increasing:
@@ -74,7 +74,8 @@ class TransferFunction:
                 raise ValueError(
                     f"transfer_function.colors: expected {s.size} RGB triples, got shape {c.shape}"
                 )
-            if not np.all(np.isfinite(c)) or np.any(c < 0) or np.any(c > 1):
+            _check_finite(c, "colors")
+            if np.any(c < 0) or np.any(c > 1):
                 raise ValueError("transfer_function.colors: RGB values must lie in [0, 1]")
         self.scalars, self.opacity, self.colors = s, a, c
 
@@ -236,9 +237,17 @@ def _interp(x, xp, fp):
 
 
 def _check_numeric(values, name: str) -> None:
-    """Refuse strings, booleans and other non-numbers (numpy would turn "0.5" into 0.5)."""
+    """Refuse strings, booleans and other non-numbers (numpy would turn "0.5" into 0.5), and
+    masked arrays with masked values (``np.asarray`` would keep whatever lies under the
+    mask: a transfer function needs every value)."""
     if values is None:
         return
+    masked = int(np.count_nonzero(np.ma.getmaskarray(values))) if np.ma.isMaskedArray(values) \
+        else 0
+    if masked:
+        raise ValueError(f"transfer_function.{name} is a masked array with {masked} masked "
+                         "value(s): a transfer function needs a value at every control point; "
+                         "fill them (array.filled(value)) or leave those control points out")
     try:
         kind = np.asarray(values).dtype.kind
     except ValueError:  # ragged nested lists
@@ -249,8 +258,25 @@ def _check_numeric(values, name: str) -> None:
         raise ValueError(f"transfer_function.{name} must hold numbers, got {text}")
 
 
+def _check_finite(values: np.ndarray, name: str) -> None:
+    """Refuse NaN and infinities, naming the first control point that holds one."""
+    bad = ~np.isfinite(values)
+    if bad.any():
+        index = int(np.argwhere(bad)[0][0])
+        value = values.reshape(values.shape[0], -1)[index]
+        value = value[~np.isfinite(value)][0]
+        raise ValueError(f"transfer_function.{name}: {value} at control point {index} "
+                         f"({int(bad.reshape(bad.shape[0], -1).any(1).sum())} control point(s) "
+                         "hold NaN or infinity); every value must be a finite number")
+
+
 def check_unit_distance(u: float) -> float:
     """Validate the opacity unit distance (positive and finite)."""
-    if not (np.isfinite(u) and u > 0):
-        raise ValueError(f"opacity_unit_distance must be positive and finite, got {u}")
-    return float(u)
+    try:
+        value = float(u)  # (np.isfinite refuses Python integers beyond 64 bits)
+    except (TypeError, ValueError, OverflowError):
+        value = float("nan")
+    if not (np.isfinite(value) and value > 0):
+        text = repr(u) if len(repr(u)) <= 80 else repr(u)[:50] + "..."
+        raise ValueError(f"opacity_unit_distance must be positive and finite, got {text}")
+    return value

@@ -64,6 +64,9 @@ class Volume(GridGeometry):
     nan_policy : {"raise", "fill"}
         What to do with NaN/Inf samples: raise, or replace them with the smallest
         finite value (they then render like the most transparent data).
+        The masked samples of a numpy masked array count as NaN: with ``"fill"`` they
+        render like the smallest value (transparent under the usual transfer functions
+        that start at opacity 0); with ``"raise"`` the error says how many are masked.
 
     Notes
     -----
@@ -85,6 +88,12 @@ class Volume(GridGeometry):
         s = source = np.asarray(self.scalars)
         if s.dtype.kind == "c" or s.dtype.kind not in "biuf":
             raise ValueError(f"volume scalars must be real numbers, got dtype {s.dtype}")
+        # np.asarray drops a mask and keeps whatever lies under it: masked samples are NaN.
+        mask = np.ma.getmaskarray(self.scalars) if np.ma.isMaskedArray(self.scalars) else None
+        masked = int(np.count_nonzero(mask)) if mask is not None else 0
+        if masked:
+            s = s.astype(np.float32)  # a copy: the caller's data stay as they are
+            s[mask] = np.nan
         if s.ndim == 4 and s.shape[-1] == 1:
             s = s[..., 0]
         if s.ndim != 3:
@@ -106,6 +115,13 @@ class Volume(GridGeometry):
                     raise ValueError("volume scalars: every sample is NaN or Inf")
                 s = np.where(finite, s, s[finite].min()).astype(np.float32)
             elif self.nan_policy == "raise":
+                if masked:
+                    raise ValueError(
+                        f"volume scalars: {masked} sample(s) are masked (a numpy masked array; "
+                        f"{bad} NaN/Inf in all, masked ones counted as NaN); pass "
+                        "nan_policy='fill' to render them like the smallest value (transparent "
+                        "under transfer functions that start at opacity 0), or fill them "
+                        "yourself (array.filled(value))")
                 raise ValueError(
                     f"volume scalars: {bad} sample(s) are NaN or Inf; clean them "
                     "(np.nan_to_num) or pass nan_policy='fill' to replace them with the minimum"

@@ -321,7 +321,9 @@ def add_point_array(image, name: str, array, set_active: bool = False):
     name : str
         Array name (replaces an existing array of that name).
     array : ndarray (nx, ny, nz) or (nx, ny, nz, c)
-        Must match the image's dimensions. Copied; booleans become uint8.
+        Must match the image's dimensions. Copied; booleans become uint8. The masked
+        values of a numpy masked array become NaN (a float array), which
+        :func:`volume_from_image_data` and the filters treat by their NaN policy.
     set_active : bool
         Make it the active scalars.
 
@@ -330,6 +332,12 @@ def add_point_array(image, name: str, array, set_active: bool = False):
     vtkDataArray
         The array added.
     """
+    if np.ma.isMaskedArray(array) and np.ma.getmask(array) is not np.ma.nomask:
+        # VTK arrays have no mask: masked values become NaN (np.asarray would keep what lies
+        # under the mask), which the filters' NaN policy then handles.
+        masked = np.ma.asarray(array)
+        dtype = np.float64 if masked.dtype.itemsize > 4 else np.float32
+        array = masked.astype(dtype).filled(np.nan)
     a = np.asarray(array)
     dims = tuple(int(n) for n in image.GetDimensions())
     if a.ndim not in (3, 4) or a.shape[:3] != dims:
@@ -409,6 +417,10 @@ def transfer_function_from_vtk(color_tf, opacity_tf) -> TransferFunction:
 
     o_nodes = [_node(opacity_tf, i, 4) for i in range(opacity_tf.GetSize())]
     c_nodes = [_node(color_tf, i, 6) for i in range(color_tf.GetSize())] if has_color else []
+    check_finite_nodes(o_nodes, "the scalar opacity function (vtkPiecewiseFunction)",
+                       ("x", "opacity", "midpoint", "sharpness"))
+    check_finite_nodes(c_nodes, "the colour transfer function (vtkColorTransferFunction)",
+                       ("x", "red", "green", "blue", "midpoint", "sharpness"))
     xs = {n[0] for n in o_nodes} | {n[0] for n in c_nodes}
     # Intervals where VTK's interpolation is not piecewise linear get extra samples.
     curved = _curved_intervals(o_nodes, mid_index=2)
@@ -425,6 +437,13 @@ def transfer_function_from_vtk(color_tf, opacity_tf) -> TransferFunction:
     xs = xs[np.concatenate([[True], np.diff(xs) > 0])]
 
     table = np.array([evaluate(x) for x in xs])
+    bad = ~np.all(np.isfinite(table), axis=1)
+    if bad.any():  # finite nodes, yet VTK evaluates NaN (e.g. a log scale over values <= 0)
+        x = float(xs[np.argmax(bad)])
+        raise ValueError(f"VTK evaluates the transfer functions to NaN or infinity at x = {x:g} "
+                         f"(opacity, RGB: {table[np.argmax(bad)].tolist()}); transfer "
+                         "functions need finite values (a logarithmic colour scale needs "
+                         "positive values)")
     return TransferFunction(xs, np.clip(table[:, 0], 0.0, 1.0), np.clip(table[:, 1:], 0.0, 1.0))
 
 
@@ -437,6 +456,19 @@ def _refine(evaluate, a: float, b: float, fa, fb, depth: int) -> list:
         return []
     return (_refine(evaluate, a, m, fa, fm, depth - 1) + [m]
             + _refine(evaluate, m, b, fm, fb, depth - 1))
+
+
+def check_finite_nodes(nodes, what: str, fields) -> None:
+    """Refuse a VTK function whose nodes hold NaN or infinity, naming the first such node.
+
+    VTK takes them silently and then evaluates NaN between the nodes; the volume would
+    render transparent or not at all, with no hint why.
+    """
+    for index, node in enumerate(nodes):
+        if not np.all(np.isfinite(node)):
+            values = ", ".join(f"{name} = {value:g}" for name, value in zip(fields, node))
+            raise ValueError(f"{what} has NaN or infinity at node {index} ({values}); transfer "
+                             "functions need finite values")
 
 
 def _node(function, index: int, size: int) -> list:

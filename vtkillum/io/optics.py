@@ -25,6 +25,7 @@ from vtkmodules.vtkCommonDataModel import vtkPiecewiseFunction
 from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
 
 from vtkillum.core.refraction.optics import RefractiveOptics
+from vtkillum.io.convert import _node, check_finite_nodes
 
 #: Samples per interval where VTK's interpolation is not piecewise linear.
 DENSE_SAMPLES = 32
@@ -45,6 +46,10 @@ def optics_from_vtk(refractive_index=None, medium_color=None) -> RefractiveOptic
         if not isinstance(refractive_index, vtkPiecewiseFunction):
             raise TypeError("refractive_index must be a vtkPiecewiseFunction")
         if refractive_index.GetSize() > 0:
+            check_finite_nodes([_node(refractive_index, i, 4)
+                                for i in range(refractive_index.GetSize())],
+                               "the refractive index function (vtkPiecewiseFunction)",
+                               ("x", "refractive index", "midpoint", "sharpness"))
             xs = _nodes(refractive_index, 4)
             kw["eta_scalars"] = xs
             kw["eta"] = [refractive_index.GetValue(x) for x in xs]
@@ -52,6 +57,9 @@ def optics_from_vtk(refractive_index=None, medium_color=None) -> RefractiveOptic
         if not isinstance(medium_color, vtkColorTransferFunction):
             raise TypeError("medium_color must be a vtkColorTransferFunction")
         if medium_color.GetSize() > 0:
+            check_finite_nodes([_node(medium_color, i, 6) for i in range(medium_color.GetSize())],
+                               "the medium colour function (vtkColorTransferFunction)",
+                               ("x", "red", "green", "blue", "midpoint", "sharpness"))
             xs = _nodes(medium_color, 6, nonlinear=medium_color.GetColorSpace() != 0
                         or medium_color.GetScale() != 0)
             rgb = []
