@@ -9,7 +9,7 @@ the filter's Properties panel on the left. Usage, from the project's environment
     python tests/plugin/make_gui_screenshot.py --version   # docs/images/pv_gui_5.11.png
 
 ``--version`` runs only the CT part of the session (about a minute, no menu clicks) and
-names the picture after the ParaView that ``paraview --version`` reports: the pictures of
+names the picture after the ParaView that ``pvpython --version`` reports: the pictures of
 ``docs/images/pv_gui_<major>.<minor>.png`` come from the host's ParaView 5.11 and from
 ``.ci/paraview-chroot.sh forky|trixie --run python tests/plugin/make_gui_screenshot.py
 --version`` (6.1, 5.13), then copied out of the chroot's checkout.
@@ -32,12 +32,13 @@ IMAGES = HERE.parents[1] / "docs" / "images"
 
 
 def paraview_version() -> str:
-    """``major.minor`` of the ``paraview`` on PATH (``paraview --version``)."""
-    text = subprocess.run(["paraview", "--version"], capture_output=True, text=True,
+    """``major.minor`` of the ParaView on PATH (``pvpython --version``: the GUI's own
+    ``--version`` needs an X server)."""
+    text = subprocess.run(["pvpython", "--version"], capture_output=True, text=True,
                           timeout=120).stdout
     match = re.search(r"version (\d+)\.(\d+)", text)
     if match is None:
-        raise RuntimeError(f"paraview --version said {text!r}")
+        raise RuntimeError(f"pvpython --version said {text!r}")
     return f"{match[1]}.{match[2]}"
 
 
