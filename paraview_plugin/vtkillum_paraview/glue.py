@@ -54,6 +54,9 @@ DEFAULT_EXPOSURE = 4.0 * math.pi
 
 #: Filter attributes that change only the picture, not the illumination.
 RENDER_ONLY = frozenset({"_exposure", "_gamma", "_rgba_type", "_output_rgba"})
+#: Attributes holding the optical model, which enters the memo key only as far as the
+#: method depends on it (``relevant_model`` of the library filter).
+_MODEL = frozenset({"_tf_key", "_tf_seen", "_albedo", "_anisotropy"})
 
 _VTK_MAGNITUDE, _VTK_COMPONENT = 0, 1
 
@@ -100,6 +103,9 @@ class ParaViewGlue:
     #: Attributes ``compute`` sets besides its arrays, restored when the remembered
     #: illumination is reused (see :meth:`compute`).
     memo_attributes: tuple = ()
+    #: The glue keeps its own memo of the last illumination (:meth:`compute`), which also
+    #: restores :attr:`memo_attributes`; the library filters' shared memo is not used.
+    reuses_results = False
 
     def __init__(self) -> None:
         super().__init__()
@@ -319,13 +325,13 @@ class ParaViewGlue:
     def _memo_key(self, volume, params, shape) -> tuple:
         image = self.GetInputDataObject(0, 0)
         own = tuple(sorted((k, _plain(v)) for k, v in vars(self).items()
-                           if k not in RENDER_ONLY and _plain(v) is not None))
-        tf = params.transfer_function
+                           if k not in RENDER_ONLY and k not in _MODEL
+                           and _plain(v) is not None))
+        # Only what the method's illumination depends on (a colour-map edit does not
+        # recompute Light Transmittance's shadows: its baked RGBA and the render view take
+        # the colours afterwards).
         return (id(image), image.GetMTime() if image is not None else 0, volume.dims, shape,
-                np.asarray(tf.scalars).tobytes(), np.asarray(tf.opacity).tobytes(),
-                np.asarray(tf.colors).tobytes(), params.unit_distance, params.albedo,
-                params.anisotropy, tuple(str(light.to_dict()) for light in params.lights),
-                params.device, own)
+                self.relevant_model(params), own)
 
     def _finish_output(self, output, name) -> None:
         pd = output.GetPointData()

@@ -33,6 +33,12 @@ class Recorder(IlluminationFilterBase):
         }
 
 
+def opacity_point():
+    otf = vtkPiecewiseFunction()
+    otf.AddPoint(0.0, 0.5)
+    return otf
+
+
 def whole_extent(alg):
     alg.UpdateInformation()
     return tuple(alg.GetOutputInformation(0).Get(SDDP.WHOLE_EXTENT()))
@@ -137,6 +143,8 @@ def test_setters_modify_only_on_change():
         lambda: f.SetOutputScale(1.0), lambda: f.SetOutputDimensions(0, 0, 0),
         lambda: f.SetInputComponent(None), lambda: f.SetNaNPolicy("raise"),
         lambda: f.SetPassInputArrays(True), lambda: f.SetScalarOpacity(otf),
+        # another function with the same content: nothing to recompute
+        lambda: f.SetScalarOpacity(vtkPiecewiseFunction()),
         lambda: f.SetLight(1, "point", (1, 2, 3), (4, 5, 6)),
         lambda: f.SetLights(f.GetLights()), lambda: f.SetCacheSizeMB(100),
     ]
@@ -145,7 +153,7 @@ def test_setters_modify_only_on_change():
         lambda: f.SetScalarOpacityUnitDistance(2.0), lambda: f.SetDevice("cpu"),
         lambda: f.SetOutputScale(0.5), lambda: f.SetOutputDimensions(4, 4, 4),
         lambda: f.SetInputComponent(-1), lambda: f.SetNaNPolicy("fill"),
-        lambda: f.SetPassInputArrays(False), lambda: f.SetScalarOpacity(vtkPiecewiseFunction()),
+        lambda: f.SetPassInputArrays(False), lambda: f.SetScalarOpacity(opacity_point()),
         lambda: f.SetLight(1, "point", (1, 2, 3), (4, 5, 7)),
         lambda: f.SetLight(0, "point", (1, 2, 3), (4, 5, 7)),
         lambda: f.AddDirectionalLight((0, 0, 1)), lambda: f.RemoveLight(0),

@@ -97,11 +97,22 @@ from vtkillum.io.illumination_arrays import add_lights_field
 #: the request of the update in flight), and filters may share an upstream source.
 PIPELINE_LOCK = threading.RLock()
 
+#: Attributes that are not settings of the computation (left out of the results key).
+_NOT_SETTINGS = frozenset({"_albedo", "_anisotropy", "_unit_distance", "_device",
+                           "_nan_policy", "_input_component", "_last_error", "_interrupt",
+                           "_pending", "_pass_input_arrays", "_tf_seen"})
+
 #: Default memory budget of the per-time-step cache: a share of the memory available at
 #: import (:func:`~vtkillum.filters.time_cache.default_cache_mb`).
 DEFAULT_CACHE_MB = default_cache_mb()
 
 DEVICES = ("auto", "cpu", "cuda")
+
+#: Arrays computed by filters that reuse results (:attr:`IlluminationFilterBase.reuses_results`):
+#: a transfer-function edit that does not change what a method depends on (a colour edit for
+#: the transmittance), or the same settings again from a new filter (each pyvista accessor
+#: call makes one), costs a lookup instead of a computation.
+_RESULTS = TimeStepCache(int(DEFAULT_CACHE_MB * 2**20))
 
 
 @dataclass
@@ -209,6 +220,16 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
     #: Whether :meth:`compute` runs warp kernels; if not, ``Device`` is not resolved (no warp
     #: import, no error for an absent GPU) and ``params.device`` is ``"cpu"``.
     uses_device = True
+    #: What of the optical model, besides the opacity, its unit distance and the lights, the
+    #: arrays of :meth:`compute` depend on: ``"color"`` (the colour transfer function),
+    #: ``"albedo"``, ``"anisotropy"``. An edit of anything else does not recompute where
+    #: results are reused (:attr:`reuses_results`, the ParaView plugin's memo).
+    illumination_depends_on = frozenset({"color", "albedo", "anisotropy"})
+    #: Whether the arrays computed for the same input data (object and MTime) and the same
+    #: relevant settings may be reused, by any filter of the class in this process (a
+    #: memo bounded like the time cache): for deterministic filters that keep no state of
+    #: their own between executions.
+    reuses_results = False
 
     def __init__(self) -> None:
         # vtkDataObject as input type so that any other input reaches RequestInformation
@@ -218,6 +239,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         self._color_tf = None
         self._opacity_tf = None
         self._tf_links: dict = {}  # attribute -> (function, observer tag)
+        self._tf_seen = (None, None)  # content of the transfer functions last executed with
         self._unit_distance = 0.0
         self._albedo = 0.9
         self._anisotropy = 0.0
@@ -729,7 +751,14 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             device=self._resolved_device(), output_shape=shape,
             progress=lambda fraction: self.UpdateProgress(float(np.clip(fraction, 0.0, 1.0))),
         )
-        arrays = self.compute(volume, params)
+        memo_key = self._results_key(image, name, association, component, params) \
+            if self.reuses_results else None
+        arrays = _RESULTS.lookup(memo_key) if memo_key is not None else None
+        if arrays is None:
+            arrays = self.compute(volume, params)
+            if memo_key is not None and isinstance(arrays, dict):
+                _RESULTS.store(memo_key, dict(arrays),
+                               sum(np.asarray(v).nbytes for v in arrays.values()))
         if not isinstance(arrays, dict) or not arrays:
             raise TypeError(f"{type(self).__name__}.compute must return a non-empty dict of arrays")
 
@@ -754,6 +783,32 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         if time is not None:
             output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), time)
         return output
+
+    def relevant_model(self, params) -> tuple:
+        """What of ``params`` the illumination depends on (:attr:`illumination_depends_on`):
+        the opacity always, the colours, albedo and anisotropy only where they matter."""
+        tf = params.transfer_function
+        needs = self.illumination_depends_on
+        if "color" in needs:
+            shape = (np.asarray(tf.scalars).tobytes(), np.asarray(tf.opacity).tobytes(),
+                     np.asarray(tf.colors).tobytes())
+        else:  # the opacity curve alone (colour control points add points on its lines)
+            shape = _curve(tf.scalars, tf.opacity)
+        return (shape,
+                float(params.unit_distance),
+                float(params.albedo) if "albedo" in needs else None,
+                float(params.anisotropy) if "anisotropy" in needs else None,
+                tuple(str(light.to_dict()) for light in params.lights), params.device,
+                tuple(params.output_shape))
+
+    def _results_key(self, image, name, association, component, params) -> tuple:
+        """The memo key of an execution: the class, the input (object, data MTime, the array
+        and how it is read), the relevant model and every plain setting of the filter."""
+        own = tuple(sorted((k, v) for k, v in vars(self).items()
+                           if k.startswith("_") and k not in _NOT_SETTINGS
+                           and isinstance(v, (bool, int, float, str, tuple))))
+        return (type(self), image.GetAddressAsString("vtkObject"), image.GetMTime(), name,
+                association, component, self._nan_policy, self.relevant_model(params), own)
 
     def _resolved_device(self) -> str:
         if not self.uses_device:
@@ -873,13 +928,21 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             def modified(caller, event, ref=ref, tag=tag):
                 target = ref.Get()
                 if target is not None:
-                    target.Modified()
+                    target._transfer_function_edited()
                 elif tag:
                     caller.RemoveObserver(tag.pop())
 
             tag.append(function.AddObserver("ModifiedEvent", modified))
             self._tf_links[attribute] = (function, tag[0])
-        self.Modified()
+        self._transfer_function_edited()
+
+    def _transfer_function_edited(self) -> None:
+        """Re-execute when the content of a transfer function changed, not on every Modified
+        (VTK fires it also for edits that set what is already there)."""
+        seen = (_signature(self._color_tf), _signature(self._opacity_tf))
+        if seen != self._tf_seen:
+            self._tf_seen = seen
+            self.Modified()
 
     def _report(self, err: Exception) -> None:
         """Record ``err`` and show it the VTK way (ErrorEvent observers or the output window)."""
@@ -892,6 +955,38 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             self.InvokeEvent("ErrorEvent", message)
         else:
             vtkOutputWindow.GetInstance().DisplayErrorText(message + "\n")
+
+
+def _curve(x, y) -> tuple:
+    """A piecewise-linear curve through ``(x, y)`` without the points that lie on the line
+    between their neighbours (so the same curve has one key however it is sampled)."""
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    keep = [0]
+    for i in range(1, len(x) - 1):
+        a = keep[-1]
+        t = (x[i] - x[a]) / (x[i + 1] - x[a]) if x[i + 1] != x[a] else 0.0
+        if abs(y[a] + t * (y[i + 1] - y[a]) - y[i]) > 1e-12 * (1.0 + abs(y[i])):
+            keep.append(i)
+    if len(x) > 1:
+        keep.append(len(x) - 1)
+    return (x[keep].tobytes(), y[keep].tobytes())
+
+
+def _signature(function) -> tuple | None:
+    """The content of a VTK colour or opacity transfer function (None for none)."""
+    if function is None:
+        return None
+    width = 6 if isinstance(function, vtkColorTransferFunction) else 4
+    nodes = []
+    for i in range(function.GetSize()):
+        node = [0.0] * width
+        function.GetNodeValue(i, node)
+        nodes.append(tuple(node))
+    extra = ()
+    if width == 6:
+        extra = (function.GetColorSpace(), function.GetScale(), function.GetClamping())
+    return (tuple(nodes), extra, function.GetClamping() if width == 4 else None)
 
 
 def piece_extents(whole, piece: int, pieces: int, ghost_levels: int = 0) -> tuple:

@@ -51,6 +51,10 @@ class LightTransmittanceFilter(IlluminationFilterBase):
     point, each about (box size / StepSize) samples.
     """
 
+    # Only the opacity shadows: a colour, albedo or anisotropy edit reuses the arrays.
+    illumination_depends_on = frozenset()
+    reuses_results = True
+
     def __init__(self) -> None:
         super().__init__()
         self._step_size = 0.0
