@@ -17,14 +17,23 @@ medical formats) and one key light from the upper front-left. PNG output is expo
 automatically unless ``--exposure`` gives a factor.
 
 User mistakes (missing files, bad scene fields, unknown methods or datasets, an output
-that cannot be written, an image too large for the memory) print one line
-``vtkillum: error: ...`` and exit with status 2; ``--debug`` shows the traceback.
+that cannot be written, an image too large for the memory, a full disk) print one line
+``vtkillum: error: ...`` and exit with status 2; ``--debug`` shows the traceback. A
+message quotes at most a few hundred characters of what was typed.
 
 The output is checked before rendering (a writable directory, no directory or dangling
 link in the way of the picture or of the ``.alpha.npy`` file next to it) and written
-to temporary files in the same directory that are renamed into place once all of them
-are complete, so an interrupted or failed run never leaves a half-written file or a
-radiance file paired with an old alpha file.
+under its final names in a hidden directory next to it, renamed into place once all
+files are complete (:mod:`vtkillum.io.writers`): an interrupted or failed run (Ctrl-C,
+SIGTERM, SIGHUP, a full disk) never leaves a half-written file, a hidden temporary or a
+radiance file paired with an old alpha file, and an exported ``ct.mhd`` names its final
+``ct.raw``.
+
+Signals: Ctrl-C (SIGINT) exits with status 130. During a ``path`` render SIGINT, SIGTERM
+(what ``timeout`` and batch schedulers send) and SIGHUP stop after the pass under way and
+write the image of the samples taken so far (exit status 130, 143, 129); a second one
+stops at once. While files are written SIGTERM and SIGHUP remove the partial files and
+exit with 143 / 129, the old output kept.
 """
 
 from __future__ import annotations
@@ -33,13 +42,23 @@ import argparse
 import inspect
 import json
 import os
-import stat
+import signal
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from vtkillum.io.writers import (  # noqa: F401  (write_atomically, write_volume: public here too)
+    TERMINATING_SIGNALS,
+    VOLUME_FORMATS,
+    Terminated,
+    signals_held,
+    volume_files,
+    write_atomically,
+    write_volume,
+)
 
 # Headless VTK for the readers (no window is opened, but VTK may probe for one).
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
@@ -76,7 +95,11 @@ LONG_RENDER_SECONDS = 10.0
 PROGRESS_INTERVAL = 5.0
 
 #: Output formats of ``export``.
-EXPORT_FORMATS = (".vti", ".nii", ".nii.gz", ".mha", ".mhd")
+EXPORT_FORMATS = VOLUME_FORMATS
+
+#: Longest integer accepted on the command line, in digits (Python refuses to convert
+#: more than 4300, with a message about its own limits).
+MAX_INTEGER_DIGITS = 30
 
 OUTPUT_HELP = """\
 output formats (by extension):
@@ -112,7 +135,7 @@ def main(argv=None) -> int:
     try:
         args = parser.parse_args(argv)
     except UserError as err:
-        print(f"vtkillum: error: {err}", file=sys.stderr)
+        print(f"vtkillum: error: {_one_line(err)}", file=sys.stderr)
         return 2
     except SystemExit as exit_:  # --help, --version
         return int(exit_.code or 0)
@@ -136,6 +159,9 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("vtkillum: interrupted", file=sys.stderr)
         return 130
+    except Terminated as stop:  # SIGTERM/SIGHUP while writing: partial files removed
+        _report(f"vtkillum: terminated ({stop.name}); nothing more was written")
+        return stop.code
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -230,7 +256,7 @@ def _add_render_options(parser, methods, default_method: str, default_size) -> N
                         metavar="METHOD",
                         help=f"rendering method, one of: {', '.join(methods)} "
                              f"(default {default_method})")
-    parser.add_argument("--size", nargs=2, type=int, metavar=("W", "H"),
+    parser.add_argument("--size", nargs=2, type=_integer, metavar=("W", "H"),
                         default=list(default_size),
                         help="image width and height in pixels (default "
                              f"{default_size[0]} {default_size[1]})")
@@ -238,7 +264,7 @@ def _add_render_options(parser, methods, default_method: str, default_size) -> N
                         help="warp device: cpu, cuda, cuda:N (default: CUDA when present; the "
                              "VTKILLUM_DEVICE environment variable overrides; 'vtkillum info' "
                              "lists them)")
-    parser.add_argument("--spp", type=int, help="samples per pixel (methods that take them, "
+    parser.add_argument("--spp", type=_integer, help="samples per pixel (methods that take them, "
                                                 "e.g. path); default from the scene file")
     parser.add_argument("--exposure", default="auto",
                         help="PNG exposure: 'auto' (default: the 99.5th percentile of the "
@@ -305,11 +331,12 @@ def run_render(args) -> int:
     elapsed = time.perf_counter() - start
     written = write_result(outputs[0], result, scene.background, exposure)
     if interrupted is not None:
-        done, wanted = interrupted
-        print(f"vtkillum: interrupted: wrote {', '.join(str(p) for p in written)} with {done} "
-              f"of {wanted} samples per pixel ({width}x{height}, {elapsed:.1f} s)",
-              file=sys.stderr)
-        return 130
+        done, wanted, signum = interrupted
+        how = ("interrupted" if signum == signal.SIGINT
+               else f"terminated ({signal.Signals(signum).name})")
+        _report(f"vtkillum: {how}: wrote {', '.join(str(p) for p in written)} with {done} of "
+                f"{wanted} samples per pixel ({width}x{height}, {elapsed:.1f} s)")
+        return 128 + signum
     if not args.quiet:
         print(f"wrote {', '.join(str(p) for p in written)} ({width}x{height}, {args.method}, "
               f"{result.info.get('device', device)}, {elapsed:.1f} s)")
@@ -322,13 +349,17 @@ def render_path_with_estimate(volume, scene, width, height, device, progress=Non
     """The ``path`` method, pass by pass, for the command line.
 
     The first pass (one sample per pixel) is timed; when it predicts more than
-    :data:`LONG_RENDER_SECONDS` the estimate is printed (unless ``quiet``). Ctrl-C (SIGINT)
-    stops after the pass under way: the image of the passes done is returned.
+    :data:`LONG_RENDER_SECONDS` the estimate is printed (unless ``quiet``). Ctrl-C (SIGINT),
+    SIGTERM (what ``timeout`` and batch schedulers send) and SIGHUP stop after the pass
+    under way: the image of the passes done is returned. A second one stops at once
+    (``KeyboardInterrupt``, or :class:`~vtkillum.io.writers.Terminated`). SIGTERM and SIGHUP
+    are taken over only where they have their default action (``nohup`` keeps SIGHUP
+    ignored).
 
-    Returns ``(result, interrupted)``: ``interrupted`` is ``None``, or ``(done, spp)``
-    samples per pixel when Ctrl-C stopped the render.
+    Returns ``(result, interrupted)``: ``interrupted`` is ``None``, or ``(done, spp,
+    signum)``: the samples per pixel taken and asked for, and the signal that stopped the
+    render.
     """
-    import signal
     import threading
 
     from vtkillum.core.pathtrace import PathTracer
@@ -344,15 +375,20 @@ def render_path_with_estimate(volume, scene, width, height, device, progress=Non
                         seed=defaults["seed"] if seed is None else seed,
                         max_bounces=defaults["max_bounces"] if max_bounces is None
                         else max_bounces)
-    stop = {"requested": False}
-    previous = None
+    stop = {"signal": None}
+    previous = {}
     if threading.current_thread() is threading.main_thread():
         def request_stop(signum, frame):
-            if stop["requested"]:  # a second Ctrl-C: stop at once
-                raise KeyboardInterrupt
-            stop["requested"] = True
+            if stop["signal"] is not None:  # a second signal: stop at once
+                if signum == signal.SIGINT:
+                    raise KeyboardInterrupt
+                raise Terminated(signum)
+            stop["signal"] = signum
 
-        previous = signal.signal(signal.SIGINT, request_stop)
+        previous[signal.SIGINT] = signal.signal(signal.SIGINT, request_stop)
+        for signum in TERMINATING_SIGNALS:
+            if signal.getsignal(signum) is signal.SIG_DFL:
+                previous[signum] = signal.signal(signum, request_stop)
     try:
         start = time.perf_counter()
         tracer.run(1)
@@ -364,15 +400,17 @@ def render_path_with_estimate(volume, scene, width, height, device, progress=Non
                   "stops and writes the image so far", file=stream or sys.stderr, flush=True)
         if progress is not None:
             progress(1 / spp, f"1/{spp} spp")
-        while tracer.passes < spp and not stop["requested"]:
+        while tracer.passes < spp and stop["signal"] is None:
             tracer.run(1)
             if progress is not None:
                 progress(tracer.passes / spp, f"{tracer.passes}/{spp} spp")
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
     result = tracer.result()
-    return result, ((tracer.passes, spp) if tracer.passes < spp else None)
+    if tracer.passes < spp:
+        return result, (tracer.passes, spp, stop["signal"] or signal.SIGINT)
+    return result, None
 
 
 def run_scene(args) -> int:
@@ -390,9 +428,11 @@ def run_scene(args) -> int:
 def run_export(args) -> int:
     output = Path(args.output)
     if not output.name.lower().endswith(EXPORT_FORMATS):
-        raise UserError(f"output {args.output!r}: the extension must be one of "
+        raise UserError(f"output {_short(args.output)}: the extension must be one of "
                         f"{', '.join(EXPORT_FORMATS)}")
-    _check_target(output, f"output {args.output!r}")
+    for target in volume_files(output):  # .mhd: its data file name.raw too
+        role = "" if target == output else f"data file {str(target)!r} of "
+        _check_target(target, f"{role}output {args.output!r}")
     volume, frame = load_input_volume(args.input, args.array, args.component)
     write_volume(volume, output, frame)
     print(f"wrote {output} ({'x'.join(map(str, volume.dims))} points, spacing "
@@ -445,33 +485,26 @@ def load_input(spec, scene_path=None, array=None, component=None, aspect: float 
     foreground at ``aspect`` (width / height), one key light.
     """
     from vtkillum.core.defaults import default_scene
-    from vtkillum.core.scene import load_scene
+    from vtkillum.core.scene import read_scene_data, scene_from_data
     from vtkillum.data.builtin import builtin_scene, is_builtin, load_builtin
 
+    # The scene file is read once, before the volume (a pipe such as /dev/stdin can be
+    # read only once); its fields say which defaults to fill in.
+    data = read_scene_data(scene_path) if scene_path else None
+    scene = scene_from_data(data, scene_path) if scene_path else None
     if is_builtin(spec):
         if array is not None or component is not None:
             raise UserError("--array and --component apply to files, not built-in datasets")
         volume = load_builtin(spec)
-        scene = load_scene(scene_path) if scene_path else builtin_scene(spec, volume)
-        return volume, scene
+        return volume, scene if scene is not None else builtin_scene(spec, volume)
     from vtkillum.io.readers import read_volume
 
     volume = read_volume(spec, array=array, component=_parse_component(component))
-    scene = load_scene(scene_path) if scene_path else None
     fill = {"transfer_function", "camera", "lights"}
     if scene_path:
-        given = _scene_fields(scene_path)
-        fill = {f for f in fill if f not in given}
+        fill -= set(data)
     scene = default_scene(volume, anatomical_frame(spec), base=scene, fill=fill, aspect=aspect)
     return volume, scene
-
-
-def _scene_fields(path) -> set:
-    try:
-        data = json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return set()
-    return set(data) if isinstance(data, dict) else set()
 
 
 def anatomical_frame(path) -> str | None:
@@ -518,85 +551,6 @@ def load_input_volume(spec, array=None, component=None):
 
     volume = read_volume(spec, array=array, component=_parse_component(component))
     return volume, anatomical_frame(spec)
-
-
-#: RAS <-> LPS: negate x and y.
-_FLIP_XY = np.diag([-1.0, -1.0, 1.0])
-
-
-def write_volume(volume, path, frame: str | None = "LPS") -> Path:
-    """Write ``volume`` as .vti, .nii/.nii.gz or .mha/.mhd (by extension), atomically.
-
-    ``frame`` is the anatomical frame of ``volume``'s world coordinates (``"RAS"`` for
-    the built-in datasets, ``"LPS"`` for what the medical readers return, ``None``:
-    none). NIfTI and MetaImage files are written in their conventions (NIfTI: RAS in
-    the s- and q-form; MetaImage: LPS), so that :func:`vtkillum.io.readers.read_volume`
-    reads back the same voxels at the same anatomical places (in LPS); ``None`` is
-    written as if LPS, which keeps the coordinates unchanged on reading back. .vti
-    keeps the world coordinates as they are.
-    """
-    from vtkillum.io.convert import image_data_from_volume
-
-    path = Path(path)
-    name = path.name.lower()
-    image = image_data_from_volume(volume, "scalars")
-    direction = np.asarray(volume.direction, dtype=np.float64)
-    origin = np.asarray(volume.origin, dtype=np.float64)
-    if frame is not None and str(frame).upper() == "RAS" and not name.endswith(".vti"):
-        direction, origin = _FLIP_XY @ direction, _FLIP_XY @ origin  # to LPS
-    if name.endswith(".vti"):
-        from vtkmodules.vtkIOXML import vtkXMLImageDataWriter
-
-        writer = vtkXMLImageDataWriter()
-        writer.SetDataModeToAppended()
-        writer.SetCompressorTypeToZLib()
-    elif name.endswith((".mha", ".mhd")):
-        from vtkmodules.vtkIOImage import vtkMetaImageWriter
-
-        image.SetOrigin(*origin)
-        image.SetDirectionMatrix(*direction.ravel())
-        writer = vtkMetaImageWriter()
-        writer.SetCompression(name.endswith(".mha"))
-        if name.endswith(".mhd"):  # the raw data go next to the header
-            raw = path.with_suffix(".raw")
-            writer.SetRAWFileName(str(raw))
-    elif name.endswith((".nii", ".nii.gz")):
-        from vtkmodules.vtkCommonMath import vtkMatrix4x4
-        from vtkmodules.vtkIOImage import vtkNIFTIImageWriter
-
-        # The NIfTI writer takes the grid without placement plus the RAS affine.
-        image.SetOrigin(0.0, 0.0, 0.0)
-        image.SetDirectionMatrix(1, 0, 0, 0, 1, 0, 0, 0, 1)
-        affine = np.eye(4)
-        affine[:3, :3] = _FLIP_XY @ direction
-        affine[:3, 3] = _FLIP_XY @ origin
-        matrix = vtkMatrix4x4()
-        for r in range(4):
-            for c in range(4):
-                matrix.SetElement(r, c, affine[r, c])
-        writer = vtkNIFTIImageWriter()
-        writer.SetSFormMatrix(matrix)
-        if np.linalg.det(affine[:3, :3]) > 0:
-            writer.SetQFormMatrix(matrix)
-    else:
-        raise UserError(f"output {str(path)!r}: the extension must be one of "
-                        f"{', '.join(EXPORT_FORMATS)}")
-    writer.SetInputData(image)
-    # VTK writers take a file name: write next to the target and rename into place.
-    suffix = "".join(path.suffixes[-2:]) if name.endswith(".nii.gz") else path.suffix
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
-    os.close(fd)
-    try:
-        writer.SetFileName(tmp)
-        writer.Write()
-        if writer.GetErrorCode() or os.path.getsize(tmp) == 0:
-            raise OSError(f"{path}: {writer.GetClassName()} could not write the file")
-        os.chmod(tmp, _file_mode(path))
-        os.replace(tmp, path)
-    finally:
-        if os.path.lexists(tmp):
-            os.unlink(tmp)
-    return path
 
 
 def explicit_scene(scene, volume):
@@ -703,48 +657,12 @@ def _check_target(target: Path, what: str) -> None:
     if not parent.is_dir():
         raise UserError(f"{what}: {parent} is not a directory")
     try:  # the real test: can a file be created there (read-only file systems, ACLs)?
-        with tempfile.NamedTemporaryFile(dir=parent, prefix=f".{real.name}.", suffix=".tmp"):
-            pass
+        with signals_held():  # made and removed at once: a signal cannot leave it behind
+            with tempfile.NamedTemporaryFile(dir=parent, prefix=f".{real.name}.", suffix=".tmp"):
+                pass
     except OSError as err:
         raise UserError(f"{what}: cannot write to the directory {parent} "
                         f"({err.strerror or err})") from None
-
-
-def write_atomically(jobs) -> list[Path]:
-    """Write files all-or-nothing: ``jobs`` is a list of ``(path, write(binary_file))``.
-
-    Each file is written to a temporary file in its own directory; only when every one is
-    complete are they renamed into place (``os.replace``), so a failure or Ctrl-C while
-    writing leaves the old files untouched. A symbolic link is written through (its
-    target is replaced), like ``cp``. New files get the usual permissions (0666 less the
-    umask); a replaced file keeps its own. Returns the paths as given.
-    """
-    staged = []
-    try:
-        for path, write in jobs:
-            final = Path(os.path.realpath(path)) if Path(path).is_symlink() else Path(path)
-            fd, tmp = tempfile.mkstemp(dir=final.parent, prefix=f".{final.name}.",
-                                       suffix=".tmp")
-            staged.append((tmp, final))
-            with os.fdopen(fd, "wb") as f:
-                write(f)
-            os.chmod(tmp, _file_mode(final))
-        for tmp, final in staged:
-            os.replace(tmp, final)
-    finally:
-        for tmp, _ in staged:
-            if os.path.lexists(tmp):
-                os.unlink(tmp)
-    return [Path(path) for path, _ in jobs]
-
-
-def _file_mode(path: Path) -> int:
-    try:
-        return stat.S_IMODE(os.stat(path).st_mode)
-    except OSError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
 
 
 def check_memory(method: str, width: int, height: int, device: str, volume=None) -> None:
@@ -798,26 +716,54 @@ def _parse_exposure(text: str):
     return value
 
 
+def _integer(text: str) -> int:
+    """An integer argument of at most :data:`MAX_INTEGER_DIGITS` digits (argparse type)."""
+    digits = str(text).strip().lstrip("+-")
+    if len(digits) > MAX_INTEGER_DIGITS and digits.isdigit():
+        raise argparse.ArgumentTypeError(
+            f"an integer of {len(digits)} digits ({digits[:20]}...{digits[-10:]}); at most "
+            f"{MAX_INTEGER_DIGITS} digits")
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not an integer: {_short(text)}") from None
+
+
 def _parse_component(text):
     if text is None or text == "magnitude":
         return text
     try:
-        return int(text)
-    except ValueError:
-        raise UserError(f"--component must be an index or 'magnitude', got {text!r}") from None
+        return _integer(text)
+    except argparse.ArgumentTypeError:
+        raise UserError(f"--component must be an index or 'magnitude', got "
+                        f"{_short(text)}") from None
 
 
 def _parse_options(items) -> dict:
+    """``--option KEY=VALUE`` items: VALUE as JSON (bounded as scene files are: nesting,
+    integer digits, finite numbers), else as a bare string such as a name."""
+    from vtkillum.core.scene import JSONLimitError, parse_json
+
     options = {}
     for item in items:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            raise UserError(f"--option {item!r}: expected KEY=VALUE, e.g. step_size=0.5")
+            raise UserError(f"--option {_short(item)}: expected KEY=VALUE, e.g. step_size=0.5")
+        key = key.strip()
         try:
-            options[key.strip()] = json.loads(value)
+            options[key] = parse_json(value, f"--option {_short(key, 60)}")
+        except JSONLimitError as err:
+            raise UserError(str(err)) from None
         except json.JSONDecodeError:
-            options[key.strip()] = value  # a bare string such as a name
+            options[key] = value  # a bare string such as a name
     return options
+
+
+def _short(value, limit: int = 80) -> str:
+    """``repr`` of a user-supplied value, cut to ``limit`` characters."""
+    from vtkillum.core.scene import _short as short
+
+    return short(str(value) if isinstance(value, Path) else value, limit)
 
 
 class _progress_bar:
@@ -910,8 +856,20 @@ def _builtin_names() -> str:
 
 
 def _one_line(err: BaseException) -> str:
+    """The message of ``err`` on one line, long runs of what was typed cut (a 100 kB key,
+    a number of 5000 digits: :func:`vtkillum.core.scene.shorten_message`)."""
+    from vtkillum.core.scene import shorten_message
+
     text = str(err).strip() or type(err).__name__
-    return " ".join(text.split())
+    return shorten_message(" ".join(text.split()))
+
+
+def _report(line: str) -> None:
+    """A last line on stderr, which may be gone (SIGHUP: the terminal closed)."""
+    try:
+        print(line, file=sys.stderr, flush=True)
+    except (OSError, ValueError):
+        pass
 
 
 def _quiet_libraries() -> None:

@@ -107,13 +107,13 @@ OPTION_CHECKS = {
     ("shading", "diffuse"): (_number(0.0), "a non-negative number"),
     ("shading", "specular"): (_number(0.0), "a non-negative number"),
     ("shading", "shininess"): (_number(0.0, lo_open=True), "a positive number"),
-    ("path", "spp"): (_integer(1), "a positive integer"),
-    ("path", "max_bounces"): (_integer(0), "a non-negative integer (0: unlimited)"),
-    ("path", "seed"): (_integer(-(2**63)), "an integer"),
+    ("path", "spp"): (_integer(1), "a positive integer below 2**63"),
+    ("path", "max_bounces"): (_integer(0), "a non-negative integer below 2**63 (0: unlimited)"),
+    ("path", "seed"): (_integer(-(2**63)), "an integer in [-2**63, 2**63)"),
     ("convection_diffusion", "scattering"): (
         lambda v: all(_real(x) and x >= 0 for x in v), "three non-negative numbers"),
     ("convection_diffusion", "iterations"): (
-        _integer(0), "a non-negative integer (0: solve to convergence)"),
+        _integer(0), "a non-negative integer below 2**63 (0: solve to convergence)"),
     ("convection_diffusion", "tolerance"): (
         _number(0.0, 1.0, lo_open=True, hi_open=True), "a number in (0, 1)"),
     ("convection_diffusion", "source_radius"): (
@@ -242,7 +242,7 @@ def parse_json(text: str, what: str = "JSON"):
             if depth > MAX_JSON_DEPTH:
                 raise JSONLimitError(
                     f"{what}: arrays/objects nested more than {MAX_JSON_DEPTH} levels deep "
-                    f"({_position(text, match.start())}); a scene needs only a few levels")
+                    f"({_position(text, match.start())}); scenes and options need only a few")
         elif first in "]}":
             depth = max(depth - 1, 0)
         elif token.lstrip("-") in ("NaN", "Infinity"):
