@@ -32,7 +32,16 @@ The rendered array is ``scalars=`` (a point array, or a cell array averaged onto
 points as ``add_volume`` does; default the active scalars), its ``component=`` for
 multi-component arrays (an index, or -1 / ``"magnitude"``) and ``nan_policy=``
 (``"raise"`` or ``"fill"``), as the filters' ``InputComponent`` and ``NaNPolicy``.
-Every function takes them.
+Every function takes them, and every one reads them (and the transfer function
+arguments) through one parser, :func:`_parse_inputs`, so that no function can honour
+an option another ignores. NaN or infinity in ``opacity`` (or any transfer function)
+is refused. pyvista drops the mask of a numpy masked array when it stores it on a grid:
+to render masked samples transparent store ``array.filled(np.nan)`` and pass
+``nan_policy="fill"``.
+
+The accessor exists on ``pyvista.ImageData`` only; on other datasets (``PolyData``,
+``UnstructuredGrid``, ...) ``mesh.illum`` raises an ``AttributeError`` that says how to
+resample onto a uniform grid (``pv.ImageData(...).sample(mesh)``).
 
 Lights are :class:`vtkillum.DirectionalLight` / :class:`vtkillum.PointLight`, or
 ``pyvista.Light`` objects (a directional light travels from ``position`` towards
@@ -44,6 +53,7 @@ light travelling along (1, -1, -1).
 from __future__ import annotations
 
 import re
+from dataclasses import dataclass
 
 import numpy as np
 import pyvista as pv
@@ -126,6 +136,7 @@ def transfer_function_from_pyvista(grid, scalars=None, cmap=None, opacity="linea
     else:
         from pyvista.plotting.colors import get_cmap_safe
 
+        opacity = _check_opacity(opacity)
         n_colors = _check_n_colors(n_colors)
         clim = _data_range(_rendered_volume(grid, scalars, component, nan_policy)) \
             if clim is None else _check_clim(clim)
@@ -342,11 +353,43 @@ def _check_unit_distance(u):
     return float(u)
 
 
-def _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars, transfer_function,
-            opacity_unit_distance, component=None, nan_policy="raise"):
-    """(vtk colour TF, vtk opacity TF, unit distance, rendered Volume) from either convention."""
-    volume = _rendered_volume(grid, scalars, component, nan_policy)
-    u = _check_unit_distance(opacity_unit_distance)
+#: The arguments every accessor function takes and :func:`_parse_inputs` reads: the
+#: rendered array and its transfer function.
+COMMON_ARGUMENTS = ("scalars", "component", "nan_policy", "cmap", "opacity", "clim",
+                    "n_colors", "flip_scalars", "transfer_function", "opacity_unit_distance")
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    """What the common arguments mean for one call (see :func:`_parse_inputs`)."""
+
+    scalars: str | None        #: the array name as given
+    component: object          #: the component as given (None, an index, -1, "magnitude")
+    filter_component: int | None  #: the filters' InputComponent (-1: magnitude)
+    nan_policy: str            #: "raise" or "fill"
+    volume: object             #: the rendered values as a core Volume
+    ctf: object                #: vtkColorTransferFunction
+    otf: object                #: vtkPiecewiseFunction
+    unit_distance: float       #: opacity unit distance in world units
+
+
+def _parse_inputs(grid, arguments: dict) -> _Inputs:
+    """The one parser of the arguments every accessor function shares.
+
+    Each function hands over its own arguments (``locals()`` at its start), so all read
+    ``scalars``, ``component``, ``nan_policy`` and the transfer function the same way
+    and none can leave one out (a missing name is a ``TypeError`` here, caught by the
+    tests). The volume is converted once and the transfer functions built from either
+    convention: ``transfer_function=`` or ``cmap``/``opacity``/``clim``.
+    """
+    missing = [name for name in COMMON_ARGUMENTS if name not in arguments]
+    if missing:
+        raise TypeError(f"accessor function without the common argument(s) {missing}")
+    a = {name: arguments[name] for name in COMMON_ARGUMENTS}
+    volume = _rendered_volume(grid, a["scalars"], a["component"], a["nan_policy"])
+    u = _check_unit_distance(a["opacity_unit_distance"])
+    transfer_function, cmap, opacity, clim = (a["transfer_function"], a["cmap"], a["opacity"],
+                                              a["clim"])
     if transfer_function is not None:
         if cmap is not None or clim is not None or not (isinstance(opacity, str)
                                                         and opacity == "linear"):
@@ -355,43 +398,66 @@ def _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars, transfer
             raise TypeError("transfer_function must be a vtkillum.TransferFunction")
         ctf, otf = transfer_function_to_vtk(transfer_function)
     else:
+        n_colors = a["n_colors"]
         if not isinstance(cmap, pv.LookupTable):
             n_colors = _check_n_colors(n_colors)
             clim = _data_range(volume) if clim is None else _check_clim(clim)
-        ctf, otf = transfer_function_from_pyvista(grid, scalars, cmap, opacity, clim, n_colors,
-                                                  flip_scalars)
-    if u is None:
-        u = pyvista_unit_distance(grid)
-    return ctf, otf, u, volume
+        ctf, otf = transfer_function_from_pyvista(grid, a["scalars"], cmap, opacity, clim,
+                                                  n_colors, a["flip_scalars"])
+    return _Inputs(scalars=a["scalars"], component=a["component"],
+                   filter_component=_check_component(a["component"])[1],
+                   nan_policy=a["nan_policy"], volume=volume, ctf=ctf, otf=otf,
+                   unit_distance=u if u is not None else pyvista_unit_distance(grid))
 
 
-def _run(filter_class, grid, scalars, optics, settings: dict, lights=None, rgba=False,
-         exposure=DEFAULT_EXPOSURE, component=None, nan_policy="raise", with_filter=False):
+def _check_opacity(opacity):
+    """``opacity`` as ``add_volume`` takes it, refusing NaN, infinity and masked values
+    (pyvista would turn them into a fully transparent table without a word)."""
+    if isinstance(opacity, str):
+        return opacity
+    shown = repr(opacity) if len(repr(opacity)) <= 80 else repr(opacity)[:60] + "..."
+    if np.ma.isMaskedArray(opacity) and np.ma.count_masked(opacity):
+        raise ValueError(f"opacity={shown}: a masked array with {np.ma.count_masked(opacity)} "
+                         "masked value(s); give a value everywhere (array.filled(value))")
+    try:
+        values = np.asarray(opacity, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"opacity must be a name such as 'linear' or 'sigmoid', a number or a "
+                         f"sequence of numbers, got {shown}") from None
+    bad = ~np.isfinite(values.reshape(-1))
+    if bad.any():
+        raise ValueError(f"opacity={shown}: {values.reshape(-1)[bad][0]} at index "
+                         f"{int(np.argmax(bad))}; opacities must be finite numbers")
+    return opacity
+
+
+def _run(filter_class, grid, inputs: _Inputs, settings: dict, lights=None, rgba=False,
+         exposure=DEFAULT_EXPOSURE, with_filter=False):
     """Configure a filter, run it on ``grid`` and return its output as new pyvista.ImageData.
 
-    ``settings`` maps filter properties to ``(accessor argument, value)``; errors of the
-    filter name the accessor's arguments. ``with_filter``: return ``(output, filter)``
-    (for filters with more output ports).
+    ``inputs`` (:func:`_parse_inputs`) gives the array, its component, the NaN policy and
+    the transfer functions; ``settings`` maps filter properties to ``(accessor argument,
+    value)``; errors of the filter name the accessor's arguments. ``with_filter``: return
+    ``(output, filter)`` (for filters with more output ports).
     """
     cls = with_rgba_output(filter_class) if rgba else filter_class
     algorithm = cls()
-    ctf, otf, u, _ = optics
     names = {prop: arg for prop, (arg, _) in settings.items()}
     try:
-        algorithm.SetColorTransferFunction(ctf)
-        algorithm.SetScalarOpacity(otf)
-        algorithm.SetScalarOpacityUnitDistance(u)
+        algorithm.SetColorTransferFunction(inputs.ctf)
+        algorithm.SetScalarOpacity(inputs.otf)
+        algorithm.SetScalarOpacityUnitDistance(inputs.unit_distance)
         if lights is not None:
             algorithm.SetLights(lights_from_pyvista(lights))
         if rgba:
             algorithm.SetExposure(exposure)
-        association = _association(grid, scalars)
-        if scalars is not None:
-            field = (vtkDataObject.FIELD_ASSOCIATION_CELLS if association == "cells"
+        if inputs.scalars is not None:
+            field = (vtkDataObject.FIELD_ASSOCIATION_CELLS
+                     if _association(grid, inputs.scalars) == "cells"
                      else vtkDataObject.FIELD_ASSOCIATION_POINTS)
-            algorithm.SetInputArrayToProcess(0, 0, 0, field, scalars)
-        algorithm.SetInputComponent(_check_component(component)[1])
-        algorithm.SetNaNPolicy(_check_nan_policy(nan_policy))
+            algorithm.SetInputArrayToProcess(0, 0, 0, field, inputs.scalars)
+        algorithm.SetInputComponent(inputs.filter_component)
+        algorithm.SetNaNPolicy(inputs.nan_policy)
         for key, (_, value) in settings.items():
             if value is None:
                 continue
@@ -434,11 +500,10 @@ def optical_properties(grid, scalars=None, *, cmap=None, opacity="linear", clim=
     >>> round(float(out["sigma_t"].max()), 4)       # -ln(1 - 127/255)
     0.6892
     """
-    optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                     transfer_function, opacity_unit_distance, component, nan_policy)
-    return _run(OpticalPropertiesFilter, grid, scalars, optics,
+    inputs = _parse_inputs(grid, locals())
+    return _run(OpticalPropertiesFilter, grid, inputs,
                 {"Albedo": ("albedo", albedo), "OutputScale": ("output_scale", output_scale)},
-                component=component, nan_policy=nan_policy)
+               )
 
 
 def transmittance(grid, lights=None, scalars=None, *, cmap=None, opacity="linear", clim=None,
@@ -494,14 +559,12 @@ def transmittance(grid, lights=None, scalars=None, *, cmap=None, opacity="linear
     >>> round(float(t[0, 3, 3]), 3), round(float(np.exp(-1.0)), 3)
     (0.368, 0.368)
     """
-    optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                     transfer_function, opacity_unit_distance, component, nan_policy)
-    return _run(LightTransmittanceFilter, grid, scalars, optics,
+    inputs = _parse_inputs(grid, locals())
+    return _run(LightTransmittanceFilter, grid, inputs,
                 {"Albedo": ("albedo", albedo),
                  "OutputScale": ("light_volume_scale", light_volume_scale),
                  "StepSize": ("step_size", step_size), "Device": ("device", device)},
-                lights=lights, rgba=rgba, exposure=exposure, component=component,
-                nan_policy=nan_policy)
+                lights=lights, rgba=rgba, exposure=exposure)
 
 
 def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
@@ -528,17 +591,15 @@ def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity=
     """
     if np.ndim(scattering) == 0:
         scattering = (float(scattering),) * 3
-    optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                     transfer_function, opacity_unit_distance, component, nan_policy)
-    return _run(ConvectionDiffusionLightFilter, grid, scalars, optics,
+    inputs = _parse_inputs(grid, locals())
+    return _run(ConvectionDiffusionLightFilter, grid, inputs,
                 {"Albedo": ("albedo", albedo), "Anisotropy": ("anisotropy", anisotropy),
                  "DiffusionModel": ("diffusion_model", diffusion_model),
                  "LightVolumeScale": ("light_volume_scale", light_volume_scale),
                  "Scattering": ("scattering", tuple(float(s) for s in scattering)),
                  "Iterations": ("iterations", iterations), "Tolerance": ("tolerance", tolerance),
                  "Solver": ("solver", solver), "Device": ("device", device)},
-                lights=lights, rgba=rgba, exposure=exposure, component=component,
-                nan_policy=nan_policy)
+                lights=lights, rgba=rgba, exposure=exposure)
 
 
 def photon_density(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
@@ -562,17 +623,15 @@ def photon_density(grid, lights=None, scalars=None, *, cmap=None, opacity="linea
         ``scattered_fluence`` on the light grid, its lights as field data (see
         :func:`convection_diffusion`).
     """
-    optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                     transfer_function, opacity_unit_distance, component, nan_policy)
-    return _run(PhotonDensityFilter, grid, scalars, optics,
+    inputs = _parse_inputs(grid, locals())
+    return _run(PhotonDensityFilter, grid, inputs,
                 {"Albedo": ("albedo", albedo), "Anisotropy": ("anisotropy", anisotropy),
                  "Photons": ("photons", photons), "Radius": ("radius", radius),
                  "MaxOrder": ("max_order", max_order), "Seed": ("seed", seed),
                  "Passes": ("passes", passes), "Historygrams": ("historygrams", historygrams),
                  "DirectLight": ("direct_light", direct_light),
                  "OutputScale": ("output_scale", output_scale), "Device": ("device", device)},
-                lights=lights, rgba=rgba, exposure=exposure, component=component,
-                nan_policy=nan_policy)
+                lights=lights, rgba=rgba, exposure=exposure)
 
 
 def many_lights(grid, lights=None, scalars=None, *, cmap=None, opacity="linear", clim=None,
@@ -596,18 +655,16 @@ def many_lights(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
         ``return_virtual_lights=True`` also the virtual lights as points (``position``,
         ``radiance``, ``radius``, ... arrays) to show with ``plotter.add_points``.
     """
-    optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                     transfer_function, opacity_unit_distance)
+    inputs = _parse_inputs(grid, locals())
     out, algorithm = _run(
-        ManyLightsFilter, grid, scalars, optics,
+        ManyLightsFilter, grid, inputs,
         {"Albedo": ("albedo", albedo), "Anisotropy": ("anisotropy", anisotropy),
          "Count": ("count", count), "VSLRadius": ("vsl_radius", vsl_radius),
          "Transmittance": ("transmittance", transmittance),
          "AVSMResolution": ("avsm_resolution", avsm_resolution),
          "AVSMNodes": ("avsm_nodes", avsm_nodes), "Seed": ("seed", seed),
          "OutputScale": ("output_scale", output_scale), "Device": ("device", device)},
-        lights=lights, rgba=rgba, exposure=exposure, component=component,
-        nan_policy=nan_policy, with_filter=True)
+        lights=lights, rgba=rgba, exposure=exposure, with_filter=True)
     if not return_virtual_lights:
         return out
     return out, pv.wrap(algorithm.GetVirtualLightsOutput())
@@ -626,14 +683,13 @@ def ambient_extinction(grid, lights=None, scalars=None, *, cmap=None, opacity="l
         ``ambient_extinction`` (active), ``ambient_radiance`` and
         ``ambient_radiance_<l>`` per light.
     """
-    optics = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                     transfer_function, opacity_unit_distance, component, nan_policy)
-    return _run(AmbientExtinctionFilter, grid, scalars, optics,
+    inputs = _parse_inputs(grid, locals())
+    return _run(AmbientExtinctionFilter, grid, inputs,
                 {"Albedo": ("albedo", albedo), "Anisotropy": ("anisotropy", anisotropy),
                  "Radius": ("radius", radius), "RadiusUnits": ("radius_units", radius_units),
                  "ComputeRadiance": ("compute_radiance", compute_radiance),
                  "OutputScale": ("output_scale", output_scale), "Device": ("device", device)},
-                lights=lights, component=component, nan_policy=nan_policy)
+                lights=lights)
 
 
 def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opacity="linear",
@@ -676,8 +732,8 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
     >>> result.radiance.shape, bool(result.alpha.max() > 0.5)
     ((24, 24, 3), True)
     """
-    ctf, otf, u, volume = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                                  transfer_function, opacity_unit_distance, component, nan_policy)
+    inputs = _parse_inputs(grid, locals())
+    volume = inputs.volume
     core_lights = lights_from_pyvista(lights)
     illumination = options.get("illumination")
     if isinstance(illumination, vtkImageData):
@@ -691,9 +747,10 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
         from vtkillum.mappers.camera_bridge import camera_from_vtk
 
         camera = camera_from_vtk(camera, aspect=width / height)
-    scene = Scene(transfer_function=transfer_function_from_vtk(ctf, otf),
-                  opacity_unit_distance=u, albedo=albedo, anisotropy=anisotropy,
-                  lights=core_lights, camera=camera, background=background)
+    scene = Scene(transfer_function=transfer_function_from_vtk(inputs.ctf, inputs.otf),
+                  opacity_unit_distance=inputs.unit_distance, albedo=albedo,
+                  anisotropy=anisotropy, lights=core_lights, camera=camera,
+                  background=background)
     result = core_render(volume, scene, method, width, height, device=device, **options)
     if filename is not None:
         write_png(filename, tonemap(exposure * result.radiance, result.alpha, background,
@@ -775,32 +832,31 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     from vtkillum.core.scene import SHADING_DEFAULTS
     from vtkillum.mappers.illuminated_volume_mapper import IlluminatedVolume
 
-    ctf, otf, u, volume = _optics(grid, scalars, cmap, opacity, clim, n_colors, flip_scalars,
-                                  transfer_function, opacity_unit_distance, component, nan_policy)
+    inputs = _parse_inputs(grid, locals())
     core_lights = lights_from_pyvista(lights)
+    tf = transfer_function_from_vtk(inputs.ctf, inputs.otf)
     if isinstance(illumination, str):
         methods = {"transmittance": transmittance, "convection_diffusion": convection_diffusion}
         if illumination not in methods:
             raise ValueError(f"illumination={illumination!r}: name one of {sorted(methods)}, or "
                              "pass a filter output")
-        tf = transfer_function_from_vtk(ctf, otf)
         illumination = methods[illumination](grid, core_lights, scalars, transfer_function=tf,
-                                             opacity_unit_distance=u, albedo=albedo,
-                                             component=component, nan_policy=nan_policy)
+                                             opacity_unit_distance=inputs.unit_distance,
+                                             albedo=albedo, component=component,
+                                             nan_policy=nan_policy)
     elif isinstance(illumination, vtkImageData):
         core_lights = _illumination_lights(illumination, lights, core_lights)
-    scene = Scene(transfer_function=transfer_function_from_vtk(ctf, otf),
-                  opacity_unit_distance=u, albedo=albedo, anisotropy=anisotropy,
-                  lights=core_lights,
+    scene = Scene(transfer_function=tf, opacity_unit_distance=inputs.unit_distance,
+                  albedo=albedo, anisotropy=anisotropy, lights=core_lights,
                   step_size=step_size, shading=dict(SHADING_DEFAULTS, **(shading or {})))
-    data, array_name = _mapper_input(grid, scalars, volume, component, nan_policy)
+    data, array_name = _mapper_input(grid, inputs)
     volume = IlluminatedVolume(data, scene, illumination=illumination, array_name=array_name,
                                exposure=exposure, jitter=jitter)
     plotter.add_actor(volume, name=name, reset_camera=reset_camera, render=render)
     return volume
 
 
-def _mapper_input(grid, scalars, volume, component, nan_policy):
+def _mapper_input(grid, inputs: _Inputs):
     """``(image, array name)`` for the illuminated mapper, which renders one point array.
 
     The grid itself when ``scalars`` is a one-component point array (the mapper then
@@ -808,16 +864,18 @@ def _mapper_input(grid, scalars, volume, component, nan_policy):
     the filters render (cell data averaged onto the points, the chosen ``component``,
     NaN/Inf filled).
     """
+    scalars = inputs.scalars
     pd = grid.GetPointData()
     array = pd.GetScalars() if scalars is None else pd.GetArray(scalars)
     if (array is not None and array.GetName() and array.GetNumberOfComponents() == 1
-            and component is None and (scalars is not None or pd.GetScalars() is not None)
+            and inputs.component is None
+            and (scalars is not None or pd.GetScalars() is not None)
             and np.all(np.isfinite(np.asarray(grid.point_data[array.GetName()])))):
         return grid, scalars
     name = scalars or (array.GetName() if array is not None else None) or "values"
     data = pv.ImageData()
     data.copy_structure(grid)
-    data.point_data[name] = np.asarray(volume.scalars).ravel(order="F")
+    data.point_data[name] = np.asarray(inputs.volume.scalars).ravel(order="F")
     data.point_data.active_scalars_name = name
     return data, name
 
@@ -863,8 +921,31 @@ for _method in ("optical_properties", "transmittance", "convection_diffusion",
     getattr(IllumAccessor, _method).__doc__ = globals()[_method].__doc__
 
 
+class NotImageDataAccessor:
+    """``mesh.illum`` on any other pyvista dataset: an ``AttributeError`` (``hasattr``
+    stays False) that says how to get a ``pyvista.ImageData``."""
+
+    def __init__(self, mesh) -> None:
+        raise AttributeError(not_image_data_message(mesh))
+
+
+def not_image_data_message(mesh) -> str:
+    """Why ``mesh`` has no ``illum`` accessor and what to do instead."""
+    kind = type(mesh).__name__
+    head = (f"{kind!r} object has no attribute {ACCESSOR!r}: vtkillum renders uniform grids "
+            "(pyvista.ImageData)")
+    if isinstance(mesh, pv.MultiBlock):
+        return (f"{head}; pick an ImageData block (e.g. blocks[0].{ACCESSOR}), or resample a "
+                "block onto pv.ImageData with sample()")
+    return (f"{head}; resample the {kind} onto one first: grid = pv.ImageData(dimensions=(n, n, "
+            "n), spacing=(dx, dy, dz), origin=mesh.bounds[::2]).sample(mesh) (spacing: the "
+            f"size of mesh.bounds / (n - 1)), then grid.{ACCESSOR}.<method>(...)")
+
+
 def register() -> None:
-    """Register ``grid.illum`` on ``pyvista.ImageData`` once (importing this module does it).
+    """Register ``grid.illum`` on ``pyvista.ImageData`` once (importing this module does it),
+    and on every other dataset an accessor whose ``AttributeError`` says to resample
+    (:class:`NotImageDataAccessor`).
 
     With pyvista < 0.48 (no accessors) this warns and the module functions still work.
     """
@@ -877,6 +958,8 @@ def register() -> None:
         return
     if ACCESSOR not in vars(pv.ImageData):
         pv.register_dataset_accessor(ACCESSOR, pv.ImageData)(IllumAccessor)
+    if ACCESSOR not in vars(pv.DataObject):  # ImageData's own accessor comes first in its MRO
+        pv.register_dataset_accessor(ACCESSOR, pv.DataObject)(NotImageDataAccessor)
 
 
 register()
