@@ -410,15 +410,22 @@ def _parse_inputs(grid, arguments: dict) -> _Inputs:
                    unit_distance=u if u is not None else pyvista_unit_distance(grid))
 
 
+def _check_unmasked(value, name: str):
+    """``value``, refused when it is a numpy masked array with masked values: the arrays it
+    goes into have no mask, and whatever lies under the mask would be used as data."""
+    if np.ma.isMaskedArray(value) and np.ma.count_masked(value):
+        raise ValueError(f"{name}: a masked array with {np.ma.count_masked(value)} masked "
+                         "value(s); give a value everywhere (array.filled(value))")
+    return value
+
+
 def _check_opacity(opacity):
     """``opacity`` as ``add_volume`` takes it, refusing NaN, infinity and masked values
     (pyvista would turn them into a fully transparent table without a word)."""
     if isinstance(opacity, str):
         return opacity
+    _check_unmasked(opacity, "opacity")
     shown = repr(opacity) if len(repr(opacity)) <= 80 else repr(opacity)[:60] + "..."
-    if np.ma.isMaskedArray(opacity) and np.ma.count_masked(opacity):
-        raise ValueError(f"opacity={shown}: a masked array with {np.ma.count_masked(opacity)} "
-                         "masked value(s); give a value everywhere (array.filled(value))")
     try:
         values = np.asarray(opacity, dtype=np.float64)
     except (TypeError, ValueError):
@@ -735,7 +742,7 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
     inputs = _parse_inputs(grid, locals())
     volume = inputs.volume
     core_lights = lights_from_pyvista(lights)
-    illumination = options.get("illumination")
+    illumination = _check_unmasked(options.get("illumination"), "illumination")
     if isinstance(illumination, vtkImageData):
         from vtkillum.io.illumination_arrays import illumination_from_image
         from vtkillum.mappers.inputs import check_covers
@@ -833,6 +840,7 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     from vtkillum.mappers.illuminated_volume_mapper import IlluminatedVolume
 
     inputs = _parse_inputs(grid, locals())
+    illumination = _check_unmasked(illumination, "illumination")
     core_lights = lights_from_pyvista(lights)
     tf = transfer_function_from_vtk(inputs.ctf, inputs.otf)
     if isinstance(illumination, str):
