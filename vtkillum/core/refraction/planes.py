@@ -19,6 +19,14 @@ paper's viewport-sized buffer.
 
 The light must travel within :data:`MAX_LIGHT_ANGLE` of the view direction (one
 distant light in the camera's hemisphere, paper section 7).
+
+Camera inside (or beside) the box: the light comes from the camera's hemisphere, so it
+crosses the part of the box behind the camera before it reaches what the camera sees,
+and that part casts shadows in front. The planes therefore start at the box's nearest
+point even behind the camera; the view rays join the sweep at plane ``view_plane``, the
+plane through the camera (parallel projection: the camera plane, where VTK's parallel
+rays start; perspective: just in front of the eye), to which the plane grid is aligned.
+With the camera in front of the box ``view_plane`` is 0 and plane 0 touches the box.
 """
 
 from __future__ import annotations
@@ -62,6 +70,7 @@ class SweepParams:
     z0: float  # depth of plane 0 along forward, world units
     dz: float  # plane spacing
     planes: int
+    view_plane: int  # the plane the view rays start on (the camera's, when inside the box)
     light_dir: wp.vec3  # unit travel direction, camera frame
     light_rgb: wp.vec3  # irradiance perpendicular to the light
     grid_origin: wp.vec2  # q0: camera (x, y) of texel (0, 0) on plane 0
@@ -95,6 +104,7 @@ class SweepGeometry:
     ny: int
     reach: int = 0  # texels a light texel reads around its straight predecessor (a bound)
     corners: np.ndarray | None = None  # the box's 8 corners, camera frame (camera_corners)
+    view_plane: int = 0  # first plane of the view rays (> 0: the camera is inside the box)
 
     @property
     def texels(self) -> int:
@@ -118,38 +128,48 @@ def camera_corners(volume, camera):
 
 def plane_rects(geometry: SweepGeometry, margin: int) -> np.ndarray:
     """Per plane, the texel rectangle ``(a0, b0, a1, b1)`` (ends exclusive) that holds the
-    box's cross-section with the plane, widened by ``margin`` texels and clipped to the grid.
+    box's cross-sections with the planes from the previous to the next one, widened by
+    ``margin`` texels and clipped to the grid.
 
     Outside it the light of that plane is the unobstructed light (straight, not yet in the
     box) or light that has left the box for good (a straight ray leaves a convex box once),
     which no view ray inside the box reads; the light kernel computes only these texels,
-    the paper's slice polygon (about a third to a half of the sheared grid). ``margin``
-    covers what a texel inside reads around it: its neighbours, the bilinear and blur
-    footprints and the bending of one plane.
+    the paper's slice polygon (about a third to a half of the sheared grid). Why the slab
+    between the neighbouring planes and not the plane's own cross-section: a view segment
+    that enters or leaves the box between planes ``k`` and ``k + 1`` reads the light of
+    both planes at its ends, outside the box, where the light is the light that has
+    crossed (or will cross) it; the plane beyond the box's far face (or before its near
+    face) has no cross-section of its own. ``margin`` covers what a texel inside reads
+    around it: its neighbours, the bilinear and blur footprints and the bending of one
+    plane.
     """
     planes = geometry.planes
     corners = geometry.corners
-    lo = np.full((planes, 2), np.inf)
-    hi = np.full((planes, 2), -np.inf)
     origin = np.asarray(geometry.grid_origin, np.float64)
     shift = np.asarray(geometry.shift, np.float64)
-    # Each edge crosses a contiguous run of planes; along it the crossing point (in texels)
-    # moves linearly with the plane index.
+    j = np.arange(planes)
+    lo_z = geometry.z0 + (j - 1) * geometry.dz
+    hi_z = geometry.z0 + (j + 1) * geometry.dz
+    lo = np.full((planes, 2), np.inf)
+    hi = np.full((planes, 2), -np.inf)
+    # The box cut by the slab is a convex polytope whose vertices are the ends of the edges'
+    # parts within it: its bounding rectangle is theirs.
     for e0, e1 in BOX_EDGES:
         a, b = corners[e0], corners[e1]
-        if a[2] == b[2]:
-            continue  # parallel to the planes: its end points are crossings of other edges
-        z_lo, z_hi = min(a[2], b[2]), max(a[2], b[2])
-        first = max(int(np.ceil((z_lo - geometry.z0) / geometry.dz)), 0)
-        last = min(int(np.floor((z_hi - geometry.z0) / geometry.dz)), planes - 1)
-        if first > last:
-            continue
-        j = np.arange(first, last + 1)
-        t = (geometry.z0 + j * geometry.dz - a[2]) / (b[2] - a[2])
-        tex = (a[:2] + t[:, None] * (b[:2] - a[:2]) - origin - j[:, None] * shift) \
-            / geometry.texel
-        np.minimum(lo[first:last + 1], tex, out=lo[first:last + 1])
-        np.maximum(hi[first:last + 1], tex, out=hi[first:last + 1])
+        if a[2] > b[2]:
+            a, b = b, a
+        if a[2] == b[2]:  # parallel to the planes: in the slab or not
+            inside = (lo_z <= a[2]) & (a[2] <= hi_z)
+            ends = [np.broadcast_to(a, (planes, 3)), np.broadcast_to(b, (planes, 3))]
+        else:
+            z1 = np.maximum(a[2], lo_z)
+            z2 = np.minimum(b[2], hi_z)
+            inside = z1 <= z2
+            ends = [a + ((z - a[2]) / (b[2] - a[2]))[:, None] * (b - a) for z in (z1, z2)]
+        for point in ends:
+            tex = (point[:, :2] - origin - j[:, None] * shift) / geometry.texel
+            lo[inside] = np.minimum(lo[inside], tex[inside])
+            hi[inside] = np.maximum(hi[inside], tex[inside])
     n = np.array([geometry.nx, geometry.ny])
     empty = ~np.isfinite(lo[:, :1])
     lo = np.where(empty, 0, np.clip(np.floor(np.where(empty, 0.0, lo)) - margin, 0, n))
@@ -191,7 +211,14 @@ def sweep_geometry(volume, camera, width: int, height: int, light_direction, dz:
     R, cam, c = camera_corners(volume, camera)
     zmin, zmax = float(c[:, 2].min()), float(c[:, 2].max())
     near = 0.0 if camera.parallel_projection else 1e-3 * dz
-    z0 = max(zmin, near)
+    # Light from the box's nearest point, behind the camera too (module docstring); the
+    # view rays from the plane through the camera.
+    if zmin < near < zmax:  # the camera's plane cuts the box
+        view_plane = int(np.ceil((near - zmin) / dz))
+        z0 = near - view_plane * dz
+    else:
+        view_plane = 0
+        z0 = max(zmin, near)
     planes = int(np.ceil((zmax - z0) / dz)) + 1 if zmax > z0 else 1
     w = R @ volume.to_local_direction(light_direction)
     w /= np.linalg.norm(w)
@@ -219,7 +246,7 @@ def sweep_geometry(volume, camera, width: int, height: int, light_direction, dz:
     # Newton neighbours and bilinear footprint (2), the blur, one plane's bending (<= 45°).
     reach = 2 + int(np.ceil((radius + dz) / h))
     return SweepGeometry(z0, float(dz), planes, w, shift, origin, h, int(n[0]), int(n[1]),
-                         reach, c)
+                         reach, c, view_plane)
 
 def make_params(volume, camera, width: int, height: int, geometry: SweepGeometry, light_rgb,
                 opts: dict, background) -> SweepParams:
@@ -238,6 +265,7 @@ def make_params(volume, camera, width: int, height: int, geometry: SweepGeometry
     p.parallel_scale = float(camera.parallel_scale)
     p.width, p.height = int(width), int(height)
     p.z0, p.dz, p.planes = float(geometry.z0), float(geometry.dz), int(geometry.planes)
+    p.view_plane = int(geometry.view_plane)
     p.light_dir = wp.vec3(*geometry.light_dir.astype(np.float32))
     p.light_rgb = wp.vec3(*np.asarray(light_rgb, np.float32))
     p.grid_origin = wp.vec2(*geometry.grid_origin.astype(np.float32))

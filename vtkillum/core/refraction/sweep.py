@@ -206,7 +206,8 @@ def init_view_kernel(m: RefractiveMedium, params: wp.array(dtype=SweepParams),
                      veta: wp.array(dtype=wp.float32), vc: wp.array(dtype=wp.vec3),
                      va: wp.array(dtype=wp.float32), vm: wp.array(dtype=wp.vec3),
                      state: wp.array(dtype=wp.int32)):
-    """Start one view ray per pixel on plane 0.
+    """Start one view ray per pixel on plane ``view_plane`` (0 unless the camera is inside
+    the box: then the plane through the camera).
 
     ``wp.tid()`` is the pixel ``row * width + col`` (row 0 at the top). Positions and
     directions are camera-frame, world units. Rays that miss the box are MISSED and
@@ -236,7 +237,7 @@ def init_view_kernel(m: RefractiveMedium, params: wp.array(dtype=SweepParams),
     tt = ray_box(lo, ld, m.extent)
     if tt[0] >= tt[1] or tt[1] <= 0.0:
         return
-    q = o + d * ((p.z0 - o[2]) / d[2])
+    q = o + d * ((p.z0 + float(p.view_plane) * p.dz - o[2]) / d[2])
     s, g, inside = camera_sample_and_gradient(m, p.frame, q)
     e = m.eta_outside
     if inside != 0:
@@ -282,8 +283,12 @@ def view_kernel_body(m: RefractiveMedium, params: wp.array(dtype=SweepParams), k
         return
     if state[i] != ACTIVE:
         return
-    advance_view(m, p, k0, wp.min(k1, p.planes - 1), i, lb, vp, vv, vg, vs, veta, vc, va, vm,
-                 state)
+    # Segments behind the camera (it is inside the box) carry only light.
+    k_first = wp.max(k0, p.view_plane)
+    k_last = wp.min(k1, p.planes - 1)
+    if k_first >= k_last:
+        return
+    advance_view(m, p, k_first, k_last, i, lb, vp, vv, vg, vs, veta, vc, va, vm, state)
 
 
 _KERNELS: dict = {}
