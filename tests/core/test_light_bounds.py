@@ -55,8 +55,13 @@ def test_source_radius_caps_the_irradiance(device):
 def test_lights_beyond_float32_are_refused_with_a_clear_error():
     with pytest.raises(ValueError, match="overflow"):
         DirectionalLight((0, 0, -1), (1e40, 1, 1))
+    # A world may use any length unit (vtkillum.core.units), so the light is refused where
+    # it meets the volume's scale: by render, before anything runs.
+    far = PointLight((1e20, 0, 0), (1, 1, 1))
+    volume, scene = light_on_a_grid_point()
+    scene.lights = [far]
     with pytest.raises(ValueError, match="directional light"):
-        PointLight((1e20, 0, 0), (1, 1, 1))
+        render(volume, scene, "single", 8, 8, "cpu")
     with pytest.raises(ValueError, match="radius"):
         PointLight((0, 0, 0), (1, 1, 1), radius=-1)
     assert MAX_VALUE == 1e30

@@ -110,6 +110,8 @@ def test_scaled_transmittance_equals_ray_marching_with_scaled_sigma(volume):
                                   **{**OPTS, "scale_range": [0.5, 2.0]})
     renderer.set_density_scale(1.7)
     state, vls = renderer.state, renderer.state.vls
+    # The renderer's own volume and scene: it works in canonical units (vtkillum.core.units).
+    volume, scene = renderer.volume, renderer.scene
     scaled = make_medium(volume, scene.resolved_transfer_function(volume),
                          scene.resolved_unit_distance(volume) / 1.7, scene.albedo,
                          scene.anisotropy, "cpu")
@@ -221,11 +223,14 @@ def test_edits_names_what_update_would_do_without_doing_it(volume):
     renderer = ManyLightsRenderer(volume, scene, SIZE, SIZE, "cpu", **OPTS)
     state = renderer.state
     power = state.vls.power()
-    assert state.edits(scene) == []
-    assert state.edits(scene_with(volume, albedo=0.6, colour=(1.0, 0.5, 0.5))) == \
-        ["color", "albedo"]
-    assert state.edits(scene_with(volume, 12.0)) == ["sigma_t"]
-    assert state.edits(scene, density_scale=2.0) == ["density_scale"]
+
+    def edits(scene, **kwargs):  # the state works in the renderer's canonical units
+        return state.edits(renderer.units.scene(scene), **kwargs)
+
+    assert edits(scene) == []
+    assert edits(scene_with(volume, albedo=0.6, colour=(1.0, 0.5, 0.5))) == ["color", "albedo"]
+    assert edits(scene_with(volume, 12.0)) == ["sigma_t"]
+    assert edits(scene, density_scale=2.0) == ["density_scale"]
     np.testing.assert_array_equal(state.vls.power(), power)
     assert not state.stale
     assert renderer.update(scene_with(volume, 12.0))["edits"] == ["sigma_t"]

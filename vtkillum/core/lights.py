@@ -13,7 +13,11 @@ means half the smallest voxel spacing of the volume it lights
 Values are limited to what the float32 kernels can carry without overflow
 (:data:`MAX_VALUE` for intensities and irradiances, :data:`MAX_COORDINATE` for
 positions): a light beyond them is refused with a clear error instead of
-producing infinite or NaN pixels.
+producing infinite or NaN pixels. Point lights are checked in the units the kernels
+work in (:mod:`vtkillum.core.units`: about one voxel; positions relative to the
+volume), when they are packed for a kernel: a world in any length unit renders, so a
+point light's world position, radius and intensity (which scales as length²) only
+need to be finite in float64 (:data:`WORLD_LIMIT`).
 """
 
 from __future__ import annotations
@@ -25,10 +29,15 @@ import numpy as np
 DIRECTIONAL = 0
 POINT = 1
 
-#: Largest irradiance / intensity component: squares and sums stay finite in float32.
+#: Largest irradiance / intensity component: squares and sums stay finite in float32
+#: (point-light intensities: in the kernels' units, see the module docstring).
 MAX_VALUE = 1.0e30
-#: Largest |coordinate| of a point light (world units): d**2 stays finite in float32.
+#: Largest |coordinate| of a point light in the kernels' units, relative to the volume:
+#: d**2 stays finite in float32.
 MAX_COORDINATE = 1.0e15
+#: Largest world position, radius and intensity of a point light: squares stay finite in
+#: float64 whatever the length unit.
+WORLD_LIMIT = 1.0e150
 
 
 def _vec3(value, name: str) -> np.ndarray:
@@ -38,12 +47,12 @@ def _vec3(value, name: str) -> np.ndarray:
     return v
 
 
-def _rgb(value, name: str) -> np.ndarray:
+def _rgb(value, name: str, limit: float = MAX_VALUE) -> np.ndarray:
     v = _vec3(value, name)
     if np.any(v < 0):
         raise ValueError(f"{name} must be non-negative, got {value!r}")
-    if np.any(v > MAX_VALUE):
-        raise ValueError(f"{name} must not exceed {MAX_VALUE:g} (float32 rendering would "
+    if np.any(v > limit):
+        raise ValueError(f"{name} must not exceed {limit:g} (float32 rendering would "
                          f"overflow), got {value!r}; rescale the lights and the exposure")
     return v
 
@@ -99,16 +108,16 @@ class PointLight:
 
     def __post_init__(self) -> None:
         self.position = _vec3(self.position, "light.position")
-        if np.any(np.abs(self.position) > MAX_COORDINATE):
+        if np.any(np.abs(self.position) > WORLD_LIMIT):
             raise ValueError(
-                f"light.position must lie within {MAX_COORDINATE:g} world units of the origin, "
+                f"light.position must lie within {WORLD_LIMIT:g} world units of the origin, "
                 f"got {self.position.tolist()}; a light that far away is a directional light")
-        self.intensity = _rgb(self.intensity, "light.intensity")
+        self.intensity = _rgb(self.intensity, "light.intensity", WORLD_LIMIT)
         try:
             radius = float(self.radius)
         except (TypeError, ValueError):
             radius = float("nan")
-        if not (np.isfinite(radius) and 0.0 <= radius <= MAX_COORDINATE):
+        if not (np.isfinite(radius) and 0.0 <= radius <= WORLD_LIMIT):
             raise ValueError(f"light.radius must be a non-negative number of world units (0: "
                              f"half a voxel), got {self.radius!r}")
         self.radius = radius
@@ -172,7 +181,25 @@ def pack_lights(lights, rotation=None, origin=None):
         else:
             vecs[i] = R.T @ (l.position - o)
             rgb[i] = l.intensity
+            _check_packed(i, vecs[i], rgb[i])
     return kinds, vecs.astype(np.float32), rgb.astype(np.float32)
+
+
+def _check_packed(index: int, position, intensity) -> None:
+    """The float32 limits, in the units the kernels get (render() maps worlds of any scale
+    into units of about a voxel first, :mod:`vtkillum.core.units`)."""
+    if np.max(np.abs(position)) > MAX_COORDINATE:
+        raise ValueError(
+            f"lights[{index}]: the point light lies {np.max(np.abs(position)):.3g} units from "
+            f"the volume; at most {MAX_COORDINATE:g} can be rendered in float32 (a light that "
+            "far away is a directional light); render through vtkillum.core.render.render, "
+            "which measures lengths in voxels")
+    if np.max(intensity) > MAX_VALUE:
+        raise ValueError(
+            f"lights[{index}]: point-light intensity {np.max(intensity):.3g} exceeds "
+            f"{MAX_VALUE:g} (float32 rendering would overflow); render through "
+            "vtkillum.core.render.render, which measures lengths in voxels (intensity in "
+            "units of voxel²)")
 
 
 def resolved_radius(light, volume) -> float:

@@ -82,6 +82,7 @@ import warp as wp
 
 from vtkillum.core.device import resolve_device
 from vtkillum.core.render import RenderResult
+from vtkillum.core.units import canonical
 from vtkillum.core.warp_common import (
     CameraParams,
     Lights,
@@ -198,6 +199,12 @@ class PathTracer:
         Samples per pixel taken by one kernel launch (more per launch amortises launch
         overhead on a GPU; the variance estimate then is over per-pass means).
 
+    Attributes
+    ----------
+    units : vtkillum.core.units.WorldUnits
+        The tracer works in canonical units (any world length scale gives the same image);
+        cameras given to :meth:`reset` are in world units.
+
     Examples
     --------
     >>> tracer = PathTracer(volume, scene, 64, 64, seed=1)      # doctest: +SKIP
@@ -213,6 +220,13 @@ class PathTracer:
         self.seed = _int(seed, "seed")
         self.max_bounces = _bounce_limit(max_bounces)
         self.samples_per_pass = _positive_int(samples_per_pass, "samples_per_pass")
+        # Trace in canonical units (vtkillum.core.units): any world length scale works.
+        camera = scene.resolved_camera(volume)
+        volume, scene, _, self.units = canonical(volume, scene)
+        with self.units.explained():
+            self._setup(volume, scene, camera)
+
+    def _setup(self, volume, scene, camera) -> None:
         self._volume = volume
         self._n_lights = len(scene.lights)
         self._torn = False
@@ -232,7 +246,7 @@ class PathTracer:
         self._seconds = 0.0
         # Compile/load the kernels now so that the first pass's timing is the kernel's own.
         wp.load_module(sys.modules[__name__], device=self.device)
-        self.reset(scene.resolved_camera(volume))
+        self.reset(camera)
 
     # --- progressive accumulation --------------------------------------------------------
     def reset(self, camera=None) -> "PathTracer":
@@ -241,7 +255,7 @@ class PathTracer:
         Parameters
         ----------
         camera : vtkillum.core.camera.Camera, optional
-            New camera; the current one is kept when omitted.
+            New camera (world units); the current one is kept when omitted.
         """
         if camera is not None:
             if not callable(getattr(camera, "basis", None)):
@@ -249,8 +263,9 @@ class PathTracer:
                     f"camera must be a vtkillum.core.camera.Camera, got {type(camera).__name__}; "
                     "convert a vtkCamera with its position, focal point, view up and view angle"
                 )
-            cam = make_camera(camera, self._volume, self.width, self.height)
-            self._check_camera_distance(cam)
+            cam = make_camera(self.units.camera(camera), self._volume, self.width, self.height)
+            with self.units.explained():
+                self._check_camera_distance(cam)
             self.camera = camera
             self._cam: CameraParams = cam
         self._sum.zero_()
@@ -418,7 +433,7 @@ class PathTracer:
                 "their light beyond it is missing", RuntimeWarning, stacklevel=2)
         if self.passes >= 2:
             info["radiance_variance"] = self.radiance_variance  # float64: squares of huge lights
-        return RenderResult(self.radiance, self.alpha, info)
+        return RenderResult(self.radiance, self.alpha, self.units.info(info))
 
 
 def _round_up(x: float, digits: int = 3) -> float:

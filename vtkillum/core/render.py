@@ -9,6 +9,12 @@ that each lives in its own module and is imported only when used::
 
 Every render function has the signature
 ``fn(volume, scene, width, height, device, progress, **options) -> RenderResult``.
+
+World units: :func:`render` hands every method the volume and scene in canonical units
+(:mod:`vtkillum.core.units`: lengths in units of about the mean spacing), so that the
+same scene described at any length scale gives the same image; point-light intensities
+scale with the square of the length unit. Radiance, alpha and fluence have no length in
+them and come back as the method computes them.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from vtkillum.core.device import resolve_device
+from vtkillum.core.units import canonical
 
 #: method name -> "module:function"
 METHODS: dict[str, str] = {
@@ -77,10 +84,22 @@ def render(volume, scene, method: str = "emission", width: int = 256, height: in
         Called as ``progress(fraction_done)`` during long renders.
     **options
         Method-specific options (e.g. ``spp`` for ``path``, ``illumination`` for
-        ``illumination``).
+        ``illumination``). Lengths among them (``step_size`` ...) in world units.
+
+    Notes
+    -----
+    The scene is rendered in canonical units (:mod:`vtkillum.core.units`): any length
+    unit gives the same picture, with point-light intensities in units of (world
+    length)², i.e. scaled by ``s²`` when the world is scaled by ``s``. A light the
+    kernels cannot represent at the volume's scale is refused before any work starts.
     """
     fn = method_function(method)
-    return fn(volume, scene, int(width), int(height), resolve_device(device), progress, **options)
+    volume, scene, options, units = canonical(volume, scene, options)
+    with units.explained():
+        result = fn(volume, scene, int(width), int(height), resolve_device(device), progress,
+                    **options)
+    units.info(result.info)
+    return result
 
 
 def method_function(method: str):

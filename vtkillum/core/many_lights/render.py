@@ -58,6 +58,7 @@ from vtkillum.core.many_lights.gather import TRANSMITTANCE, gather_params, rende
 from vtkillum.core.many_lights.walk import SAMPLING
 from vtkillum.core.raymarch import RAY_OPTIONS, ray_options
 from vtkillum.core.render import RenderResult
+from vtkillum.core.units import canonical
 from vtkillum.core.warp_common import make_camera, stream_seed
 
 #: The scene section's fields and defaults (``METHOD_OPTIONS["many_lights"]``).
@@ -140,6 +141,10 @@ class ManyLightsRenderer:
         Set 0, the one that is edited.
     passes : int
         Sets accumulated in the image.
+    units : vtkillum.core.units.WorldUnits
+        The renderer works in canonical units: ``volume``, ``scene`` and ``state`` are in
+        them; cameras and scenes given to :meth:`reset` and :meth:`update` are in world
+        units (``camera`` too).
     """
 
     def __init__(self, volume, scene, width: int, height: int, device: str | None = None,
@@ -148,16 +153,19 @@ class ManyLightsRenderer:
         self.width, self.height = _positive_int(width, "width"), _positive_int(height, "height")
         if not (hasattr(volume, "extent") and hasattr(volume, "scalars")):
             raise TypeError(f"volume must be a vtkillum Volume, got {type(volume).__name__}")
+        # Canonical units (vtkillum.core.units): any world length scale works.
+        self.camera = scene.resolved_camera(volume)
+        volume, scene, options, self.units = canonical(volume, scene, options)
         self.volume = volume
         self.scene = scene
         self._options = dict(options)
-        self.opts = parse_options(options, volume, scene)
-        t0 = time.perf_counter()
-        self.state = ManyLightsState(volume, scene, self.opts, self.device, 0)
+        with self.units.explained():
+            self.opts = parse_options(options, volume, scene)
+            t0 = time.perf_counter()
+            self.state = ManyLightsState(volume, scene, self.opts, self.device, 0)
         self._setup_ms = 1e3 * (time.perf_counter() - t0)
         self._extra: ManyLightsState | None = None
-        self.camera = scene.resolved_camera(volume)
-        self._cam = make_camera(self.camera, volume, self.width, self.height)
+        self._cam = make_camera(self.units.camera(self.camera), volume, self.width, self.height)
         self.last: dict = {}
         self.reset()
 
@@ -166,7 +174,8 @@ class ManyLightsRenderer:
         """Discard the image (the VLs are kept); optionally move the camera."""
         if camera is not None:
             self.camera = camera
-            self._cam = make_camera(camera, self.volume, self.width, self.height)
+            self._cam = make_camera(self.units.camera(camera), self.volume, self.width,
+                                    self.height)
         shape = (self.height, self.width)
         self._single = np.zeros((*shape, 3))
         self._multiple = np.zeros((*shape, 3))
@@ -211,8 +220,9 @@ class ManyLightsRenderer:
     def update(self, scene=None, density_scale: float | None = None) -> dict:
         """Apply an edit of the scene and/or the density scale at once (eq. 6 and 7); the
         image restarts. See :class:`~vtkillum.core.many_lights.cache.ManyLightsState`."""
-        scene = self.scene if scene is None else scene
-        edit = self.state.update(scene, density_scale)
+        scene = self.scene if scene is None else self.units.scene(scene)
+        with self.units.explained():
+            edit = self.state.update(scene, density_scale)
         self.scene = scene
         if density_scale is not None:
             self.opts["density_scale"] = float(density_scale)
@@ -248,7 +258,8 @@ class ManyLightsRenderer:
             "single": single,
             "multiple": multiple,
         }
-        return RenderResult(single + multiple, (self._alpha / n).astype(np.float32), info)
+        return RenderResult(single + multiple, (self._alpha / n).astype(np.float32),
+                            self.units.info(info))
 
     def shrink(self, set_index: int) -> float:
         """Factor ``(s + 1)^-beta`` of the VSL radii of set ``s``."""
