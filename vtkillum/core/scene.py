@@ -148,7 +148,7 @@ def _check_numbers(value, where: str, depth: int = 0) -> None:
         if isinstance(item, (list, tuple)):
             if depth >= 2:  # vectors and lists of vectors at most: no deep recursion
                 raise ValueError(f"{where} must hold numbers (or lists of numbers), got lists "
-                                 f"nested deeper: {_short(value)}")
+                                 "nested deeper")  # (no repr: it would recurse as deep)
             _check_numbers(item, where, depth + 1)
         elif not _real(item):
             raise ValueError(f"{where} must hold finite numbers, got {_short(value)}")

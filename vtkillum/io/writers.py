@@ -281,12 +281,25 @@ def write_volume(volume, path, frame: str | None = "LPS") -> Path:
     files = volume_files(path)
 
     def write(staged):
-        writer.SetFileName(str(staged[path]))
+        # VTK picks the format by a lower-case extension (CT.MHA came out as CT.mhd +
+        # CT.raw, CT.NII.GZ uncompressed): write that name, then take the one asked for.
+        written = _lower_extension(staged[path])
+        writer.SetFileName(str(written))
         if len(files) == 2:  # after SetFileName, which resets it; named relative to the header
             writer.SetRAWFileName(str(staged[files[0]]))
         run_writer(writer, path)
+        if written != staged[path]:
+            os.replace(written, staged[path])
 
     write_staged(files, write)
+    return path
+
+
+def _lower_extension(path: Path) -> Path:
+    """``path`` with its volume-format extension in lower case (``CT.NII.GZ`` -> ``CT.nii.gz``)."""
+    for suffix in VOLUME_FORMATS:
+        if path.name.lower().endswith(suffix):
+            return path.with_name(path.name[: -len(suffix)] + suffix)
     return path
 
 
