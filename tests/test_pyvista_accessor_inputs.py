@@ -156,3 +156,26 @@ def test_illum_on_a_multiblock_says_to_pick_an_image_block():
     with pytest.raises(AttributeError, match="ImageData block"):
         pv.MultiBlock([grid_of(field())]).illum  # noqa: B018
     assert isinstance(pv.MultiBlock([grid_of(field())])[0].illum, pva.IllumAccessor)
+
+
+# --- the picture of render(filename=...) --------------------------------------------------------
+def test_render_filename_is_written_all_or_nothing(tmp_path, monkeypatch):
+    import errno
+    import os
+
+    from vtkillum.io import writers
+
+    grid = grid_of(field())
+    out = tmp_path / "r.png"
+    out.write_bytes(b"old picture")
+
+    def full_open(path, mode="r", *args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(writers, "open", full_open, raising=False)
+    with pytest.raises(writers.DiskFullError, match="no space left on device"):
+        grid.illum.render("emission", width=8, height=8, device="cpu", filename=out)
+    assert os.listdir(tmp_path) == ["r.png"] and out.read_bytes() == b"old picture"
+    monkeypatch.undo()
+    grid.illum.render("emission", width=8, height=8, device="cpu", filename=out)
+    assert os.listdir(tmp_path) == ["r.png"] and out.read_bytes()[:4] == b"\x89PNG"

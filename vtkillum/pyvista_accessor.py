@@ -721,7 +721,8 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
     camera : vtkillum.Camera or pyvista.Camera, optional
         Default: framing the volume like ``vtkRenderer.ResetCamera``.
     filename : str, optional
-        Also write ``tonemap(exposure * radiance, alpha, background, gamma)`` as PNG.
+        Also write ``tonemap(exposure * radiance, alpha, background, gamma)`` as PNG
+        (all-or-nothing: :func:`vtkillum.io.writers.write_atomically`).
     **options
         Method options (``spp`` for ``path``, ``illumination`` for ``illumination``...).
 
@@ -760,8 +761,12 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
                   background=background)
     result = core_render(volume, scene, method, width, height, device=device, **options)
     if filename is not None:
-        write_png(filename, tonemap(exposure * result.radiance, result.alpha, background,
-                                    exposure=1.0, gamma=gamma))
+        from vtkillum.io.writers import write_atomically
+
+        rgb8 = tonemap(exposure * result.radiance, result.alpha, background, exposure=1.0,
+                       gamma=gamma)
+        # Under its final name, old picture kept and nothing hidden left on any failure.
+        write_atomically([(filename, lambda f: write_png(f, rgb8))])
     return result
 
 
