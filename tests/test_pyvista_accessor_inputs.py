@@ -179,3 +179,12 @@ def test_render_filename_is_written_all_or_nothing(tmp_path, monkeypatch):
     monkeypatch.undo()
     grid.illum.render("emission", width=8, height=8, device="cpu", filename=out)
     assert os.listdir(tmp_path) == ["r.png"] and out.read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("argument", ["scalars", "component", "nan_policy", "clim",
+                                      "n_colors", "opacity_unit_distance"])
+def test_a_100_kb_argument_is_cut_in_the_message(argument):
+    long = "x" * 100_000
+    with pytest.raises(ValueError) as caught:
+        grid_of(field()).illum.transmittance(device="cpu", **{argument: long})
+    assert len(str(caught.value)) < 600 and "(100002 characters)" in str(caught.value)

@@ -62,6 +62,7 @@ from vtkmodules.vtkCommonDataModel import vtkDataObject, vtkImageData
 from vtkillum.core.lights import DirectionalLight, PointLight
 from vtkillum.core.render import render as core_render
 from vtkillum.core.scene import Scene
+from vtkillum.core.scene import _short  # repr cut to a readable length (user values)
 from vtkillum.core.tonemap import tonemap, write_png
 from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.filters.ambient_extinction import AmbientExtinctionFilter
@@ -264,13 +265,13 @@ def _check_component(component):
         component = int(component)
         return ("magnitude" if component == -1 else component), component
     raise ValueError(f"component must be an index >= 0, -1 or 'magnitude' (the magnitude of "
-                     f"each tuple), or None for a one-component array; got {component!r}")
+                     f"each tuple), or None for a one-component array; got {_short(component)}")
 
 
 def _check_nan_policy(nan_policy) -> str:
     if not (isinstance(nan_policy, str) and nan_policy in ("raise", "fill")):
         raise ValueError(f"nan_policy must be 'raise' or 'fill' (replace NaN/Inf by the smallest "
-                         f"finite value), got {nan_policy!r}")
+                         f"finite value), got {_short(nan_policy)}")
     return nan_policy
 
 
@@ -285,7 +286,7 @@ def _association(grid, scalars):
         return "points"
     if scalars in grid.cell_data:
         return "cells"
-    raise ValueError(f"the grid has no point or cell array {scalars!r} (point arrays: "
+    raise ValueError(f"the grid has no point or cell array {_short(scalars)} (point arrays: "
                      f"{list(grid.point_data.keys())}; cell arrays: {list(grid.cell_data.keys())})")
 
 
@@ -326,7 +327,8 @@ def _check_clim(clim) -> tuple:
     try:
         low, high = (float(v) for v in clim)
     except (TypeError, ValueError):
-        raise ValueError(f"clim must be (low, high) or one positive number, got {clim!r}") from None
+        raise ValueError(f"clim must be (low, high) or one positive number, got "
+                         f"{_short(clim)}") from None
     if not (np.isfinite(low) and np.isfinite(high)):
         raise ValueError(f"clim={tuple(clim)!r} must be finite")
     if not low < high:
@@ -339,7 +341,7 @@ def _check_clim(clim) -> tuple:
 def _check_n_colors(n_colors) -> int:
     if isinstance(n_colors, bool) or not isinstance(n_colors, (int, np.integer)) or n_colors < 1:
         raise ValueError(f"n_colors must be an integer >= 1 (the number of colours and opacities "
-                         f"spread over clim), got {n_colors!r}")
+                         f"spread over clim), got {_short(n_colors)}")
     return int(n_colors)
 
 
@@ -349,7 +351,7 @@ def _check_unit_distance(u):
     if isinstance(u, bool) or not isinstance(u, (int, float, np.integer, np.floating)) \
             or not (np.isfinite(u) and u > 0):
         raise ValueError(f"opacity_unit_distance must be a positive number of world units (or "
-                         f"None for pyvista's default), got {u!r}")
+                         f"None for pyvista's default), got {_short(u)}")
     return float(u)
 
 
@@ -851,8 +853,8 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     if isinstance(illumination, str):
         methods = {"transmittance": transmittance, "convection_diffusion": convection_diffusion}
         if illumination not in methods:
-            raise ValueError(f"illumination={illumination!r}: name one of {sorted(methods)}, or "
-                             "pass a filter output")
+            raise ValueError(f"illumination={_short(illumination)}: name one of "
+                             f"{sorted(methods)}, or pass a filter output")
         illumination = methods[illumination](grid, core_lights, scalars, transfer_function=tf,
                                              opacity_unit_distance=inputs.unit_distance,
                                              albedo=albedo, component=component,
