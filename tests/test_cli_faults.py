@@ -438,6 +438,7 @@ def test_nan_in_a_scene_transfer_function_is_refused(tmp_path, capsys, constant)
 
 @pytest.mark.parametrize("argv", [
     ["--size", "8", "1" * 5000], ["-m", "path", "--spp", "1" * 400],
+    ["--option", "seed=" + "1" * 5000],
 ])
 def test_huge_integer_arguments_are_one_clear_line(tmp_path, capsys, argv):
     status, _, err = run(capsys, "render", "builtin:ct:16", "-o", tmp_path / "a.png", *argv)
