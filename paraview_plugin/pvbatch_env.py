@@ -109,12 +109,25 @@ def missing_tools() -> list[str]:
 def pvbatch_command(script, *args, ranks: int = 1) -> list[str]:
     """``xvfb-run -a pvbatch script args...`` (ParaView 5.11 needs an X server); with
     ``ranks`` > 1 pvbatch runs under ``mpirun -np ranks`` (ParaView's MPI engine)."""
+    xvfb = xvfb_command()
     if ranks > 1:
         mpi = ["mpirun", "-np", str(ranks), "--oversubscribe"]
         if os.geteuid() == 0:
             mpi.append("--allow-run-as-root")  # Open MPI refuses root otherwise (CI runs as root)
-        return ["xvfb-run", "-a", *mpi, "pvbatch", str(script), *map(str, args)]
-    return ["xvfb-run", "-a", "pvbatch", str(script), *map(str, args)]
+        return [*xvfb, *mpi, "pvbatch", str(script), *map(str, args)]
+    return [*xvfb, "pvbatch", str(script), *map(str, args)]
+
+
+def xvfb_command() -> list[str]:
+    """``xvfb-run -a -n N``: the search for a free display starts at a number drawn per call.
+
+    ``xvfb-run -a`` alone starts every search at 99, so runs started together can pick the
+    same number; the one whose Xvfb lost then draws on the other's, and dies with "bad X
+    server connection" when that one ends, even mid-run.
+    """
+    import random
+
+    return ["xvfb-run", "-a", "-n", str(random.SystemRandom().randrange(100, 900))]
 
 
 def run_pvbatch(script, *args, shim_dir=None, timeout=None, ranks: int = 1,
