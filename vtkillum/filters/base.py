@@ -23,7 +23,8 @@ RequestInformation
     resolution, else ``0 .. n' - 1`` covering the same box (same first and last
     points, origin and direction; spacing ``(n - 1) s / (n' - 1)``).
 RequestUpdateExtent
-    Requests the whole input extent. Looks the request up in the cache (below).
+    Requests the whole input extent as one piece. Looks the request up in the cache
+    (below).
 RequestData
     Converts the input (:mod:`vtkillum.io.convert`), calls :meth:`compute` and
     assembles the output, or copies the cached output.
@@ -58,6 +59,35 @@ already holds (its ``DATA_TIME_STEP``), whose extent is also unchanged, so the
 upstream executive finds nothing to do and does not execute; ``RequestData``
 then copies the cached output and stamps it with the cached ``DATA_TIME_STEP``.
 Once either MTime moves on, older entries can never be hit and are dropped.
+
+Entries are keyed by the step *computed* (the input's ``DATA_TIME_STEP``), never by
+the time requested: a request between two steps gets the step the input delivers
+(VTK's readers take the one at or before it), the output says which, and a later
+request for either finds it. A request for one of the input's own ``TIME_STEPS``
+that the input answers with another step (a file of the series missing or
+unreadable) is an error naming the time and the steps, and nothing is cached.
+
+Threads
+-------
+VTK's pipeline is not thread-safe, and filters may share an upstream source. Every
+update through a vtkillum filter (``execute``, ``Update``, ``UpdateTimeStep``,
+``UpdateWholeExtent``) and every parameter edit holds :data:`PIPELINE_LOCK` (one
+re-entrant lock for all vtkillum filters), so updates from several threads run one
+after the other, each gets an output of its own (``execute`` returns a shallow copy),
+and an edit made while an update runs applies to the next update, never to half of
+one; an update during which a parameter changed is not cached. To edit a VTK
+transfer function (several ``AddPoint`` calls) from another thread while updates run,
+hold ``PIPELINE_LOCK`` around the edit. A downstream algorithm's own ``Update`` does
+not take the lock: the time check above still refuses a step another thread's
+request put in the input.
+
+Pieces (ParaView's MPI engine)
+------------------------------
+Asked for piece *p* of *n* (each rank of ``mpirun -np n pvbatch`` asks for its own),
+a filter requests the whole input as one piece, computes the whole volume's
+illumination (shadows and scattered light cross pieces) and outputs piece *p* of it
+(with the ghost levels asked for, marked in ``vtkGhostType``), so every rank holds its
+piece of the one-process result; one line per layout says so.
 """
 
 from __future__ import annotations
