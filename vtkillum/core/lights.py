@@ -17,7 +17,7 @@ producing infinite or NaN pixels. Point lights are checked in the units the kern
 work in (:mod:`vtkillum.core.units`: about one voxel; positions relative to the
 volume), when they are packed for a kernel: a world in any length unit renders, so a
 point light's world position, radius and intensity (which scales as length²) only
-need to be finite in float64 (:data:`WORLD_LIMIT`).
+need to be finite in float64 (:data:`WORLD_LIMIT`, :data:`WORLD_MAX_INTENSITY`).
 """
 
 from __future__ import annotations
@@ -35,9 +35,11 @@ MAX_VALUE = 1.0e30
 #: Largest |coordinate| of a point light in the kernels' units, relative to the volume:
 #: d**2 stays finite in float32.
 MAX_COORDINATE = 1.0e15
-#: Largest world position, radius and intensity of a point light: squares stay finite in
-#: float64 whatever the length unit.
+#: Largest world position and radius of a point light: squares stay finite in float64
+#: whatever the length unit ...
 WORLD_LIMIT = 1.0e150
+#: ... and its largest intensity (it scales as length², so a world of unit 1e150 needs 1e300).
+WORLD_MAX_INTENSITY = 1.0e300
 
 
 def _vec3(value, name: str) -> np.ndarray:
@@ -47,13 +49,14 @@ def _vec3(value, name: str) -> np.ndarray:
     return v
 
 
-def _rgb(value, name: str, limit: float = MAX_VALUE) -> np.ndarray:
+def _rgb(value, name: str, limit: float = MAX_VALUE,
+         why: str = "float32 rendering would overflow") -> np.ndarray:
     v = _vec3(value, name)
     if np.any(v < 0):
         raise ValueError(f"{name} must be non-negative, got {value!r}")
     if np.any(v > limit):
-        raise ValueError(f"{name} must not exceed {limit:g} (float32 rendering would "
-                         f"overflow), got {value!r}; rescale the lights and the exposure")
+        raise ValueError(f"{name} must not exceed {limit:g} ({why}), got {value!r}; rescale "
+                         "the lights and the exposure")
     return v
 
 
@@ -97,6 +100,8 @@ class PointLight:
         World-space position.
     intensity : (3,) float
         RGB radiant intensity; irradiance at distance d is ``intensity / max(d, r)**2``.
+        Per squared world unit: the same scene in a length unit ``s`` times smaller has
+        intensities ``s²`` times larger (:mod:`vtkillum.core.units`).
     radius : float
         Source radius ``r`` in world units (>= 0); 0 (default): half the smallest
         voxel spacing of the volume being lit.
@@ -112,7 +117,8 @@ class PointLight:
             raise ValueError(
                 f"light.position must lie within {WORLD_LIMIT:g} world units of the origin, "
                 f"got {self.position.tolist()}; a light that far away is a directional light")
-        self.intensity = _rgb(self.intensity, "light.intensity", WORLD_LIMIT)
+        self.intensity = _rgb(self.intensity, "light.intensity", WORLD_MAX_INTENSITY,
+                              "the largest float64 intensity with headroom")
         try:
             radius = float(self.radius)
         except (TypeError, ValueError):

@@ -50,7 +50,8 @@ stay within the kernels' coordinate range. (Kernels work in the volume's local f
 computed in float64 on the host, so the offset costs no precision.)
 
 What cannot be represented is refused before any work starts, with the reason: a
-point light farther than :data:`vtkillum.core.lights.MAX_COORDINATE` canonical units
+mean spacing outside :data:`SPACING_RANGE` (1e-150 to 1e150 world units: squared lengths
+stay normal float64 numbers), a point light farther than :data:`vtkillum.core.lights.MAX_COORDINATE` canonical units
 from the volume (a directional light then), or brighter than
 :data:`~vtkillum.core.lights.MAX_VALUE` in canonical units (float32 overflow). Errors
 that the methods raise about lengths speak in canonical units; :func:`render` adds
@@ -71,6 +72,9 @@ LENGTH_OPTIONS = {"step_size": 1, "photon_step": 1, "vl_step": 1, "avsm_step": 1
                   "source_radius": 1, "scattering": 2}
 #: Scene sections with length fields (``ambient_scattering.radius`` only in world units).
 SECTION_LENGTHS = {"convection_diffusion": ("source_radius", "scattering")}
+#: Mean spacings (world units) that can be represented: squared lengths (distances, camera
+#: vectors, point-light intensities which scale as length²) stay normal float64 numbers.
+SPACING_RANGE = (1.0e-150, 1.0e150)
 #: Where the note on canonical units in error messages points.
 _NOTE = "vtkillum.core.units"
 #: A volume farther than this many canonical units from the world origin gets its own
@@ -97,6 +101,12 @@ class WorldUnits:
     def for_volume(cls, volume) -> "WorldUnits":
         """Canonical units of ``volume``: ``L`` the power of two nearest its mean spacing."""
         mean = float(np.mean(volume.spacing))
+        if not SPACING_RANGE[0] <= mean <= SPACING_RANGE[1]:
+            raise ValueError(
+                f"volume spacing {np.asarray(volume.spacing).tolist()}: a mean spacing of "
+                f"{mean:.3g} world units cannot be represented (squared lengths leave the "
+                f"float64 range); the supported mean spacings are {SPACING_RANGE[0]:g} to "
+                f"{SPACING_RANGE[1]:g}: describe the data in another length unit")
         # frexp: exact exponent, no log rounding; mean = m 2^e with m in [0.5, 1).
         m, e = math.frexp(mean)
         length = math.ldexp(1.0, e if m >= math.sqrt(0.5) else e - 1)
@@ -121,7 +131,9 @@ class WorldUnits:
             return type(value)(items) if not isinstance(value, np.ndarray) else np.array(items)
         if isinstance(value, (int, float, np.integer, np.floating)) and np.isfinite(value) \
                 and value > 0:
-            return float(value) / self.length**power
+            value = float(value)
+            for _ in range(power):  # L**power alone may overflow
+                value /= self.length
         return value
 
     def to_point(self, point) -> np.ndarray:
@@ -163,7 +175,8 @@ class WorldUnits:
                 out.append(light)
                 continue
             position = self.to_point(light.position)
-            intensity = np.asarray(light.intensity, dtype=np.float64) / self.length**2
+            # Two divisions: L² alone overflows for L beyond 1e154 (I / L² does not).
+            intensity = np.asarray(light.intensity, dtype=np.float64) / self.length / self.length
             radius = float(light.radius) / self.length
             if volume is not None:  # the world volume: distance from its centre
                 centre = np.asarray(volume.bounds).reshape(3, 2).mean(1)
