@@ -199,7 +199,9 @@ def test_parameters_reach_compute(make_image):
     f.SetDevice("cpu")
     f.execute()
     volume, params = f.calls[-1]
-    assert params.unit_distance == pytest.approx(0.4)  # 0: mean spacing
+    # compute runs in canonical units (vtkillum.core.units): lengths / L, L = 0.5 here
+    assert params.units.length == 0.5 and volume.spacing == pytest.approx((1.0, 0.8, 0.6))
+    assert params.unit_distance * params.units.length == pytest.approx(0.4)  # 0: mean spacing
     assert (params.albedo, params.anisotropy, params.device) == (0.6, -0.2, "cpu")
     assert isinstance(params.lights[0], DirectionalLight)
     assert isinstance(params.lights[1], PointLight)
@@ -212,7 +214,7 @@ def test_parameters_reach_compute(make_image):
     assert scene.albedo == 0.6 and len(scene.lights) == 2
     f.SetScalarOpacityUnitDistance(2.5)
     f.execute()
-    assert f.calls[-1][1].unit_distance == 2.5
+    assert f.calls[-1][1].unit_distance == 2.5 / 0.5
 
 
 def test_progress_is_reported(make_image):

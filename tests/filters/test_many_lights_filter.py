@@ -58,8 +58,9 @@ def test_outputs_and_world_placement(blob):
     np.testing.assert_allclose(vtk_to_numpy(pd.GetArray("position")), world)
     bounds = np.array(blob.GetBounds()).reshape(3, 2)
     assert np.all(world >= bounds[:, 0] - 1e-4) and np.all(world <= bounds[:, 1] + 1e-4)
-    # the same VLs as the core's, mapped through the direction matrix
-    local = f.state.vls.position
+    # the same VLs as the core's, mapped through the direction matrix (the state works in
+    # canonical units, vtkillum.core.units: lengths over the world length of one unit)
+    local = f.state.vls.position * (blob.GetSpacing()[0] / f.state.volume.spacing[0])
     np.testing.assert_allclose(world, local @ ROTATION.T + np.array([2.0, 1.0, -1.0]),
                                rtol=1e-5, atol=1e-5)
     radius = vtk_to_numpy(pd.GetArray("radius"))

@@ -136,6 +136,13 @@ class WorldUnits:
                 value /= self.length
         return value
 
+    def per_world_length(self, value, power: int = 1):
+        """A quantity per canonical length (``power`` 1: e.g. σt) per world length."""
+        value = np.asarray(value) if not np.isscalar(value) else value
+        for _ in range(power):
+            value = value / self.length
+        return value
+
     def to_point(self, point) -> np.ndarray:
         return (np.asarray(point, dtype=np.float64) - np.asarray(self.origin)) / self.length
 

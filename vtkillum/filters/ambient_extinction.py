@@ -108,6 +108,8 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
             # the filter outputs grids; no gather here, so no gather textures
             self._ambient = AmbientScatteringCache(params.device, data_textures=False)
         lights = list(params.lights) if self._compute_radiance else []
+        radius = params.units.to_length(self._radius) if self._radius_units == "world" \
+            else self._radius
         if self._compute_radiance and not lights:
             raise ValueError("AmbientExtinctionFilter has no lights for the radiance cache; add "
                              "one with AddDirectionalLight(direction, irradiance) or call "
@@ -115,14 +117,14 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
         if lights:
             state = self._ambient.update(
                 volume, params.transfer_function, params.unit_distance, params.albedo,
-                params.anisotropy, lights, self._radius, self._radius_units,
+                params.anisotropy, lights, radius, self._radius_units,
                 cache_shape=params.output_shape)
         else:
             state = self._ambient.update_extinction(
-                volume, params.transfer_function, params.unit_distance, self._radius,
+                volume, params.transfer_function, params.unit_distance, radius,
                 self._radius_units)
         params.progress(0.9)
-        sigma_tilde = state.sigma_tilde.numpy()
+        sigma_tilde = params.units.per_world_length(state.sigma_tilde.numpy())
         if sigma_tilde.shape != tuple(params.output_shape):
             sigma_tilde = resample_points(sigma_tilde, params.output_shape)
         arrays = {"ambient_extinction": sigma_tilde}

@@ -92,6 +92,7 @@ piece of the one-process result; one line per layout says so.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -111,6 +112,7 @@ from vtkmodules.vtkRenderingCore import vtkColorTransferFunction
 from vtkillum.core.lights import DirectionalLight, PointLight
 from vtkillum.core.scene import Scene
 from vtkillum.core.transfer_function import TransferFunction
+from vtkillum.core.units import WorldUnits
 from vtkillum.filters.time_cache import CacheStatistics, TimeStepCache, default_cache_mb
 from vtkillum.io.convert import (
     add_point_array,
@@ -167,6 +169,13 @@ class IlluminationParameters:
         :func:`vtkillum.io.convert.image_like`).
     progress : callable
         ``progress(fraction)`` with fraction in [0, 1]; forwards to ``UpdateProgress``.
+    units : vtkillum.core.units.WorldUnits
+        :meth:`IlluminationFilterBase.compute` runs in canonical units (lengths of about
+        a voxel, :mod:`vtkillum.core.units`), so that data in any length unit give the same
+        light: its volume, ``unit_distance`` and ``lights`` are in them. A filter converts
+        its own world lengths with ``units.to_length`` and returns quantities per length
+        per world length (``units.per_world_length``); transmittance and fluence have no
+        length in them.
     """
 
     transfer_function: TransferFunction
@@ -177,6 +186,7 @@ class IlluminationParameters:
     device: str
     output_shape: tuple
     progress: Callable[[float], None] = field(default=lambda fraction: None)
+    units: WorldUnits = field(default_factory=WorldUnits)
 
     def scene(self, **fields) -> Scene:
         """A core :class:`~vtkillum.core.scene.Scene` with these optical parameters.
@@ -785,7 +795,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             if self.reuses_results else None
         arrays = _RESULTS.lookup(memo_key) if memo_key is not None else None
         if arrays is None:
-            arrays = self.compute(volume, params)
+            arrays = self._compute_canonical(volume, params)
             if memo_key is not None and isinstance(arrays, dict):
                 _RESULTS.store(memo_key, dict(arrays),
                                sum(np.asarray(v).nbytes for v in arrays.values()))
@@ -839,6 +849,14 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
                            and isinstance(v, (bool, int, float, str, tuple))))
         return (type(self), image.GetAddressAsString("vtkObject"), image.GetMTime(), name,
                 association, component, self._nan_policy, self.relevant_model(params), own)
+
+    def _compute_canonical(self, volume, params) -> dict:
+        """:meth:`compute` in canonical units (see :class:`IlluminationParameters`)."""
+        units = WorldUnits.for_volume(volume)
+        inside = dataclasses.replace(params, unit_distance=units.to_length(params.unit_distance),
+                                     lights=units.lights(params.lights, volume), units=units)
+        with units.explained():
+            return self.compute(units.volume(volume), inside)
 
     def _resolved_device(self) -> str:
         if not self.uses_device:

@@ -215,11 +215,11 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         solver = self._solver
         solver.light_volume_shape = params.output_shape
         solver.diffusion_model = self._model
-        solver.scattering = self._scattering
+        solver.scattering = params.units.to_length(self._scattering, 2)  # world units²
         solver.iterations = self._iterations
         solver.tolerance = self._tolerance
         solver.solver = self._solver_name
-        solver.source_radius = self._source_radius
+        solver.source_radius = params.units.to_length(self._source_radius)
         solver.convection_scheme = self._scheme
         self._stats = solver.update(volume, params.transfer_function, params.unit_distance,
                                     params.lights, volume_key=self._volume_key(volume),

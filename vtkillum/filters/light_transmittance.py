@@ -71,7 +71,7 @@ class LightTransmittanceFilter(IlluminationFilterBase):
     def compute(self, volume, params):
         transmittance, _fluence = light_transmittance(
             volume, params.transfer_function, params.unit_distance, params.lights,
-            shape=params.output_shape, step_size=self._step_size or None,
+            shape=params.output_shape, step_size=params.units.to_length(self._step_size) or None,
             device=params.device, progress=params.progress)
         illumination = IlluminationVolume.for_volume(volume, transmittance=transmittance)
         return illumination_arrays(illumination, volume, params.lights, params.output_shape)

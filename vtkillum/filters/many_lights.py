@@ -265,7 +265,7 @@ class ManyLightsFilter(IlluminationFilterBase):
         self._grids = None
 
     def compute(self, volume, params):
-        step = self._step_size or None
+        step = params.units.to_length(self._step_size) or None  # canonical units
         scene = params.scene(step_size=step)
         options = dict(self._choice, count=self._count, seed=self._seed,
                        vsl_radius=self._vsl_radius, vsl_radius_mfp=self._vsl_radius_mfp,
@@ -297,7 +297,7 @@ class ManyLightsFilter(IlluminationFilterBase):
                 params.lights, shape=shape, step_size=step, device=params.device)
         self.state = state
         self._grids = grids
-        self._latest_lights = virtual_lights_polydata(state, volume)
+        self._latest_lights = virtual_lights_polydata(state, volume, params.units)
         illumination = IlluminationVolume.for_volume(volume, grids["scattered"],
                                                      grids["transmittance"])
         return illumination_arrays(illumination, volume, params.lights, shape)
@@ -329,13 +329,19 @@ class ManyLightsFilter(IlluminationFilterBase):
         return state if set(state.edits(scene)) <= keep else None
 
 
-def virtual_lights_polydata(state, volume) -> vtkPolyData:
-    """The VLs of a :class:`~vtkillum.core.many_lights.cache.ManyLightsState` as points."""
+def virtual_lights_polydata(state, volume, units=None) -> vtkPolyData:
+    """The VLs of a :class:`~vtkillum.core.many_lights.cache.ManyLightsState` as points.
+
+    ``volume`` is the state's; ``units`` (:class:`~vtkillum.core.units.WorldUnits`) the
+    canonical units it was computed in: the points and arrays come back in world units.
+    """
     vls = state.vls
     n = vls.n_vls
+    length = 1.0 if units is None else units.length
+    origin = np.zeros(3) if units is None else np.asarray(units.origin)
     rotation = np.asarray(volume.direction, np.float64)
-    world = (vls.position.astype(np.float64) @ rotation.T + volume.origin) if n else \
-        np.zeros((0, 3))
+    world = ((vls.position.astype(np.float64) @ rotation.T + volume.origin) * length + origin) \
+        if n else np.zeros((0, 3))
     poly = vtkPolyData()
     points = vtkPoints()
     points.SetData(numpy_to_vtk(np.ascontiguousarray(world), deep=True))
@@ -346,8 +352,8 @@ def virtual_lights_polydata(state, volume) -> vtkPolyData:
     poly.SetVerts(cells)
     arrays = {
         "position": world,
-        "radiance": vls.power().astype(np.float64) if n else np.zeros((0, 3)),
-        "radius": state.radii().astype(np.float64),
+        "radiance": vls.power().astype(np.float64) * length**2 if n else np.zeros((0, 3)),
+        "radius": state.radii().astype(np.float64) * length,
         "incident_direction": (vls.direction().astype(np.float64) @ rotation.T) if n else
         np.zeros((0, 3)),
         "path": vls.vl_path.astype(np.int32),

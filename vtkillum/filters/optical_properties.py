@@ -46,7 +46,8 @@ class OpticalPropertiesFilter(IlluminationFilterBase):
         if params.output_shape != volume.dims:
             scalars = resample_points(scalars, params.output_shape)
         tf = params.transfer_function
-        sigma_t = tf.sigma_t(scalars, params.unit_distance)
+        # per world unit (compute runs in canonical units)
+        sigma_t = params.units.per_world_length(tf.sigma_t(scalars, params.unit_distance))
         params.progress(0.5)
         scattering_color = params.albedo * tf.color(scalars)
         sigma_s = scattering_color * sigma_t[..., None]

@@ -167,7 +167,7 @@ class PhotonDensityFilter(IlluminationFilterBase):
 
     # --- computation -----------------------------------------------------------------------------
     def compute(self, volume, params):
-        step = self._step_size or 0.5 * float(np.min(volume.spacing))
+        step = params.units.to_length(self._step_size) or 0.5 * float(np.min(volume.spacing))
         key = (params.device, self._photons, self._radius, volume.mean_spacing(),
                self._max_order, self._seed, self._historygrams, self._direct, step)
         if self._mapper is None or self._mapper_key != key:

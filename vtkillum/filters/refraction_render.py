@@ -1,6 +1,7 @@
 """``RefractionRenderFilter``: the refraction method (Magnus & Bruckner 2017) as an image.
 
-A VTK algorithm around :func:`vtkillum.core.refraction.render.render_refraction`:
+A VTK algorithm around :func:`vtkillum.core.refraction.render.render_refraction`
+(called through :func:`vtkillum.core.render.render`, which renders data in any length unit):
 the input volume, the colour and opacity transfer functions, the refractive-index
 and medium-colour transfer functions (control-point tables), one distant light and
 a camera go in; the rendered picture comes out as a 2D ``vtkImageData`` of
@@ -458,7 +459,8 @@ class RefractionRenderFilter(IlluminationFilterBase):
             return 0
 
     def _execute(self, image, out_info) -> vtkImageData:
-        from vtkillum.core.refraction.render import check_light, render_refraction
+        from vtkillum.core.refraction.render import check_light
+        from vtkillum.core.render import render  # canonical units: any length unit works
         from vtkillum.core.tonemap import auto_exposure, tonemap
 
         check_image_data(image)
@@ -479,8 +481,8 @@ class RefractionRenderFilter(IlluminationFilterBase):
             raise ValueError(f"LightDirection: {err}") from None
         width, height = self._image_size
         try:
-            result = render_refraction(
-                volume, scene, width, height, device=self._resolved_device(),
+            result = render(
+                volume, scene, "refraction", width, height, device=self._resolved_device(),
                 progress=lambda f: self.UpdateProgress(float(np.clip(f, 0.0, 1.0))), **options)
         except ValueError as err:
             raise ValueError(_reword(str(err), {f"refraction.{k}": v
