@@ -7,6 +7,8 @@
     vtkillum render head.nii.gz --output head.png     # data-aware defaults, auto exposure
     vtkillum render builtin:ct:96 --method single --size 512 512 --output ct.png
     vtkillum render head.nii.gz --scene head.json --method path --spp 256 --output head.npy
+    vtkillum render functional.nii --output frames.png     # every time step: frames_0000.png ...
+    vtkillum render 'step_*.vti' --output movie.gif        # a file series (or .pvd) as animation
     vtkillum scene --dataset head.nii.gz --output head.json   # a starter scene to edit
     vtkillum info                                     # version, devices, tables
 
@@ -198,11 +200,17 @@ def build_parser() -> argparse.ArgumentParser:
         "render", help="render a volume file or built-in dataset",
         description="Render INPUT (a volume file or builtin:NAME[:SIZE]) with a scene file "
                     "(default: the dataset's recommended scene, or a generic one for files).",
-        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=OUTPUT_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter, epilog=OUTPUT_HELP + SERIES_HELP,
     )
-    render.add_argument("input", help="volume file (.vti .vtk .nrrd .nhdr .mha .mhd .nii "
-                                      ".nii.gz), DICOM directory, or builtin:NAME[:SIZE]")
-    render.add_argument("--output", "-o", required=True, help="output .png, .npy or .npz")
+    render.add_argument("input", nargs="+",
+                        help="volume file (.vti .vtk .nrrd .nhdr .mha .mhd .nii .nii.gz), DICOM "
+                             "directory, or builtin:NAME[:SIZE]; or a time series: a 4-D NIfTI, "
+                             "a .pvd or .series file, several files, a quoted glob pattern "
+                             "('step_*.vti') or a directory of volume files")
+    render.add_argument("--output", "-o", required=True,
+                        help="output .png, .npy or .npz (a time series: one per step, "
+                             "NAME_0000.EXT ...), or an animation of a time series: .gif, .mp4")
+    render.add_argument("--fps", help="frames per second of a .gif/.mp4 animation (default 10)")
     render.add_argument("--scene", "-s", help="scene JSON file (see 'vtkillum scene')")
     _add_input_options(render)
     _add_render_options(render, methods, default_method="single", default_size=(512, 512))
@@ -249,6 +257,10 @@ def _add_input_options(parser) -> None:
     parser.add_argument("--array", help="data array to render (default: the active scalars)")
     parser.add_argument("--component", help="component of a multi-component array: an index "
                                             "or 'magnitude'")
+    parser.add_argument("--time-step", type=_integer, metavar="N",
+                        help="step N of a time series (a 4-D NIfTI, a .pvd or .series file, "
+                             "several files); negative counts from the end. render: default "
+                             "every step")
 
 
 def _add_render_options(parser, methods, default_method: str, default_size) -> None:
@@ -292,6 +304,17 @@ def run_render(args) -> int:
     from vtkillum.core.device import resolve_device
     from vtkillum.core.render import method_function, render
 
+    # A time series renders step by step (run_render_series); one volume goes on here.
+    series = open_input_series(args.input, args.array, args.component,
+                               getattr(args, "time_step", None))
+    if series is not None:
+        return run_render_series(args, series)
+    if isinstance(args.input, list):
+        args.input = args.input[0]
+    if Path(args.output).suffix.lower() in ANIMATION_FORMATS:
+        raise UserError(f"output {_short(args.output)}: an animation needs a time series (a 4-D "
+                        f"NIfTI, a .pvd or .series file, several files); {args.input} is one "
+                        "volume: write a .png")
     outputs = check_output(args.output, OUTPUT_FORMATS)
     width, height = _check_size(args.size)
     exposure = _parse_exposure(args.exposure)
@@ -413,11 +436,279 @@ def render_path_with_estimate(volume, scene, width, height, device, progress=Non
     return result, None
 
 
+# --- time series ----------------------------------------------------------------------------------
+def run_render_series(args, series) -> int:
+    """``render`` of a time series (``series``, a :class:`~vtkillum.io.time_series.TimeSeries`
+    from :func:`open_input_series`).
+
+    Every step (or ``--time-step N`` alone) is rendered with one scene: the scene file's
+    fields, and for what it does not give the data-aware defaults of the voxelwise
+    maximum over the steps rendered (:func:`series_scene`), so that the transfer function
+    and the camera suit every step and stay put. PNG exposure ``auto`` is decided once,
+    over the pixels of all frames, so brightness changes between frames are the data's.
+    Outputs: an animation (``.gif``, ``.mp4``: :mod:`vtkillum.io.animation`), one file per
+    step named ``NAME_0000.EXT`` (the step's index, :func:`numbered_output`), or with
+    ``--time-step`` the output name itself.
+
+    The CLI renders whole images with the core methods (:func:`vtkillum.core.render.render`),
+    not through the illumination filters: ``emission``, ``single``, ``path`` and
+    ``refraction`` have no filter, and a filter's light volume is only part of a frame.
+    Each step is rendered once per run; what it keeps instead is the file (a 4-D NIfTI is
+    read once for all steps, :mod:`vtkillum.io.readers`) and the finished frames, in a
+    per-process cache keyed by the step's file state, the method, the scene, the size,
+    the options and the device (:func:`frame_cache`), so that a second pass from Python
+    (``main([...])`` again, e.g. an ``.mp4`` after the ``.png`` pictures) renders nothing.
+    """
+    from vtkillum.core.defaults import auto_exposure
+    from vtkillum.core.device import resolve_device
+    from vtkillum.core.render import method_function, render
+    from vtkillum.core.scene import scene_json
+    from vtkillum.core.tonemap import tonemap
+    from vtkillum.io.animation import MissingDependencyError, check_animation_support, is_animation
+
+    animation = is_animation(args.output)
+    device = resolve_device(args.device)
+    size = args.size
+    if size is None:  # no --size: the device's default picture size
+        from vtkillum.core.defaults import default_image_size
+
+        size = default_image_size(device)
+    width, height = _check_size(size)
+    exposure = _parse_exposure(args.exposure)
+    options = _parse_options(args.option)
+    fps = _check_fps(getattr(args, "fps", None))
+    if args.method in HIDDEN_METHODS:
+        raise UserError(f"--method {args.method} needs an illumination volume, which only the "
+                        "Python API can give (vtkillum.core.raycast.render_illuminated)")
+    fn = method_function(args.method)
+    if args.spp is not None:
+        if args.spp < 1:
+            raise UserError(f"--spp must be a positive integer, got {args.spp}")
+        if "spp" not in inspect.signature(fn).parameters:
+            raise UserError(f"--spp does not apply to the {args.method!r} method (it takes no "
+                            "samples per pixel; the path method does)")
+        options["spp"] = args.spp
+    time_step = getattr(args, "time_step", None)
+    steps = list(range(len(series))) if time_step is None else [series.index(time_step)]
+    if animation:
+        try:
+            check_animation_support(args.output)
+        except MissingDependencyError as err:
+            raise UserError(str(err)) from None
+        check_output(args.output, ANIMATION_FORMATS)
+        targets = [Path(args.output)]
+    elif time_step is not None:
+        check_output(args.output, OUTPUT_FORMATS)
+        targets = [Path(args.output)]
+    else:
+        targets = [numbered_output(args.output, k, len(series)) for k in steps]
+        for target in targets:
+            check_output(target, OUTPUT_FORMATS)
+    if not args.quiet:
+        times = series.times
+        span = (f"t = {times[0]:g} .. {times[-1]:g}" if series.kind != "files"
+                else f"{series.files[0].name} .. {series.files[-1].name}")
+        what = (f"step {steps[0]} only" if len(steps) == 1 and time_step is not None
+                else f"all {len(steps)} steps ('--time-step N' renders one)")
+        where = (str(targets[0]) if len(targets) == 1
+                 else f"{targets[0]} .. {targets[-1].name}")
+        print(f"{series.name}: a time series of {len(series)} steps ({span}); rendering {what} "
+              f"to {where}", flush=True)
+
+    volume, scene = series_scene(series, steps, args.scene, aspect=width / height)
+    check_memory(args.method, width, height, device, volume)
+    cache = frame_cache()
+    settings = (args.method, scene_json(scene), width, height, device,
+                json.dumps(options, sort_keys=True, default=str))
+    results, cached, interrupted = [], 0, None
+    start = time.perf_counter()
+    for n, k in enumerate(steps):
+        key = (series.key(k), settings)
+        result = cache.lookup(key)
+        if result is not None:
+            cached += 1
+            results.append(result)
+            continue
+        volume = series.read(k)
+        label = f"{args.method} {width}x{height} {series.label(k)}"
+        try:
+            with _progress_bar(args.quiet, label) as progress:
+                if args.method == "path":
+                    result, interrupted = render_path_with_estimate(
+                        volume, scene, width, height, device, progress, quiet=args.quiet,
+                        **options)
+                else:
+                    result = render(volume, scene, args.method, width, height, device,
+                                    progress, **options)
+        except ValueError as err:
+            if args.scene is None or str(err).startswith(str(args.scene)):
+                raise
+            raise ValueError(f"{err} (scene file {args.scene})") from err
+        results.append(result)
+        if interrupted is not None:  # a path render stopped: write the steps rendered so far
+            break
+        cache.store(key, result, result.radiance.nbytes + result.alpha.nbytes)
+    elapsed = time.perf_counter() - start
+
+    if exposure == "auto" and (animation or Path(args.output).suffix.lower() == ".png"):
+        # One exposure for every frame: the 99.5th percentile of all frames' covered pixels.
+        exposure = auto_exposure(np.concatenate([r.radiance for r in results]),
+                                 alpha=np.concatenate([r.alpha for r in results]),
+                                 background=scene.background)
+    if animation:
+        from vtkillum.io.animation import write_animation
+
+        frames = [tonemap(r.radiance, r.alpha, scene.background, exposure) for r in results]
+        written = [write_animation(args.output, frames, fps)]
+    else:
+        written = []
+        for target, result in zip(targets, results):
+            written += write_result(target, result, scene.background, exposure)
+    if interrupted is not None:
+        done, wanted, signum = interrupted
+        how = ("interrupted" if signum == signal.SIGINT
+               else f"terminated ({signal.Signals(signum).name})")
+        _report(f"vtkillum: {how}: wrote {len(results)} of {len(steps)} steps, the last with "
+                f"{done} of {wanted} samples per pixel ({width}x{height}, {elapsed:.1f} s)")
+        return 128 + signum
+    if not args.quiet:
+        names = (", ".join(str(p) for p in written) if len(written) <= 2
+                 else f"{written[0]} .. {written[-1]} ({len(written)} files)")
+        reused = f", {cached} from the cache" if cached else ""
+        print(f"wrote {names} ({len(steps)} step{'s' if len(steps) > 1 else ''}, "
+              f"{width}x{height}, {args.method}, {device}, {elapsed:.1f} s{reused})")
+    return 0
+
+
+def open_input_series(spec, array=None, component=None, time_step=None):
+    """The time series ``spec`` names (a 4-D NIfTI, a ``.pvd``/``.series`` file, a glob
+    pattern, a directory of volume files, or a list of files), or ``None`` for one volume
+    or a built-in dataset. ``time_step`` is checked against it: a single volume has none.
+    """
+    from vtkillum.data.builtin import is_builtin
+    from vtkillum.io.time_series import open_time_series
+
+    specs = list(spec) if isinstance(spec, (list, tuple)) else [spec]
+    if any(is_builtin(s) for s in specs):
+        if len(specs) > 1:
+            raise UserError("a built-in dataset is rendered on its own, not in a list of inputs")
+        if time_step is not None:
+            raise UserError(f"--time-step applies to time series (a 4-D NIfTI, a .pvd or "
+                            f".series file, several files); {specs[0]} has none")
+        return None
+    series = open_time_series(specs, array=array, component=_parse_component(component))
+    if not series.is_series:
+        if time_step is not None:
+            raise UserError(f"--time-step {time_step}: {series.name} is one volume, not a time "
+                            "series (a 4-D NIfTI, a .pvd or .series file, a glob pattern such as "
+                            "'step_*.vti', a directory of volume files)")
+        return None
+    if time_step is not None:
+        series.index(time_step)  # a ValueError naming the steps there are
+    return series
+
+
+def series_scene(series, steps, scene_path=None, aspect: float = 1.0):
+    """``(volume, scene)`` for rendering ``steps`` of ``series`` with one scene.
+
+    The scene file (read once) gives what it gives; the rest takes the data-aware defaults
+    (:func:`vtkillum.core.defaults.default_scene`) of the voxelwise maximum over ``steps``
+    (the first of them alone when their grids differ), so that the camera frames what any
+    step shows and the transfer function covers every step's values. ``volume`` is that
+    maximum (what ``scene``'s data-dependent fields resolve on).
+    """
+    from vtkillum.core.defaults import default_scene
+    from vtkillum.core.scene import read_scene_data, scene_from_data
+    from vtkillum.core.volume import Volume
+
+    data = read_scene_data(scene_path) if scene_path else None
+    scene = scene_from_data(data, scene_path) if scene_path else None
+    fill = {"transfer_function", "camera", "lights"}
+    if scene_path:
+        fill -= set(data)
+    first = series.read(steps[0])
+    peak = first.scalars
+    for k in steps[1:] if fill else []:
+        other = series.read(k)
+        if other.scalars.shape != peak.shape or not (
+                np.allclose(other.spacing, first.spacing) and np.allclose(other.origin,
+                                                                           first.origin)):
+            peak = first.scalars
+            break
+        peak = np.maximum(peak, other.scalars)
+    volume = first if peak is first.scalars else Volume(
+        peak, first.spacing, first.origin, first.direction, nan_policy="fill")
+    frame = "LPS" if series.kind == "nifti" else (
+        anatomical_frame(series.files[0]) if series.files else None)
+    scene = default_scene(volume, frame, base=scene, fill=fill, aspect=aspect)
+    return volume, scene
+
+
+def numbered_output(output, index: int, count: int) -> Path:
+    """``out.png`` -> ``out_0007.png``: the picture of step ``index`` of ``count`` (at least
+    four digits, more for series of 10000 steps or more)."""
+    output = Path(output)
+    digits = max(4, len(str(max(count - 1, 0))))
+    return output.with_name(f"{output.stem}_{index:0{digits}d}{output.suffix}")
+
+
+def frame_cache():
+    """The per-process cache of rendered frames of time series (a
+    :class:`~vtkillum.filters.time_cache.TimeStepCache` with the filters' default budget:
+    a share of the memory available)."""
+    global _FRAME_CACHE
+    if _FRAME_CACHE is None:
+        from vtkillum.filters.time_cache import TimeStepCache, default_cache_mb
+
+        _FRAME_CACHE = TimeStepCache(int(default_cache_mb() * 2**20))
+    return _FRAME_CACHE
+
+
+_FRAME_CACHE = None
+
+#: Outputs of ``render`` for a time series besides :data:`OUTPUT_FORMATS`.
+ANIMATION_FORMATS = (".gif", ".mp4")
+
+SERIES_HELP = """\
+time series:
+  INPUT may be a time series: a 4-D NIfTI (one volume per time step), a .pvd or
+  ParaView .series file, several volume files, a quoted glob pattern such as
+  'step_*.vti', or a directory of volume files (ordered naturally: step_2 before
+  step_10). Every step is rendered with one scene (defaults from the voxelwise
+  maximum over the steps, one automatic exposure for all frames) and written as
+  NAME_0000.EXT, NAME_0001.EXT, ... (the step's index), or as an animation:
+  --output movie.gif (Pillow) or movie.mp4 (pip install 'vtkillum[animation]'),
+  --fps frames per second. --time-step N renders step N alone (negative: from
+  the end) under the output name as given.
+"""
+
+
+def _check_fps(value) -> float:
+    if value is None:
+        from vtkillum.io.animation import DEFAULT_FPS
+
+        return DEFAULT_FPS
+    try:
+        fps = float(value)
+    except (TypeError, ValueError):
+        raise UserError(f"--fps must be a positive number, got {_short(value)}") from None
+    if not (np.isfinite(fps) and 0 < fps <= 1000):
+        raise UserError(f"--fps must be a positive number of frames per second (at most "
+                        f"1000), got {_short(value)}")
+    return fps
+
+
 def run_scene(args) -> int:
     from vtkillum.core.scene import scene_json
 
     (output,) = check_output(args.output, (".json",))
-    volume, scene = load_input(args.dataset, None, args.array, args.component)
+    time_step = getattr(args, "time_step", None)
+    series = open_input_series(args.dataset, args.array, args.component, time_step)
+    if series is not None:  # the scene a render of the series (or of its step) would use
+        steps = list(range(len(series))) if time_step is None else [series.index(time_step)]
+        volume, scene = series_scene(series, steps)
+    else:
+        volume, scene = load_input(args.dataset, None, args.array, args.component)
     data = explicit_scene(scene, volume)
     text = scene_json(data).encode()
     write_atomically([(output, lambda f: f.write(text))])
@@ -433,7 +724,16 @@ def run_export(args) -> int:
     for target in volume_files(output):  # .mhd: its data file name.raw too
         role = "" if target == output else f"data file {str(target)!r} of "
         _check_target(target, f"{role}output {args.output!r}")
-    volume, frame = load_input_volume(args.input, args.array, args.component)
+    time_step = getattr(args, "time_step", None)
+    series = open_input_series(args.input, args.array, args.component, time_step)
+    if series is not None:
+        if time_step is None:
+            raise UserError(f"{series.name} is a time series of {len(series)} steps; export one "
+                            f"with --time-step N (0..{len(series) - 1})")
+        volume = series.read(time_step)
+        frame = "LPS" if series.kind == "nifti" else anatomical_frame(series.files[0])
+    else:
+        volume, frame = load_input_volume(args.input, args.array, args.component)
     write_volume(volume, output, frame)
     print(f"wrote {output} ({'x'.join(map(str, volume.dims))} points, spacing "
           f"{', '.join(f'{v:g}' for v in volume.spacing)})")

@@ -17,9 +17,13 @@ matrix of the file, see :mod:`vtkillum.io.readers`):
 The output is one ``vtkImageData`` (float32 point scalars named after the file,
 the values ``read_volume`` gives: NIfTI ``scl_slope``/``scl_inter`` and DICOM
 rescaling applied). A 4-D NIfTI (``dim[4]`` > 1) is offered as time steps
-(``TIME_STEPS``: ``toffset + t * pixdim[4]``): ``read_volume`` reads its first
-volume, the others are read here with the same geometry and scaling. A
-multi-component array (RGB, vectors) is reduced to its magnitude, with a warning.
+(``TIME_STEPS``: ``toffset + t * pixdim[4]``) that ParaView's time controls step
+through: the times come from :func:`vtkillum.io.readers.time_steps`, each volume from
+``read_volume(path, time_step=t)`` and a requested time maps to its step with
+:func:`vtkillum.io.time_series.step_at`, the functions the CLI (``vtkillum render
+functional.nii``) and :class:`vtkillum.io.time_series.TimeSeriesSource` use, so all
+three agree. A multi-component array (RGB, vectors) is reduced to its magnitude, with
+a warning.
 Errors (a missing, unknown or corrupt file) name the reader, the file and the
 problem, in ParaView's Output Messages, never a traceback.
 
@@ -30,7 +34,6 @@ included: ``paraview.detail.pythonalgorithm.get_plugin_xmls``).
 
 from __future__ import annotations
 
-import functools
 import re
 from pathlib import Path
 
@@ -81,24 +84,23 @@ def read_image(path, time_index: int = 0) -> tuple[vtkImageData, list[str]]:
 
     path = Path(path)
     warnings: list[str] = []
-    volume = _read_checked(path, warnings)
+    volume = _read_checked(path, warnings, time_index)
     volume = _metaimage_direction(path, volume)
     volume = _dicom_pixel_spacing(path, volume)
-    if time_index > 0:
-        volume = _nifti_time_step(path, volume, time_index)
     return image_data_from_volume(volume, array_name(path)), warnings
 
 
-def _read_checked(path: Path, warnings: list[str]):
-    """``read_volume`` with the plugin's fallbacks, each announced in ``warnings``: the
-    magnitude of a multi-component array (ParaView has no component to choose here) and
-    NaN/Inf filled; any other error is passed on."""
+def _read_checked(path: Path, warnings: list[str], time_index: int = 0):
+    """``read_volume`` (volume ``time_index`` of a 4-D NIfTI) with the plugin's fallbacks,
+    each announced in ``warnings``: the magnitude of a multi-component array (ParaView has
+    no component to choose here) and NaN/Inf filled; any other error is passed on."""
     from vtkillum.io.readers import read_volume
 
     component, nan_policy = None, "raise"
     while True:  # each fallback is taken at most once
         try:
-            return read_volume(path, component=component, nan_policy=nan_policy)
+            return read_volume(path, component=component, nan_policy=nan_policy,
+                               time_step=time_index)
         except ValueError as err:
             text = str(err)
             if component is None and re.search(r"has \d+ components; choose one", text):
@@ -209,65 +211,15 @@ def nifti_times(path) -> list[float]:
     """Times of the volumes of a 4-D NIfTI file (``[]`` for anything else).
 
     ``toffset + t * pixdim[4]`` (``t`` when ``pixdim[4]`` is not positive), in the
-    file's time unit (``xyzt_units``, usually seconds).
+    file's time unit (``xyzt_units``, usually seconds): vtkillum's
+    :func:`~vtkillum.io.readers.time_steps`, for the files this reader opens.
     """
+    from vtkillum.io.readers import time_steps
+
     name = Path(path).name.lower()
-    if not name.endswith((".nii", ".nii.gz")) or not Path(path).is_file():
+    if not name.endswith((".nii", ".nii.gz")):
         return []
-    from vtkmodules.vtkIOImage import vtkNIFTIImageReader
-
-    reader = vtkNIFTIImageReader()
-    if not reader.CanReadFile(str(path)):
-        return []  # read_image reports it
-    reader.SetFileName(str(path))
-    from vtkmodules.vtkCommonCore import vtkStringOutputWindow
-
-    previous = vtkOutputWindow.GetInstance()
-    vtkOutputWindow.SetInstance(vtkStringOutputWindow())  # read_image reports header errors
-    try:
-        reader.UpdateInformation()
-    finally:
-        vtkOutputWindow.SetInstance(previous)
-    count = int(reader.GetTimeDimension())
-    if count <= 1:
-        return []
-    step = float(reader.GetTimeSpacing())
-    offset = float(reader.GetNIFTIHeader().GetTOffset())
-    return [offset + t * (step if step > 0 else 1.0) for t in range(count)]
-
-
-def _nifti_time_step(path: Path, first, index: int):
-    """Volume ``index`` of a 4-D NIfTI, on the grid of ``first`` (its volume 0 as
-    ``read_volume`` read it: same geometry and ``scl_slope``/``scl_inter``)."""
-    from vtkillum.core.volume import Volume
-
-    stat = path.stat()
-    values, per_time, slope, inter = _nifti_volumes(str(path), stat.st_mtime_ns, stat.st_size)
-    block = values[:, index * per_time:(index + 1) * per_time]
-    block = np.linalg.norm(block.astype(np.float64), axis=1) if per_time > 1 else block[:, 0]
-    scalars = block.astype(np.float32)
-    if slope not in (0.0, 1.0) or inter != 0.0:  # as read_volume scales volume 0
-        scalars = scalars * np.float32(slope if slope != 0.0 else 1.0) + np.float32(inter)
-    scalars = scalars.reshape(first.dims, order="F")
-    return Volume(scalars, first.spacing, first.origin, first.direction, nan_policy="fill")
-
-
-@functools.lru_cache(maxsize=1)
-def _nifti_volumes(path: str, mtime_ns: int, size: int):
-    """Every volume of a 4-D NIfTI, read once per file state (stepping through time
-    then costs no file reading): ``(values (points, T * v), v, scl_slope, scl_inter)``."""
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-    from vtkmodules.vtkIOImage import vtkNIFTIImageReader
-
-    reader = vtkNIFTIImageReader()
-    reader.SetFileName(path)
-    reader.TimeAsVectorOn()  # volume t = components [t * v, (t + 1) * v) of each voxel
-    reader.Update()
-    values = vtk_to_numpy(reader.GetOutput().GetPointData().GetScalars())
-    values = values.reshape(len(values), -1)
-    per_time = max(1, values.shape[1] // max(1, int(reader.GetTimeDimension())))
-    header = reader.GetNIFTIHeader()
-    return values, per_time, header.GetSclSlope(), header.GetSclInter()
+    return time_steps(path)
 
 
 class _VolumeReader(VTKPythonAlgorithmBase):
@@ -343,10 +295,10 @@ class _VolumeReader(VTKPythonAlgorithmBase):
         try:
             index = 0
             if self._times and info.Has(SDDP.UPDATE_TIME_STEP()):
+                from vtkillum.io.time_series import step_at
+
                 # The last volume at or before the requested time (ParaView's convention).
-                time = info.Get(SDDP.UPDATE_TIME_STEP())
-                index = max(0, int(np.searchsorted(self._times, time + 1e-9 * abs(time),
-                                                   side="right")) - 1)
+                index = step_at(self._times, info.Get(SDDP.UPDATE_TIME_STEP()))
             image, _ = self._read(self._path(), index)
         except Exception as err:  # noqa: BLE001 - shown as a message, see _report
             output.Initialize()

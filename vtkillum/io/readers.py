@@ -38,13 +38,30 @@ convention of DICOM, ITK and MetaImage:
   Rescale slope/intercept are applied (by the VTK reader). Slices must be
   evenly spaced and not tilted.
 - ``.vti``, ``.vtk`` and MetaImage geometry is used as stored.
+
+Time
+----
+A 4-D NIfTI (``dim[4]`` > 1) holds one volume per time step, at times
+``toffset + t * pixdim[4]`` (``t`` when ``pixdim[4]`` is not positive) in the file's time
+unit: :func:`time_steps` lists them and ``read_volume(path, time_step=t)`` reads volume
+``t`` on the geometry and with the scaling of the first. Without ``time_step`` the first
+volume is read and a :class:`TimeStepWarning` says so. The whole file is read once per
+file state and kept (one file at a time), so stepping through it reads no more. A
+``.pvd`` collection or a ParaView ``.series`` file lists one volume file per time step:
+:func:`time_steps` and ``read_volume(..., time_step=)`` read them too, through
+:mod:`vtkillum.io.time_series`, which also reads series of files (a glob pattern, a
+directory) and serves any series to a VTK pipeline with ``TIME_STEPS``. The CLI, the
+Python API and the ParaView plugin's reader all go through these functions, so they
+agree on the times and the values of every step.
 """
 
 from __future__ import annotations
 
 import bz2
+import functools
 import gzip
 import re
+import warnings
 import zlib
 from pathlib import Path
 
@@ -63,17 +80,24 @@ EXTENSIONS = {
     ".nii": "nifti",
     ".nii.gz": "nifti",
     ".dcm": "dicom",
+    ".pvd": "series",
+    ".series": "series",
 }
 
 SUPPORTED = (".vti, .vtk, .nrrd/.nhdr, .mha/.mhd, .nii/.nii.gz, or a DICOM directory "
-             "(or a .dcm file in one)")
+             "(or a .dcm file in one); time series: a 4-D .nii/.nii.gz, a .pvd or .series "
+             "file")
+
+
+class TimeStepWarning(UserWarning):
+    """A file holding several time steps was read without ``time_step``: its first step."""
 
 #: RAS -> LPS (and LPS -> RAS): negate x and y.
 RAS_TO_LPS = np.diag([-1.0, -1.0, 1.0])
 
 
 def read_volume(path, array: str | None = None, component: int | None = None,
-                nan_policy: str = "raise") -> Volume:
+                nan_policy: str = "raise", time_step: int | None = None) -> Volume:
     """Read a volume file (or a DICOM directory) as a :class:`Volume`.
 
     Parameters
@@ -90,6 +114,11 @@ def read_volume(path, array: str | None = None, component: int | None = None,
         :func:`vtkillum.io.convert.volume_from_image_data`.
     nan_policy : {"raise", "fill"}
         What to do with NaN/Inf samples (see :class:`Volume`).
+    time_step : int, optional
+        Step of a time series (a 4-D NIfTI, a ``.pvd`` or ``.series`` file), counted
+        from 0; negative counts from the end. Default: the first step, with a
+        :class:`TimeStepWarning` when the file holds several. A file of one volume
+        takes only 0 (or -1).
 
     Returns
     -------
@@ -100,19 +129,77 @@ def read_volume(path, array: str | None = None, component: int | None = None,
     FileNotFoundError
         ``path`` does not exist.
     ValueError
-        Unknown extension, unreadable file, or data that cannot form a volume;
-        the message names the file and what to do.
+        Unknown extension, unreadable file, data that cannot form a volume, or a
+        ``time_step`` the file does not have; the message names the file and what to do.
     """
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or directory")
     fmt = volume_format(path)
+    if fmt == "series":
+        from vtkillum.io.time_series import open_time_series
+
+        series = open_time_series(path, array=array, component=component,
+                                  nan_policy=nan_policy)
+        return series.read(_step_or_first(path, time_step, len(series)))
+    if fmt == "nifti":
+        return _read_nifti(path, array, component, nan_policy, time_step)
+    _step_or_first(path, time_step, 1)
     if fmt == "dicom":
         return _read_dicom(path if path.is_dir() else path.parent, array, component, nan_policy)
     if path.is_dir():
         raise ValueError(f"{path} is a directory but holds no DICOM files; supported: {SUPPORTED}")
     reader = _READERS[fmt]
     return reader(path, array, component, nan_policy)
+
+
+def time_steps(path) -> list[float]:
+    """Times of the steps of a time-series file, ``[]`` for a file of one volume.
+
+    A 4-D NIfTI: ``toffset + t * pixdim[4]`` (``t`` when ``pixdim[4]`` is not positive),
+    in the file's time unit (``xyzt_units``, usually seconds). A ``.pvd`` or ``.series``
+    file: the times it lists (:func:`vtkillum.io.time_series.open_time_series`). Anything
+    else (or a file whose header cannot be read: :func:`read_volume` reports that) has
+    none.
+    """
+    path = Path(path)
+    try:
+        fmt = volume_format(path)
+    except ValueError:
+        return []
+    if fmt == "series":
+        from vtkillum.io.time_series import open_time_series
+
+        return list(open_time_series(path).times)
+    if fmt != "nifti" or not path.is_file():
+        return []
+    header = _nifti_header(path)
+    if header is None or header[0] <= 1:
+        return []
+    count, step, offset = header
+    return [offset + t * (step if step > 0 else 1.0) for t in range(count)]
+
+
+def _step_or_first(path, time_step, count: int, stacklevel: int = 3) -> int:
+    """``time_step`` as an index into ``count`` steps (negative from the end); ``None`` is
+    0, with a :class:`TimeStepWarning` when there are several."""
+    if time_step is None:
+        if count > 1:
+            warnings.warn(f"{path} holds {count} time steps; reading the first (give "
+                          f"time_step=0..{count - 1} to choose one, or read all with "
+                          "vtkillum.io.time_series.open_time_series)", TimeStepWarning,
+                          stacklevel=stacklevel)
+        return 0
+    if isinstance(time_step, bool) or not isinstance(time_step, (int, np.integer)):
+        raise ValueError(f"{path}: time_step must be an integer, got {time_step!r}")
+    index = int(time_step)
+    if not -count <= index < count:
+        if count == 1:
+            raise ValueError(f"{path}: time step {index} does not exist: the file holds one "
+                             "volume, not a time series (time step 0 is the only one)")
+        raise ValueError(f"{path}: time step {index} does not exist: the file holds {count} "
+                         f"time steps, 0..{count - 1}")
+    return index % count
 
 
 def volume_format(path) -> str:
@@ -158,12 +245,27 @@ def _read_metaimage(path, array, component, nan_policy):
     return _convert(_run_reader(reader, path), path, array, component, nan_policy)
 
 
-def _read_nifti(path, array, component, nan_policy):
+def _read_nifti(path, array, component, nan_policy, time_step=None):
     from vtkmodules.vtkIOImage import vtkNIFTIImageReader
 
-    reader = vtkNIFTIImageReader()
-    image = _run_reader(reader, path)
-    volume = _convert(image, path, array, component, nan_policy)
+    header = _nifti_header(path)
+    count = header[0] if header is not None else 1
+    index = _step_or_first(path, time_step, count, stacklevel=4)
+    if count > 1:
+        stat = Path(path).stat()
+        reader, image = _nifti_all_steps(str(path), stat.st_mtime_ns, stat.st_size)
+        image = _nifti_step_image(image, index, count)
+    else:
+        reader = vtkNIFTIImageReader()
+        image = _run_reader(reader, path)
+    try:
+        volume = _convert(image, path, array, component, nan_policy)
+    except ValueError as err:
+        if count > 1 and component is not None and "component" in str(err):
+            # A 4-D file's volumes are time steps, not components: say which option picks one.
+            raise ValueError(f"{err} (its {count} volumes are time steps, not components: "
+                             f"choose one with time_step / --time-step 0..{count - 1})") from err
+        raise
     header = reader.GetNIFTIHeader()
     slope, inter = header.GetSclSlope(), header.GetSclInter()
     if slope not in (0.0, 1.0) or inter != 0.0:
@@ -184,6 +286,55 @@ def _read_nifti(path, array, component, nan_policy):
         return _rebuild(volume, spacing=volume.spacing * scale, origin=RAS_TO_LPS @ origin_ras,
                         direction=RAS_TO_LPS @ rotation, nan_policy=nan_policy)
     return volume  # Analyze-style file: voxel sizes only, no placement
+
+
+def _nifti_header(path):
+    """``(time steps, time spacing, time offset)`` of a NIfTI file's header, or ``None``
+    when VTK cannot read it (:func:`read_volume` then reports why)."""
+    from vtkmodules.vtkCommonCore import vtkOutputWindow, vtkStringOutputWindow
+    from vtkmodules.vtkIOImage import vtkNIFTIImageReader
+
+    reader = vtkNIFTIImageReader()
+    if not reader.CanReadFile(str(path)):
+        return None
+    reader.SetFileName(str(path))
+    previous = vtkOutputWindow.GetInstance()
+    vtkOutputWindow.SetInstance(vtkStringOutputWindow())  # read_volume reports header errors
+    try:
+        reader.UpdateInformation()
+    finally:
+        vtkOutputWindow.SetInstance(previous)
+    return (max(1, int(reader.GetTimeDimension())), float(reader.GetTimeSpacing()),
+            float(reader.GetNIFTIHeader().GetTOffset()))
+
+
+@functools.lru_cache(maxsize=1)
+def _nifti_all_steps(path: str, mtime_ns: int, size: int):
+    """``(reader, image)``: every volume of a 4-D NIfTI read at once, once per file state
+    (``mtime_ns``, ``size``), so that stepping through time reads the file once. Volume
+    ``t`` is components ``[t v, (t + 1) v)`` of each point (``v`` components per volume)."""
+    from vtkmodules.vtkIOImage import vtkNIFTIImageReader
+
+    reader = vtkNIFTIImageReader()
+    reader.TimeAsVectorOn()
+    return reader, _run_reader(reader, path)
+
+
+def _nifti_step_image(image, index: int, count: int):
+    """Volume ``index`` of a 4-D NIfTI image read with ``TimeAsVector`` (same grid)."""
+    from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+    from vtkmodules.vtkCommonDataModel import vtkImageData
+
+    scalars = image.GetPointData().GetScalars()
+    values = vtk_to_numpy(scalars).reshape(image.GetNumberOfPoints(), -1)
+    per_step = max(1, values.shape[1] // count)
+    block = np.ascontiguousarray(values[:, index * per_step:(index + 1) * per_step])
+    step = vtkImageData()
+    step.CopyStructure(image)  # dimensions, origin, spacing, direction
+    array = numpy_to_vtk(block, deep=True)
+    array.SetName(scalars.GetName() or "scalars")
+    step.GetPointData().SetScalars(array)
+    return step
 
 
 def _read_dicom(directory, array, component, nan_policy):

@@ -1,0 +1,510 @@
+"""Time series of volumes: find their steps, read them, serve them to VTK pipelines.
+
+A time series is a list of steps, each a time and a volume. :func:`open_time_series`
+finds one in
+
+=================================  ===========================================================
+a 4-D NIfTI (``.nii``/``.nii.gz``)  one volume per time step, at ``toffset + t * pixdim[4]``
+                                   (:func:`vtkillum.io.readers.time_steps`)
+``.pvd``                           a VTK collection: ``<DataSet timestep="..." file="..."/>``,
+                                   one file per time (one ``part``), times as written
+``.series``                        ParaView's file-series JSON: ``{"files": [{"name": ...,
+                                   "time": ...}, ...]}``
+a glob pattern (``'step_*.vti'``)  the matching volume files, one step each
+a list of files                    what the shell makes of an unquoted pattern
+a directory                        its volume files (all of one extension), or the one
+                                   ``.pvd``/``.series`` file in it
+=================================  ===========================================================
+
+Files of a series are ordered naturally (``step_2`` before ``step_10``) and their
+times are their positions 0, 1, 2, ... (VTK's file-series convention), except where a
+``.pvd`` or ``.series`` file gives times. Every step is read with
+:func:`vtkillum.io.readers.read_volume` (so ``array``, ``component`` and ``nan_policy``
+mean what they mean there), when it is asked for: a series of 1000 files costs
+nothing to open.
+
+:class:`TimeSeriesSource` serves a series to a VTK pipeline as one ``vtkImageData``
+per time step (``TIME_STEPS``), so that ParaView's time controls, pyvista animations and
+the illumination filters' per-time-step cache (:class:`vtkillum.filters.base.IlluminationFilterBase`)
+drive it. A time between two steps gets the step at or before it (:func:`step_at`),
+as VTK's readers and the ParaView plugin's reader do.
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+import re
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
+from vtkmodules.vtkCommonCore import vtkOutputWindow
+from vtkmodules.vtkCommonDataModel import vtkDataObject, vtkImageData
+from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
+
+from vtkillum.core.volume import Volume
+from vtkillum.io.readers import EXTENSIONS, read_volume, time_steps, volume_format
+
+#: Characters that make an input a glob pattern (when no file has that name).
+GLOB_CHARACTERS = "*?["
+
+#: Series kinds: a file's own time axis, a file listing the steps, files one per step,
+#: volumes in memory, and one volume (not a series).
+KINDS = ("nifti", "pvd", "series", "files", "memory", "volume")
+
+
+def step_at(times, time: float) -> int:
+    """Index of the step at or before ``time`` (the first step for earlier times).
+
+    ``times`` ascending. A time within a relative 1e-9 of a step counts as that step
+    (times travel through VTK as doubles and through ParaView's animation as text).
+    """
+    times = np.asarray(times, dtype=np.float64)
+    time = float(time)
+    index = int(np.searchsorted(times, time + 1e-9 * max(abs(time), 1e-300), side="right")) - 1
+    return min(max(index, 0), len(times) - 1)
+
+
+@dataclass
+class TimeSeries:
+    """The steps of a time series: their times and how to read each.
+
+    Attributes
+    ----------
+    name : str
+        What the series is called in messages: the file, pattern or directory given.
+    kind : str
+        One of :data:`KINDS`: ``"volume"`` is a single volume (no time axis).
+    times : list of float
+        Ascending.
+    files : list of Path
+        The file of each step (the same file for every step of a 4-D NIfTI; empty for
+        volumes in memory).
+    array, component, nan_policy
+        How each step is read (:func:`vtkillum.io.readers.read_volume`).
+    """
+
+    name: str
+    kind: str
+    times: list
+    files: list = field(default_factory=list)
+    array: str | None = None
+    component: object = None
+    nan_policy: str = "raise"
+    volumes: list | None = None  # the steps of a series held in memory
+
+    def __len__(self) -> int:
+        return len(self.times)
+
+    @property
+    def is_series(self) -> bool:
+        """True unless this is a single volume without a time axis."""
+        return self.kind != "volume"
+
+    @property
+    def array_name(self) -> str:
+        """Name of the point array in images of the steps: ``array``, else the series'
+        name without directory, extensions and step numbers (``functional``, ``step``)."""
+        if self.array:
+            return self.array
+        stem = Path(self.name.rstrip("/")).name.split(".")[0]
+        stem = re.sub(r"[^A-Za-z0-9_-]+", "_", stem)
+        stem = re.sub(r"[_-]*\d*$", "", stem).strip("_-")
+        return stem or "scalars"
+
+    def index(self, step: int) -> int:
+        """``step`` as an index (negative counts from the end); ``ValueError`` if absent."""
+        count = len(self)
+        if isinstance(step, bool) or not isinstance(step, (int, np.integer)):
+            raise ValueError(f"{self.name}: a time step is an integer, got {step!r}")
+        if not -count <= int(step) < count:
+            if not self.is_series:
+                raise ValueError(f"{self.name} is one volume, not a time series (a 4-D NIfTI, "
+                                 "a .pvd or .series file, or several files); it has no time "
+                                 f"step {step}")
+            raise ValueError(f"{self.name}: time step {step} does not exist: the series has "
+                             f"{count} steps, 0..{count - 1}")
+        return int(step) % count
+
+    def read(self, step: int) -> Volume:
+        """The volume of ``step`` (an index, negative from the end)."""
+        k = self.index(step)
+        if self.volumes is not None:
+            return self.volumes[k]
+        path = self.files[k]
+        time_step = k if self.kind == "nifti" else 0 if self.kind == "volume" else None
+        if time_step is None and volume_format(path) == "nifti":
+            inner = len(time_steps(path))
+            if inner > 1:
+                raise ValueError(f"{path} (step {k} of {self.name}) is itself a time series "
+                                 f"of {inner} volumes; a series of files takes one volume per "
+                                 "file")
+        return read_volume(path, array=self.array, component=self.component,
+                           nan_policy=self.nan_policy, time_step=time_step)
+
+    def key(self, step: int) -> tuple:
+        """What identifies the contents of ``step``: file, its state, step and reading
+        options (for caches; a rewritten file gets a new key)."""
+        k = self.index(step)
+        if self.volumes is not None:
+            return ("memory", id(self.volumes[k]), k)
+        path = self.files[k]
+        try:
+            stat = path.stat()
+            state = (stat.st_mtime_ns, stat.st_size)
+        except OSError:
+            state = None
+        return (str(path.resolve()), state, k if self.kind == "nifti" else None, self.array,
+                self.component, self.nan_policy)
+
+    def label(self, step: int) -> str:
+        """``step 3/20 (t = 6)`` or ``step 3/20 (step_003.vti)`` for messages."""
+        k = self.index(step)
+        where = (f"t = {self.times[k]:g}" if self.kind in ("nifti", "pvd", "series", "memory")
+                 else self.files[k].name)
+        return f"step {k}/{len(self)} ({where})"
+
+    @classmethod
+    def from_volumes(cls, steps, name: str = "series") -> TimeSeries:
+        """A series of volumes in memory: ``steps`` a sequence of ``(time, Volume)``."""
+        steps = sorted(((float(t), v) for t, v in steps), key=lambda s: s[0])
+        if not steps:
+            raise ValueError(f"{name}: a time series needs at least one step")
+        for _, volume in steps:
+            if not isinstance(volume, Volume):
+                raise TypeError(f"{name}: steps must be (time, vtkillum Volume) pairs, got "
+                                f"{type(volume).__name__}")
+        _check_times(name, [t for t, _ in steps])
+        return cls(name, "memory", [t for t, _ in steps], volumes=[v for _, v in steps])
+
+
+def open_time_series(spec, array: str | None = None, component=None,
+                     nan_policy: str = "raise") -> TimeSeries:
+    """The time series ``spec`` names (module docstring), or a single volume as a series of
+    one step of kind ``"volume"``.
+
+    Parameters
+    ----------
+    spec : str, Path or sequence of them
+        A file, a glob pattern, a directory, or several files (one step each).
+    array, component, nan_policy
+        How each step is read (:func:`vtkillum.io.readers.read_volume`).
+
+    Raises
+    ------
+    FileNotFoundError
+        A file (or every match of a pattern) is missing.
+    ValueError
+        A ``.pvd``/``.series`` file that cannot be parsed, a step file of an unknown
+        format, files of several formats, a ``.pvd`` with several parts per time.
+    """
+    options = dict(array=array, component=component, nan_policy=nan_policy)
+    if isinstance(spec, (list, tuple)):
+        if len(spec) == 1:
+            return open_time_series(spec[0], **options)
+        if not spec:
+            raise ValueError("no input files given")
+        files = [Path(p) for p in spec]
+        for path in files:
+            if not path.exists():
+                raise FileNotFoundError(f"{path}: no such file or directory")
+        return _file_series(" ".join(str(p) for p in spec), files, **options)
+    path = Path(spec)
+    if not path.exists():
+        if any(c in str(spec) for c in GLOB_CHARACTERS):
+            matches = [Path(p) for p in glob.glob(str(spec))]
+            if not matches:
+                raise FileNotFoundError(f"{spec}: no file matches this pattern")
+            return _file_series(str(spec), matches, **options)
+        raise FileNotFoundError(f"{path}: no such file or directory")
+    if path.is_dir() and volume_format(path) == "directory":
+        return _directory_series(path, **options)
+    fmt = volume_format(path)
+    if fmt == "series":
+        return _listed_series(path, **options)
+    if fmt == "nifti":
+        times = time_steps(path)
+        if times:
+            return TimeSeries(str(path), "nifti", times, [path] * len(times), **options)
+    return TimeSeries(str(path), "volume", [0.0], [path], **options)
+
+
+def _file_series(name: str, files, **options) -> TimeSeries:
+    """One step per file, naturally ordered, times 0, 1, 2, ..."""
+    files = sorted({Path(p) for p in files}, key=_natural_key)
+    formats = {}
+    for path in files:
+        if path.is_dir():
+            raise ValueError(f"{name}: {path} is a directory; a series of files takes one "
+                             "volume file per step")
+        formats.setdefault(volume_format(path), []).append(path)
+    if "series" in formats:
+        raise ValueError(f"{name}: {formats['series'][0]} lists a time series itself; give it "
+                         "alone")
+    if len(formats) > 1:
+        raise ValueError(f"{name}: the files are of several formats ({', '.join(sorted(formats))}); "
+                         "a series takes one file per step of one format (give a pattern such "
+                         "as 'step_*.vti')")
+    return TimeSeries(name, "files", [float(k) for k in range(len(files))], files, **options)
+
+
+def _directory_series(directory: Path, **options) -> TimeSeries:
+    """The one ``.pvd``/``.series`` file of ``directory``, else its volume files."""
+    entries = sorted(p for p in directory.iterdir() if p.is_file() and not p.name.startswith("."))
+    listed = [p for p in entries if _format_or_none(p) == "series"]
+    if len(listed) == 1:
+        return _listed_series(listed[0], **options)
+    volumes = [p for p in entries if _format_or_none(p) not in (None, "series", "dicom")]
+    if not volumes:
+        raise ValueError(f"{directory} holds no volume files (and no DICOM series); supported: "
+                         f"{', '.join(sorted(EXTENSIONS))}")
+    extensions = {_extension(p) for p in volumes}
+    if len(extensions) > 1:
+        raise ValueError(f"{directory} holds volume files of several kinds "
+                         f"({', '.join(sorted(extensions))}); give a pattern such as "
+                         f"'{directory}/*{sorted(extensions)[0]}'")
+    return _file_series(str(directory), volumes, **options)
+
+
+def _listed_series(path: Path, **options) -> TimeSeries:
+    """A ``.pvd`` collection or ParaView ``.series`` file: its ``(time, file)`` steps."""
+    steps = _pvd_steps(path) if path.name.lower().endswith(".pvd") else _json_steps(path)
+    if not steps:
+        raise ValueError(f"{path} lists no data files")
+    steps.sort(key=lambda s: s[0])
+    times = [t for t, _ in steps]
+    _check_times(str(path), times)
+    files = []
+    for _, name in steps:
+        target = Path(name) if Path(name).is_absolute() else path.parent / name
+        if not target.exists():
+            raise FileNotFoundError(f"{path}: its data file {target} does not exist")
+        if _format_or_none(target) in (None, "series"):
+            raise ValueError(f"{path}: its data file {target} is not a volume file; "
+                             "supported: .vti, .vtk, .nrrd, .mha/.mhd, .nii/.nii.gz")
+        files.append(target)
+    kind = "pvd" if path.name.lower().endswith(".pvd") else "series"
+    return TimeSeries(str(path), kind, times, files, **options)
+
+
+def _pvd_steps(path: Path) -> list:
+    try:
+        root = ET.parse(path).getroot()
+    except (ET.ParseError, OSError) as err:
+        raise ValueError(f"{path}: not a readable .pvd file ({err})") from None
+    if root.tag != "VTKFile" or root.get("type") != "Collection":
+        raise ValueError(f"{path}: not a VTK collection (.pvd) file: it must start with "
+                         "<VTKFile type=\"Collection\">")
+    steps, parts = [], set()
+    for n, item in enumerate(root.iter("DataSet")):
+        name = item.get("file")
+        if not name:
+            raise ValueError(f"{path}: DataSet {n} has no 'file' attribute")
+        try:
+            time = float(item.get("timestep", n))
+        except ValueError:
+            raise ValueError(f"{path}: DataSet {n} has timestep {item.get('timestep')!r}, "
+                             "not a number") from None
+        parts.add(item.get("part", "0"))
+        steps.append((time, name))
+    if len(parts) > 1:
+        raise ValueError(f"{path} has {len(parts)} parts per time step; vtkillum renders one "
+                         "image per step (a collection of one part)")
+    return steps
+
+
+def _json_steps(path: Path) -> list:
+    try:
+        data = json.loads(path.read_text())
+        files = data["files"]
+        return [(float(entry["time"]), str(entry["name"])) for entry in files]
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError, KeyError, TypeError,
+            ValueError) as err:
+        raise ValueError(f"{path}: not a readable ParaView file series (.series): expected "
+                         '{"files": [{"name": ..., "time": ...}, ...]} '
+                         f"({type(err).__name__}: {err})") from None
+
+
+def _check_times(name: str, times) -> None:
+    values = np.asarray(times, dtype=np.float64)
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"{name}: the time steps must be finite numbers")
+    if np.any(np.diff(values) <= 0):
+        duplicate = values[1:][np.diff(values) <= 0][0]
+        raise ValueError(f"{name}: two steps at time {duplicate:g}; each time holds one volume")
+
+
+def _format_or_none(path: Path) -> str | None:
+    try:
+        return volume_format(path)
+    except ValueError:
+        return None
+
+
+def _extension(path: Path) -> str:
+    name = path.name.lower()
+    for ext in sorted(EXTENSIONS, key=len, reverse=True):
+        if name.endswith(ext):
+            return ext
+    return path.suffix.lower()
+
+
+def _natural_key(path: Path):
+    """``step_2`` before ``step_10``: digit runs compare as numbers."""
+    parts = re.split(r"(\d+)", str(path))
+    return [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in parts]
+
+
+class TimeSeriesSource(VTKPythonAlgorithmBase):
+    """A time series as a VTK source: one ``vtkImageData`` per time step (``TIME_STEPS``).
+
+    Parameters
+    ----------
+    series : TimeSeries, str, Path or sequence, optional
+        A :class:`TimeSeries`, or what :func:`open_time_series` opens; also settable with
+        :meth:`SetFileName` / :meth:`SetSeries`.
+    array, component, nan_policy
+        How steps are read when ``series`` is opened here.
+
+    Notes
+    -----
+    Output: point scalars (float32) named :attr:`TimeSeries.array_name`, on the grid of
+    the step's file (origin, spacing, direction matrix as
+    :func:`~vtkillum.io.readers.read_volume` gives them), stamped with the step's time
+    (``DATA_TIME_STEP``). Every step must have the first step's dimensions (a VTK
+    pipeline announces one extent); a step that differs is an error naming it. The image
+    of the last step read is kept, so repeated requests for one time read nothing;
+    downstream illumination filters keep their outputs per time step, and on their
+    cache hits this source does not execute at all. :attr:`reads` counts the steps read.
+    Errors (a missing or unreadable step) are reported the VTK way (``ErrorEvent``
+    observers, else the output window), the output left empty, and kept in
+    :attr:`last_error`.
+
+    Examples
+    --------
+    >>> source = TimeSeriesSource("functional.nii")          # doctest: +SKIP
+    >>> light = LightTransmittanceFilter()                    # doctest: +SKIP
+    >>> light.SetInputConnection(source.GetOutputPort())      # doctest: +SKIP
+    >>> for t in source.GetTimeSteps():                       # doctest: +SKIP
+    ...     illumination = light.execute(time=t)
+    """
+
+    def __init__(self, series=None, array: str | None = None, component=None,
+                 nan_policy: str = "raise") -> None:
+        super().__init__(nInputPorts=0, nOutputPorts=1, outputType="vtkImageData")
+        self._options = dict(array=array, component=component, nan_policy=nan_policy)
+        self._series: TimeSeries | None = None
+        self._last = None  # (key, image) of the last step read
+        self._dims = None  # the first step's dimensions, announced to the pipeline
+        #: Steps read from files (or taken from memory) so far.
+        self.reads = 0
+        #: The error of the last request, or None.
+        self.last_error: Exception | None = None
+        if series is not None:
+            self.SetSeries(series)
+
+    # --- properties --------------------------------------------------------------------------
+    def SetSeries(self, series) -> None:
+        """The series to serve: a :class:`TimeSeries` or what :func:`open_time_series` opens."""
+        if not isinstance(series, TimeSeries):
+            series = open_time_series(series, **self._options)
+        self._series = series
+        self._last = None
+        self.Modified()
+
+    def SetFileName(self, name) -> None:
+        """Open ``name`` (a file, pattern or directory) as the series to serve."""
+        self.SetSeries(str(name))
+
+    def GetSeries(self) -> TimeSeries | None:
+        return self._series
+
+    def GetTimeSteps(self) -> list:
+        """The times of the steps (``[]`` before a series is set)."""
+        return list(self._series.times) if self._series is not None else []
+
+    # --- steps -------------------------------------------------------------------------------
+    def image(self, step: int) -> vtkImageData:
+        """The image of ``step`` (an index): what the output holds at that step's time."""
+        from vtkillum.io.convert import image_data_from_volume
+
+        series = self._require_series()
+        key = series.key(step)
+        if self._last is not None and self._last[0] == key:
+            return self._last[1]
+        image = image_data_from_volume(series.read(step), series.array_name)
+        self.reads += 1
+        self._last = (key, image)
+        return image
+
+    def volume(self, step: int) -> Volume:
+        """The :class:`Volume` of ``step`` (an index)."""
+        return self._require_series().read(step)
+
+    def _require_series(self) -> TimeSeries:
+        if self._series is None:
+            raise ValueError("TimeSeriesSource has no series: call SetSeries or SetFileName")
+        return self._series
+
+    # --- pipeline ----------------------------------------------------------------------------
+    def RequestInformation(self, request, inInfo, outInfo):
+        info = outInfo.GetInformationObject(0)
+        try:
+            first = self.image(0)
+        except Exception as err:  # noqa: BLE001 - VTK swallows exceptions: report it
+            # Reported once, here; an empty extent and success keep VTK's executive from
+            # adding its request dumps (as the ParaView plugin's reader does).
+            info.Set(SDDP.WHOLE_EXTENT(), (0, -1, 0, -1, 0, -1), 6)
+            info.Remove(SDDP.TIME_STEPS())
+            info.Remove(SDDP.TIME_RANGE())
+            return self._fail(err)
+        self._dims = first.GetDimensions()  # what every step must have (RequestData)
+        info.Set(SDDP.WHOLE_EXTENT(), first.GetExtent(), 6)
+        info.Set(vtkDataObject.ORIGIN(), first.GetOrigin(), 3)
+        info.Set(vtkDataObject.SPACING(), first.GetSpacing(), 3)
+        matrix = first.GetDirectionMatrix()
+        info.Set(vtkDataObject.DIRECTION(),
+                 tuple(matrix.GetElement(r, c) for r in range(3) for c in range(3)), 9)
+        times = self._series.times
+        info.Set(SDDP.TIME_STEPS(), times, len(times))
+        info.Set(SDDP.TIME_RANGE(), [times[0], times[-1]], 2)
+        return 1
+
+    def RequestData(self, request, inInfo, outInfo):
+        info = outInfo.GetInformationObject(0)
+        output = vtkImageData.GetData(info)
+        series = self._series
+        try:
+            series = self._require_series()
+            k = 0
+            if info.Has(SDDP.UPDATE_TIME_STEP()):
+                k = step_at(series.times, info.Get(SDDP.UPDATE_TIME_STEP()))
+            image = self.image(k)
+            if self._dims is not None and image.GetDimensions() != self._dims:
+                raise ValueError(f"{series.name}: {series.label(k)} has dimensions "
+                                 f"{image.GetDimensions()}, the first step {self._dims}; the "
+                                 "steps of a series served to a VTK pipeline must share one "
+                                 "grid")
+        except Exception as err:  # noqa: BLE001 - VTK swallows exceptions: report it
+            output.Initialize()
+            return self._fail(err)  # an empty output and the message only
+        output.ShallowCopy(image)
+        output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), series.times[k])
+        self.last_error = None
+        return 1
+
+    def _fail(self, err: Exception) -> int:
+        """Report ``err`` in one line; 1 (VTK would add request dumps to a failure)."""
+        self.last_error = err
+        message = f"TimeSeriesSource: {' '.join(str(err).split()) or type(err).__name__}"
+        if self.HasObserver("ErrorEvent"):
+            self.InvokeEvent("ErrorEvent", message)
+        else:
+            vtkOutputWindow.GetInstance().DisplayErrorText(message + "\n")
+        return 1
+
+
+__all__ = ["TimeSeries", "TimeSeriesSource", "open_time_series", "step_at"]
