@@ -251,13 +251,17 @@ def _blob(n: int = 13) -> Volume:
 def test_lights_beyond_float32_are_refused():
     """Before: a magnitude of 1e40 rendered inf/NaN in single, path, transmittance and
     ambient-scattering; a point light 1e20 away NaN in ambient-scattering. Now the light
-    itself is refused, with the limit in the message (vtkillum.core.lights)."""
+    itself is refused, with the limit in the message (vtkillum.core.lights). A point light
+    is measured against the volume (any length unit works, vtkillum.core.units), so render
+    refuses it, before anything runs."""
     with pytest.raises(ValueError, match="overflow"):
         DirectionalLight((1, -1, -1), (1e40, 1e40, 1e40))
-    with pytest.raises(ValueError, match="overflow"):
-        PointLight((1.0, 6.0, 6.0), (1e40, 1e40, 1e40))
-    with pytest.raises(ValueError, match="directional light"):
-        PointLight((1e20, 6.0, 6.0), (1.0, 1.0, 1.0))
+    scene = Scene(transfer_function=TransferFunction([0.0, 1.0], [0.0, 0.8]))
+    for light, reason in ((PointLight((1.0, 6.0, 6.0), (1e40, 1e40, 1e40)), "overflow"),
+                          (PointLight((1e20, 6.0, 6.0), (1.0, 1.0, 1.0)), "directional light")):
+        scene.lights = [light]
+        with pytest.raises(ValueError, match=reason):
+            render(_blob(), scene, "single", WIDTH, HEIGHT, "cpu")
 
 
 EXTREMES = [

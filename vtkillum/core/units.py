@@ -200,8 +200,8 @@ class WorldUnits:
                 raise ValueError(
                     f"lights[{i}]: point-light intensity {light.intensity.tolist()} is "
                     f"{np.max(intensity):.3g} per squared mean spacing ({self.length:.3g} world "
-                    f"units); at most {MAX_VALUE:g} can be rendered in float32: lower it (the "
-                    "picture at another scale s keeps its intensity scaled by s²)")
+                    f"units); at most {MAX_VALUE:g} (float32 rendering would overflow): lower it "
+                    "(the picture at another scale s keeps its intensity scaled by s²)")
             if not (np.isfinite(radius) and radius <= MAX_COORDINATE):
                 raise ValueError(f"lights[{i}]: radius {light.radius:g} world units is "
                                  f"{radius:.3g} mean spacings; at most {MAX_COORDINATE:g}")
