@@ -1,8 +1,10 @@
 """Animate the built-in smoke-plume time series with illumination in pyvista, off screen.
 
-A small VTK source serves the steps of :func:`vtkillum.data.procedural.plume_series`
-with ``TIME_STEPS``; an illumination filter follows it time step by time step, and
-each frame shows the step with :func:`vtkillum.pyvista_accessor.add_illuminated_volume`.
+:class:`vtkillum.io.time_series.TimeSeriesSource` serves the steps of
+:func:`vtkillum.data.procedural.plume_series` with ``TIME_STEPS`` (the same source reads
+a 4-D NIfTI, a ``.pvd`` or a file series: ``TimeSeriesSource("functional.nii")``); an
+illumination filter follows it time step by time step, and each frame shows the step
+with :func:`vtkillum.pyvista_accessor.add_illuminated_volume`.
 The animation plays forward and back once more, so the second pass is served from
 the filter's per-time-step cache. Per step it prints the time, the seconds the
 illumination took and the cache hits/misses so far.
@@ -21,48 +23,16 @@ from pathlib import Path
 
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")  # headless VTK
 
-import numpy as np
 import pyvista as pv
-from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
-from vtkmodules.vtkCommonDataModel import vtkDataObject, vtkImageData
-from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
 
 from vtkillum.data.procedural import default_scene, plume_series
 from vtkillum.filters import ConvectionDiffusionLightFilter, LightTransmittanceFilter
-from vtkillum.io.convert import image_data_from_volume
+from vtkillum.io.time_series import TimeSeries, TimeSeriesSource
 from vtkillum.mappers import apply_camera_to_vtk
 from vtkillum.pyvista_accessor import add_illuminated_volume
 
 FILTERS = {"transmittance": LightTransmittanceFilter,
            "convection_diffusion": ConvectionDiffusionLightFilter}
-
-
-class TimeSeriesSource(VTKPythonAlgorithmBase):
-    """Serves a list of ``(time, Volume)`` as a time-dependent ``vtkImageData``."""
-
-    def __init__(self, series) -> None:
-        super().__init__(nInputPorts=0, nOutputPorts=1, outputType="vtkImageData")
-        self.times = [float(t) for t, _ in series]
-        self.images = [image_data_from_volume(v, "density") for _, v in series]
-
-    def RequestInformation(self, request, inInfo, outInfo):
-        info = outInfo.GetInformationObject(0)
-        first = self.images[0]
-        info.Set(SDDP.WHOLE_EXTENT(), first.GetExtent(), 6)
-        info.Set(vtkDataObject.SPACING(), first.GetSpacing(), 3)
-        info.Set(vtkDataObject.ORIGIN(), first.GetOrigin(), 3)
-        info.Set(SDDP.TIME_STEPS(), self.times, len(self.times))
-        info.Set(SDDP.TIME_RANGE(), [self.times[0], self.times[-1]], 2)
-        return 1
-
-    def RequestData(self, request, inInfo, outInfo):
-        info = outInfo.GetInformationObject(0)
-        t = info.Get(SDDP.UPDATE_TIME_STEP()) if info.Has(SDDP.UPDATE_TIME_STEP()) else self.times[0]
-        k = int(np.argmin(np.abs(np.asarray(self.times) - t)))
-        output = vtkImageData.GetData(info)
-        output.ShallowCopy(self.images[k])
-        output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), self.times[k])
-        return 1
 
 
 def main(argv=None) -> int:
@@ -82,7 +52,7 @@ def main(argv=None) -> int:
 
     series = plume_series(steps=opts.steps, shape=tuple(opts.shape))
     scene = default_scene("plume", series[0][1])
-    source = TimeSeriesSource(series)
+    source = TimeSeriesSource(TimeSeries.from_volumes(series, name="plume"))
     light = FILTERS[opts.method]()
     light.SetInputConnection(source.GetOutputPort())
     light.SetTransferFunction(scene.transfer_function)
@@ -97,13 +67,13 @@ def main(argv=None) -> int:
     frames = []
     print(f"{'frame':>5} {'time':>6} {'illum s':>8} {'render s':>9} {'hits':>5} {'misses':>6}")
     for index, k in enumerate(order):
-        t = source.times[k]
+        t = source.GetTimeSteps()[k]
         start = time.perf_counter()
         illumination = light.execute(time=t)
         illum_seconds = time.perf_counter() - start
         stats = light.GetCacheStatistics()
         start = time.perf_counter()
-        grid = pv.wrap(source.images[k])
+        grid = pv.wrap(source.image(k))  # the step's data (on a cache hit the source idles)
         add_illuminated_volume(plotter, grid, illumination=illumination,
                                transfer_function=scene.transfer_function,
                                opacity_unit_distance=scene.resolved_unit_distance(series[k][1]),
