@@ -690,15 +690,24 @@ def ambient_extinction(grid, lights=None, scalars=None, *, cmap=None, opacity="l
     -------
     pyvista.ImageData
         ``ambient_extinction`` (active), ``ambient_radiance`` and
-        ``ambient_radiance_<l>`` per light.
+        ``ambient_radiance_<l>`` per light, its lights and ``radius`` as field data:
+        :func:`add_illuminated_volume` shows it (ambient volume scattering).
     """
     inputs = _parse_inputs(grid, locals())
-    return _run(AmbientExtinctionFilter, grid, inputs,
-                {"Albedo": ("albedo", albedo), "Anisotropy": ("anisotropy", anisotropy),
-                 "Radius": ("radius", radius), "RadiusUnits": ("radius_units", radius_units),
-                 "ComputeRadiance": ("compute_radiance", compute_radiance),
-                 "OutputScale": ("output_scale", output_scale), "Device": ("device", device)},
-                lights=lights)
+    out = _run(AmbientExtinctionFilter, grid, inputs,
+               {"Albedo": ("albedo", albedo), "Anisotropy": ("anisotropy", anisotropy),
+                "Radius": ("radius", radius), "RadiusUnits": ("radius_units", radius_units),
+                "ComputeRadiance": ("compute_radiance", compute_radiance),
+                "OutputScale": ("output_scale", output_scale), "Device": ("device", device)},
+               lights=lights)
+    # The filter keeps no lights with its output (sigma~t alone needs none): record them and
+    # the radius, for add_illuminated_volume to show the output as it was computed.
+    _add_ambient_field(out, radius, radius_units)
+    if compute_radiance:
+        from vtkillum.io.illumination_arrays import add_lights_field
+
+        add_lights_field(out, lights_from_pyvista(lights))
+    return out
 
 
 def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opacity="linear",
@@ -785,7 +794,10 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     with the phase-aware illumination-volume source term: the direct light per light
     with the Henyey–Greenstein phase function, the scattered light isotropic; see
     :mod:`vtkillum.core.illumination`) and adds it with ``plotter.add_actor``;
-    ``cmap``, ``opacity``, ``clim`` follow ``Plotter.add_volume``.
+    ``cmap``, ``opacity``, ``clim`` follow ``Plotter.add_volume``. The output of
+    :func:`ambient_extinction` is shown with ambient volume scattering instead
+    (:class:`~vtkillum.mappers.AmbientScatteringVolume`: Ament et al.'s gather in the GPU
+    ray caster, with the output's radius and lights).
 
     Parameters
     ----------
@@ -793,41 +805,59 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     grid : pyvista.ImageData
         Point scalars (``scalars``, default the active ones).
     illumination : optional
-        The illumination volume: the output of :func:`transmittance` /
-        :func:`convection_diffusion` (any pyvista/VTK image covering the grid's box with
-        the arrays of :mod:`vtkillum.io.illumination_arrays`: per-light
-        ``transmittance`` and ``scattered_fluence``, or only a ``fluence`` taken as
-        isotropic scattered light), a VTK algorithm or output port producing one, an
-        ``IlluminationVolume`` or ``(nx, ny, nz, 3)`` scattered-fluence array, the name
-        of a method (``"transmittance"`` or ``"convection_diffusion"``, computed here with
-        these lights and transfer function), or ``None`` for unshadowed direct light.
+        The illumination: the output of any of this module's light filters --
+        :func:`transmittance`, :func:`convection_diffusion`, :func:`photon_density`,
+        :func:`many_lights` (any pyvista/VTK image covering the grid's box with the arrays
+        of :mod:`vtkillum.io.illumination_arrays`: per-light ``transmittance`` and
+        ``scattered_fluence``, or only a ``fluence`` taken as isotropic scattered light)
+        or :func:`ambient_extinction` (an image with an ``ambient_extinction`` array) --,
+        a VTK algorithm or output port producing one, an ``IlluminationVolume`` or
+        ``(nx, ny, nz, 3)`` scattered-fluence array, the name of one of those functions
+        (``"transmittance"``, ``"convection_diffusion"``, ``"photon_density"``,
+        ``"many_lights"``, ``"ambient_extinction"``: computed here with these lights,
+        transfer function, albedo and anisotropy, the other settings their defaults), or
+        ``None`` for unshadowed direct light.
     lights : optional
         As in :func:`transmittance`; also the Phong directions. A filter output carries
         the lights it was computed with, and those are used (other ``lights`` are an
         error).
     albedo, anisotropy : float
-        Scattering albedo; Henyey–Greenstein ``g`` applied to the direct light.
+        Scattering albedo; Henyey–Greenstein ``g`` applied to the direct light (ambient
+        scattering: to the gather and its radiance cache, which the mapper recomputes
+        with these values).
     exposure : float
         Factor on the radiance written to the frame buffer. The default 4π shows a fully
         lit voxel under irradiance 1 as albedo × colour when ``g = 0`` (the isotropic
         phase function spreads scattered light over 4π sr), as the ParaView plugin does;
         with ``g > 0`` the side facing away from the light (forward scattering) is
-        brighter.
+        brighter. Ambient scattering's radiance has the same units, so the same exposure
+        shows it as bright.
     shading : dict, optional
         ``{"ambient", "diffuse", "specular", "shininess"}`` of the illumination
-        shading (default ambient 1: pure scattering).
+        shading (default ambient 1: pure scattering; ambient scattering uses
+        ``shininess`` for its optional specular lobe).
     step_size : float, optional
         Sample distance of the ray caster; default half the smallest spacing.
     jitter : bool
         Per-pixel offset of the samples (noise instead of wood-grain rings at sharp
-        surfaces); ``False`` samples step midpoints.
+        surfaces); ``False`` samples step midpoints. Ambient scattering never jitters
+        (it samples as its warp gather does).
     name, reset_camera, render
         As in ``Plotter.add_actor``.
 
     Returns
     -------
-    vtkillum.mappers.IlluminatedVolume
-        The actor (a ``vtkVolume``).
+    vtkillum.mappers.IlluminatedVolume or vtkillum.mappers.AmbientScatteringVolume
+        The actor (a ``vtkVolume`` / ``vtkMultiVolume``).
+
+    Notes
+    -----
+    Ambient scattering computes its ambient extinction and radiance cache in the mapper
+    (the OpenGL path needs them as its own textures, at most 4 lights): from the
+    output of :func:`ambient_extinction` it takes the radius and the lights (recorded
+    with the output; an :class:`~vtkillum.filters.AmbientExtinctionFilter` output made
+    elsewhere records neither: the filter's default radius, 4 voxels, and ``lights``
+    are used), not the arrays.
 
     Examples
     --------
@@ -843,6 +873,8 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     ((64, 64, 3), True)
     >>> pl.close()
     """
+    import inspect
+
     from vtkillum.core.scene import SHADING_DEFAULTS
     from vtkillum.mappers.illuminated_volume_mapper import IlluminatedVolume
 
@@ -851,24 +883,68 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     core_lights = lights_from_pyvista(lights)
     tf = transfer_function_from_vtk(inputs.ctf, inputs.otf)
     if isinstance(illumination, str):
-        methods = {"transmittance": transmittance, "convection_diffusion": convection_diffusion}
+        methods = {"transmittance": transmittance, "convection_diffusion": convection_diffusion,
+                   "photon_density": photon_density, "many_lights": many_lights,
+                   "ambient_extinction": ambient_extinction}
         if illumination not in methods:
             raise ValueError(f"illumination={_short(illumination)}: name one of "
                              f"{sorted(methods)}, or pass a filter output")
-        illumination = methods[illumination](grid, core_lights, scalars, transfer_function=tf,
-                                             opacity_unit_distance=inputs.unit_distance,
-                                             albedo=albedo, component=component,
-                                             nan_policy=nan_policy)
-    elif isinstance(illumination, vtkImageData):
+        method = methods[illumination]
+        settings = dict(transfer_function=tf, opacity_unit_distance=inputs.unit_distance,
+                        albedo=albedo, component=component, nan_policy=nan_policy)
+        if "anisotropy" in inspect.signature(method).parameters:
+            settings["anisotropy"] = anisotropy
+        illumination = method(grid, core_lights, scalars, **settings)
+    if isinstance(illumination, vtkImageData):
         core_lights = _illumination_lights(illumination, lights, core_lights)
     scene = Scene(transfer_function=tf, opacity_unit_distance=inputs.unit_distance,
                   albedo=albedo, anisotropy=anisotropy, lights=core_lights,
                   step_size=step_size, shading=dict(SHADING_DEFAULTS, **(shading or {})))
     data, array_name = _mapper_input(grid, inputs)
-    volume = IlluminatedVolume(data, scene, illumination=illumination, array_name=array_name,
-                               exposure=exposure, jitter=jitter)
+    if _is_ambient_output(illumination):
+        from vtkillum.mappers.ambient_volume_mapper import AmbientScatteringVolume
+
+        volume = AmbientScatteringVolume(data, scene, array_name=array_name, exposure=exposure,
+                                         **_ambient_options(illumination))
+    else:
+        volume = IlluminatedVolume(data, scene, illumination=illumination,
+                                   array_name=array_name, exposure=exposure, jitter=jitter)
     plotter.add_actor(volume, name=name, reset_camera=reset_camera, render=render)
     return volume
+
+
+#: Field data of an :func:`ambient_extinction` output: ``(radius, units)``, units 0 voxels,
+#: 1 world (what the mapper needs to show it as the filter computed it).
+AMBIENT_FIELD = "vtkillum_ambient"
+
+
+def _add_ambient_field(image, radius, radius_units) -> None:
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+
+    row = np.array([[float(radius), 1.0 if radius_units == "world" else 0.0]])
+    array = numpy_to_vtk(row, deep=True)
+    array.SetName(AMBIENT_FIELD)
+    image.GetFieldData().AddArray(array)
+
+
+def _is_ambient_output(illumination) -> bool:
+    """True for an ambient-extinction output: an image with an ``ambient_extinction`` point
+    array and no illumination-volume arrays (those take precedence)."""
+    if not isinstance(illumination, vtkImageData):
+        return False
+    pd = illumination.GetPointData()
+    return (pd.GetArray("ambient_extinction") is not None
+            and pd.GetArray("transmittance") is None and pd.GetArray("fluence") is None)
+
+
+def _ambient_options(image) -> dict:
+    """``radius`` and ``radius_units`` recorded by :func:`ambient_extinction` (none: the
+    filter's defaults)."""
+    array = image.GetFieldData().GetArray(AMBIENT_FIELD)
+    if array is None or array.GetNumberOfComponents() < 2:
+        return {}
+    radius, units = (array.GetComponent(0, c) for c in range(2))
+    return {"radius": float(radius), "radius_units": "world" if units > 0.5 else "voxels"}
 
 
 def _mapper_input(grid, inputs: _Inputs):
