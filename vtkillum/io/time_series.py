@@ -106,11 +106,13 @@ class TimeSeries:
 
     @property
     def array_name(self) -> str:
-        """Name of the point array in images of the steps: ``array``, else the series'
-        name without directory, extensions and step numbers (``functional``, ``step``)."""
+        """Name of the point array in images of the steps: ``array``, else the name of the
+        file (the first file of a file series) without directory, extensions and step
+        number (``functional``, ``step``)."""
         if self.array:
             return self.array
-        stem = Path(self.name.rstrip("/")).name.split(".")[0]
+        named = self.files[0] if self.kind == "files" else Path(self.name.rstrip("/"))
+        stem = named.name.split(".")[0]
         stem = re.sub(r"[^A-Za-z0-9_-]+", "_", stem)
         stem = re.sub(r"[_-]*\d*$", "", stem).strip("_-")
         return stem or "scalars"
