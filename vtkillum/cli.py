@@ -669,7 +669,7 @@ _FRAME_CACHE = None
 #: Outputs of ``render`` for a time series besides :data:`OUTPUT_FORMATS`.
 ANIMATION_FORMATS = (".gif", ".mp4")
 
-SERIES_HELP = """\
+SERIES_HELP = """
 time series:
   INPUT may be a time series: a 4-D NIfTI (one volume per time step), a .pvd or
   ParaView .series file, several volume files, a quoted glob pattern such as
