@@ -52,6 +52,7 @@ from pathlib import Path
 
 import numpy as np
 
+from vtkillum.core.defaults import default_image_size
 from vtkillum.io.writers import (  # noqa: F401  (write_atomically, write_volume: public here too)
     TERMINATING_SIGNALS,
     VOLUME_FORMATS,
@@ -61,6 +62,9 @@ from vtkillum.io.writers import (  # noqa: F401  (write_atomically, write_volume
     write_atomically,
     write_volume,
 )
+from vtkillum.progress import PROGRESS_INTERVAL  # noqa: F401  (documented here too)
+from vtkillum.progress import ProgressReporter as _progress_bar
+from vtkillum.progress import duration as _duration
 
 # Headless VTK for the readers (no window is opened, but VTK may probe for one).
 os.environ.setdefault("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
@@ -91,10 +95,6 @@ HIDDEN_METHODS = ("illumination",)
 #: A ``path`` render whose first pass predicts more than this many seconds prints its
 #: estimate before going on.
 LONG_RENDER_SECONDS = 10.0
-
-#: Seconds between progress lines when stderr is not a terminal
-#: (``VTKILLUM_PROGRESS_INTERVAL`` overrides).
-PROGRESS_INTERVAL = 5.0
 
 #: Output formats of ``export``.
 EXPORT_FORMATS = VOLUME_FORMATS
@@ -192,7 +192,7 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--output", "-o", default="demo.png", help="output file (default demo.png)")
     demo.add_argument("--dataset", default=DEMO_DATASET,
                       help=f"builtin:NAME[:SIZE] (default {DEMO_DATASET}); " + _builtin_names())
-    _add_render_options(demo, methods, default_method="single", default_size=(384, 384))
+    _add_render_options(demo, methods, default_method="single")
     demo.set_defaults(run=run_demo)
 
     # render
@@ -213,7 +213,7 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--fps", help="frames per second of a .gif/.mp4 animation (default 10)")
     render.add_argument("--scene", "-s", help="scene JSON file (see 'vtkillum scene')")
     _add_input_options(render)
-    _add_render_options(render, methods, default_method="single", default_size=(512, 512))
+    _add_render_options(render, methods, default_method="single")
     render.set_defaults(run=run_render)
 
     # scene
@@ -263,15 +263,15 @@ def _add_input_options(parser) -> None:
                              "every step")
 
 
-def _add_render_options(parser, methods, default_method: str, default_size) -> None:
+def _add_render_options(parser, methods, default_method: str) -> None:
     parser.add_argument("--method", "-m", default=default_method, choices=methods,
                         metavar="METHOD",
                         help=f"rendering method, one of: {', '.join(methods)} "
                              f"(default {default_method})")
-    parser.add_argument("--size", nargs=2, type=_integer, metavar=("W", "H"),
-                        default=list(default_size),
+    cpu, gpu = default_image_size("cpu"), default_image_size("cuda")
+    parser.add_argument("--size", nargs=2, type=_integer, metavar=("W", "H"), default=None,
                         help="image width and height in pixels (default "
-                             f"{default_size[0]} {default_size[1]})")
+                             f"{cpu[0]} {cpu[1]} on a CPU, {gpu[0]} {gpu[1]} with CUDA)")
     parser.add_argument("--device", default=None,
                         help="warp device: cpu, cuda, cuda:N (default: CUDA when present; the "
                              "VTKILLUM_DEVICE environment variable overrides; 'vtkillum info' "
@@ -287,7 +287,9 @@ def _add_render_options(parser, methods, default_method: str, default_size) -> N
                              "jitter=false); repeatable")
     parser.add_argument("--quiet", "-q", action="store_true",
                         help="no progress, estimate or summary line (progress is a bar on a "
-                             "terminal, else a line every few seconds)")
+                             "terminal, else a line after a second and then every few "
+                             "seconds; a first run on a device says when it compiles "
+                             "kernels)")
 
 
 # --- commands -----------------------------------------------------------------------------------
@@ -301,6 +303,7 @@ def run_demo(args) -> int:
 
 
 def run_render(args) -> int:
+    from vtkillum.core.defaults import camera_inside_warning
     from vtkillum.core.device import resolve_device
     from vtkillum.core.render import method_function, render
 
@@ -316,7 +319,6 @@ def run_render(args) -> int:
                         f"NIfTI, a .pvd or .series file, several files); {args.input} is one "
                         "volume: write a .png")
     outputs = check_output(args.output, OUTPUT_FORMATS)
-    width, height = _check_size(args.size)
     exposure = _parse_exposure(args.exposure)
     options = _parse_options(args.option)
     if args.method in HIDDEN_METHODS:
@@ -331,27 +333,38 @@ def run_render(args) -> int:
                             "samples per pixel; the path method does)")
         options["spp"] = args.spp
     device = resolve_device(args.device)
+    width, height = _check_size(args.size if args.size is not None
+                                else default_image_size(device))
 
-    volume, scene = load_input(args.input, args.scene, args.array, args.component,
-                               aspect=width / height)
-    check_memory(args.method, width, height, device, volume)
-    start = time.perf_counter()
     interrupted = None
-    try:
-        with _progress_bar(args.quiet, f"{args.method} {width}x{height}") as progress:
+    # Started before the data are read: a large file takes seconds, and every render says
+    # what it is doing within FIRST_LINE_SECONDS.
+    reporter = _progress_bar(args.quiet, f"{args.method} {width}x{height}")
+    with reporter as progress:
+        name = str(args.input)
+        reporter.activity = f"reading {name if len(name) <= 60 else '...' + name[-57:]}"
+        volume, scene = load_input(args.input, args.scene, args.array, args.component,
+                                   aspect=width / height)
+        check_memory(args.method, width, height, device, volume)
+        warning = camera_inside_warning(scene.resolved_camera(volume), volume)
+        if warning:
+            reporter.write(f"vtkillum: warning: {warning}")
+        reporter.activity = None
+        start = time.perf_counter()
+        try:
             if args.method == "path":
                 result, interrupted = render_path_with_estimate(
                     volume, scene, width, height, device, progress, quiet=args.quiet,
-                    **options)
+                    watch=reporter.watch, **options)
             else:
                 result = render(volume, scene, args.method, width, height, device, progress,
                                 **options)
-    except ValueError as err:
-        if args.scene is None or str(err).startswith(str(args.scene)):
-            raise
-        # Options from the scene file are checked by the method: say where they came from.
-        raise ValueError(f"{err} (scene file {args.scene})") from err
-    elapsed = time.perf_counter() - start
+        except ValueError as err:
+            if args.scene is None or str(err).startswith(str(args.scene)):
+                raise
+            # Options from the scene file are checked by the method: say where they came from.
+            raise ValueError(f"{err} (scene file {args.scene})") from err
+        elapsed = time.perf_counter() - start
     written = write_result(outputs[0], result, scene.background, exposure)
     if interrupted is not None:
         done, wanted, signum = interrupted
@@ -361,17 +374,20 @@ def run_render(args) -> int:
                 f"{wanted} samples per pixel ({width}x{height}, {elapsed:.1f} s)")
         return 128 + signum
     if not args.quiet:
+        compiled = reporter.watch.compile_seconds if reporter.watch is not None else 0.0
+        note = f", {compiled:.1f} s of it compiling kernels" if compiled >= 0.1 else ""
         print(f"wrote {', '.join(str(p) for p in written)} ({width}x{height}, {args.method}, "
-              f"{result.info.get('device', device)}, {elapsed:.1f} s)")
+              f"{result.info.get('device', device)}, {elapsed:.1f} s{note})")
     return 0
 
 
 def render_path_with_estimate(volume, scene, width, height, device, progress=None,
                               quiet=False, stream=None, spp=None, max_bounces=None, seed=None,
-                              **options):
+                              watch=None, **options):
     """The ``path`` method, pass by pass, for the command line.
 
-    The first pass (one sample per pixel) is timed; when it predicts more than
+    The first pass (one sample per pixel) that compiled no kernels (``watch``, a
+    :class:`vtkillum.progress.KernelWatch`, tells) is timed; when it predicts more than
     :data:`LONG_RENDER_SECONDS` the estimate is printed (unless ``quiet``). Ctrl-C (SIGINT),
     SIGTERM (what ``timeout`` and batch schedulers send) and SIGHUP stop after the pass
     under way: the image of the passes done is returned. A second one stops at once
@@ -414,17 +430,24 @@ def render_path_with_estimate(volume, scene, width, height, device, progress=Non
                 previous[signum] = signal.signal(signum, request_stop)
     try:
         start = time.perf_counter()
-        tracer.run(1)
-        first = time.perf_counter() - start
-        estimate = first * spp
-        if not quiet and estimate > LONG_RENDER_SECONDS:
-            print(f"path: {spp} samples per pixel at {width}x{height} on {device}: about "
-                  f"{_duration(estimate)} (one sample per pixel took {first:.2f} s); Ctrl-C "
-                  "stops and writes the image so far", file=stream or sys.stderr, flush=True)
-        if progress is not None:
-            progress(1 / spp, f"1/{spp} spp")
-        while tracer.passes < spp and stop["signal"] is None:
+        announced = quiet
+        while tracer.passes < spp and (tracer.passes == 0 or stop["signal"] is None):
+            compiled = watch.compiled if watch is not None else 0
+            begin = time.perf_counter()
             tracer.run(1)
+            took = time.perf_counter() - begin
+            if not announced and (watch is None or watch.compiled == compiled):
+                # Timed on the first pass that compiled nothing: a first run on a device
+                # compiles the kernels in the first pass, which says nothing of the others.
+                announced = True
+                estimate = time.perf_counter() - start + took * (spp - tracer.passes)
+                if estimate > LONG_RENDER_SECONDS:
+                    note = (f", after {watch.compile_seconds:.1f} s compiling kernels"
+                            if watch is not None and watch.compile_seconds >= 0.1 else "")
+                    print(f"path: {spp} samples per pixel at {width}x{height} on {device}: "
+                          f"about {_duration(estimate)} (one sample per pixel took "
+                          f"{took:.2f} s{note}); Ctrl-C stops and writes the image so far",
+                          file=stream or sys.stderr, flush=True)
             if progress is not None:
                 progress(tracer.passes / spp, f"{tracer.passes}/{spp} spp")
     finally:
@@ -879,17 +902,15 @@ def write_result(output: Path, result, background, exposure) -> list[Path]:
     writes ``UP.NPY`` and ``UP.alpha.NPY``). All files are written to temporary files in
     their directories and renamed into place together (:func:`write_atomically`).
     """
-    from vtkillum.core.defaults import auto_exposure
-    from vtkillum.core.tonemap import tonemap, write_png
+    from vtkillum.core.defaults import picture
+    from vtkillum.core.tonemap import write_png
 
     output = Path(output)
     radiance = np.asarray(result.radiance, dtype=np.float32)
     alpha = np.asarray(result.alpha, dtype=np.float32)
     suffix = output.suffix.lower()
     if suffix == ".png":
-        if exposure == "auto":
-            exposure = auto_exposure(radiance, alpha=alpha, background=background)
-        rgb8 = tonemap(radiance, alpha, background, exposure)
+        rgb8 = picture(radiance, alpha, background, exposure)  # as grid.illum.render writes
         return write_atomically([(output, lambda f: write_png(f, rgb8))])
     if suffix == ".npy":
         return write_atomically([(output, lambda f: np.save(f, radiance)),
@@ -1064,89 +1085,6 @@ def _short(value, limit: int = 80) -> str:
     from vtkillum.core.scene import _short as short
 
     return short(str(value) if isinstance(value, Path) else value, limit)
-
-
-class _progress_bar:
-    """Context manager yielding a ``progress(fraction, detail=None)`` callback.
-
-    On a terminal (``stream``, default stderr, is a tty) it draws a tqdm bar; elsewhere
-    (output redirected to a file, a CI log) it prints a line every
-    :data:`PROGRESS_INTERVAL` seconds (``VTKILLUM_PROGRESS_INTERVAL`` overrides) with
-    the fraction done, the time spent and the time left. ``mode`` forces ``"bar"`` or
-    ``"lines"``. Nothing is shown with ``quiet`` (the callback is then ``None``).
-    """
-
-    def __init__(self, quiet: bool, description: str, stream=None, mode: str = "auto",
-                 interval: float | None = None):
-        self.quiet, self.description, self.stream, self.bar = quiet, description, stream, None
-        self.mode = mode
-        if interval is None:
-            try:
-                interval = float(os.environ.get("VTKILLUM_PROGRESS_INTERVAL", PROGRESS_INTERVAL))
-            except ValueError:
-                interval = PROGRESS_INTERVAL
-        self.interval = interval
-        self.lines = 0
-
-    def __enter__(self):
-        if self.quiet:
-            return None
-        stream = self.stream if self.stream is not None else sys.stderr
-        mode = self.mode
-        if mode == "auto":
-            try:
-                mode = "bar" if stream.isatty() else "lines"
-            except (AttributeError, ValueError):
-                mode = "lines"
-        if mode == "bar":
-            from tqdm import tqdm
-
-            self.bar = tqdm(total=100, desc=self.description, unit="%", file=stream,
-                            leave=False, bar_format="{l_bar}{bar}| {elapsed}<{remaining}")
-
-            def progress(fraction: float, detail: str | None = None) -> None:
-                target = round(100 * min(max(float(fraction), 0.0), 1.0))
-                if detail:
-                    self.bar.set_postfix_str(detail, refresh=False)
-                if target > self.bar.n:
-                    self.bar.update(target - self.bar.n)
-
-            return progress
-
-        start = time.perf_counter()
-        state = {"last": start}
-
-        def progress(fraction: float, detail: str | None = None) -> None:
-            now = time.perf_counter()
-            fraction = min(max(float(fraction), 0.0), 1.0)
-            if now - state["last"] < self.interval or fraction >= 1.0:
-                return
-            state["last"] = now
-            spent = now - start
-            left = spent * (1 - fraction) / fraction if fraction > 0 else float("nan")
-            extra = f", {detail}" if detail else ""
-            print(f"{self.description}: {100 * fraction:.0f} %{extra}, {_duration(spent)} "
-                  f"spent, about {_duration(left)} left", file=stream, flush=True)
-            self.lines += 1
-
-        return progress
-
-    def __exit__(self, *exc):
-        if self.bar is not None:
-            self.bar.close()
-        return False
-
-
-def _duration(seconds: float) -> str:
-    """``42 s``, ``3 min 20 s``, ``1 h 05 min``."""
-    if not np.isfinite(seconds):
-        return "?"
-    seconds = round(seconds)
-    if seconds < 60:
-        return f"{seconds} s"
-    if seconds < 3600:
-        return f"{seconds // 60} min {seconds % 60:02d} s"
-    return f"{seconds // 3600} h {(seconds % 3600) // 60:02d} min"
 
 
 def _builtin_names() -> str:

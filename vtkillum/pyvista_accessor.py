@@ -63,7 +63,7 @@ from vtkillum.core.lights import DirectionalLight, PointLight
 from vtkillum.core.render import render as core_render
 from vtkillum.core.scene import Scene
 from vtkillum.core.scene import _short  # repr cut to a readable length (user values)
-from vtkillum.core.tonemap import tonemap, write_png
+from vtkillum.core.tonemap import write_png
 from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.filters.ambient_extinction import AmbientExtinctionFilter
 from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLightFilter
@@ -712,10 +712,14 @@ def ambient_extinction(grid, lights=None, scalars=None, *, cmap=None, opacity="l
 
 def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opacity="linear",
            clim=None, n_colors=256, flip_scalars=False, transfer_function=None,
-           opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, camera=None, width=256,
-           height=256, background=(0.0, 0.0, 0.0), device=None, filename=None,
-           exposure=1.0, gamma=2.2, component=None, nan_policy="raise", **options):
+           opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, camera=None, width=None,
+           height=None, background=(0.0, 0.0, 0.0), device=None, filename=None,
+           exposure="auto", gamma=2.2, frame=None, component=None, nan_policy="raise",
+           **options):
     """Render ``grid`` with a registered method of :data:`vtkillum.METHODS`.
+
+    The defaults are the command line's (:mod:`vtkillum.core.defaults`): the same data,
+    transfer function and method give the same picture as ``vtkillum render``.
 
     Parameters
     ----------
@@ -724,16 +728,34 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
         output of :func:`transmittance` / :func:`convection_diffusion`, or an
         ``IlluminationVolume``), ``"path"``, ...
     lights : optional
-        See the module docstring. With ``illumination=`` a filter output, default: the
-        lights it was computed with (stored with it); other lights are an error.
+        See the module docstring. Default: one white key light from the upper
+        front-left of the camera (:func:`vtkillum.core.defaults.key_light`). With
+        ``illumination=`` a filter output, default: the lights it was computed with
+        (stored with it); other lights are an error.
     anisotropy : float
         Henyey–Greenstein ``g`` of the phase function (also applied to the direct light
         of an illumination volume).
     camera : vtkillum.Camera or pyvista.Camera, optional
-        Default: framing the volume like ``vtkRenderer.ResetCamera``.
+        Default: the data-aware view of :func:`vtkillum.core.defaults.default_camera`,
+        framing the voxels above the histogram's air threshold (seen from the front
+        with ``frame`` given, else VTK's default view turned with the grid's
+        direction). A camera inside the data's box warns (``UserWarning``).
+    width, height : int, optional
+        Image size; default 256 x 256 on a CPU, 512 x 512 with CUDA
+        (:func:`vtkillum.core.defaults.default_image_size`); one given: a square.
     filename : str, optional
-        Also write ``tonemap(exposure * radiance, alpha, background, gamma)`` as PNG
-        (all-or-nothing: :func:`vtkillum.io.writers.write_atomically`).
+        Also write the picture as PNG (all-or-nothing:
+        :func:`vtkillum.io.writers.write_atomically`): the radiance composited over
+        ``background``, times ``exposure``, gamma-encoded
+        (:func:`vtkillum.core.defaults.picture`).
+    exposure : "auto" or float
+        ``"auto"``: the 99.5th percentile of the pixels the volume covers becomes white
+        (as ``vtkillum render``); a positive factor fixes the scaling.
+    frame : {None, "LPS", "RAS"}
+        Anatomical frame of the grid's world coordinates for the default camera
+        (``"LPS"``: what :func:`vtkillum.io.readers.read_volume` gives for NIfTI,
+        DICOM and MetaImage files): a medical image is then seen from the front,
+        superior up.
     **options
         Method options (``spp`` for ``path``, ``illumination`` for ``illumination``...).
 
@@ -751,9 +773,14 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
     >>> result.radiance.shape, bool(result.alpha.max() > 0.5)
     ((24, 24, 3), True)
     """
+    import warnings
+
+    from vtkillum.core.defaults import camera_inside_warning, default_scene, picture
+    from vtkillum.core.device import resolve_device
+
     inputs = _parse_inputs(grid, locals())
     volume = inputs.volume
-    core_lights = lights_from_pyvista(lights)
+    core_lights = lights_from_pyvista(lights) if lights is not None else None
     illumination = _check_unmasked(options.get("illumination"), "illumination")
     if isinstance(illumination, vtkImageData):
         from vtkillum.io.illumination_arrays import illumination_from_image
@@ -762,23 +789,48 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
         check_covers(illumination, volume)
         options["illumination"] = illumination_from_image(illumination, volume)
         core_lights = _illumination_lights(illumination, lights, core_lights)
+    if isinstance(exposure, str) and exposure.lower() != "auto":
+        raise ValueError(f"exposure must be a positive number or 'auto', got {_short(exposure)}")
+    device = resolve_device(device)
+    width, height = _image_size(width, height, device)
     if camera is not None and isinstance(camera, pv.Camera):
         from vtkillum.mappers.camera_bridge import camera_from_vtk
 
         camera = camera_from_vtk(camera, aspect=width / height)
     scene = Scene(transfer_function=transfer_function_from_vtk(inputs.ctf, inputs.otf),
                   opacity_unit_distance=inputs.unit_distance, albedo=albedo,
-                  anisotropy=anisotropy, lights=core_lights, camera=camera,
-                  background=background)
+                  anisotropy=anisotropy, lights=core_lights or lights_from_pyvista(None),
+                  camera=camera, background=background)
+    # The command line's camera and key light (one function for both): the same data and
+    # transfer function look the same from Python and from the shell.
+    fill = {name for name, given in (("camera", camera), ("lights", core_lights))
+            if given is None}
+    scene = default_scene(volume, frame, base=scene, fill=fill, aspect=width / height)
+    warning = camera_inside_warning(scene.resolved_camera(volume), volume)
+    if warning:
+        warnings.warn(warning, UserWarning, stacklevel=3)
     result = core_render(volume, scene, method, width, height, device=device, **options)
     if filename is not None:
         from vtkillum.io.writers import write_atomically
 
-        rgb8 = tonemap(exposure * result.radiance, result.alpha, background, exposure=1.0,
-                       gamma=gamma)
+        rgb8 = picture(result.radiance, result.alpha, background, exposure, gamma=gamma)
         # Under its final name, old picture kept and nothing hidden left on any failure.
         write_atomically([(filename, lambda f: write_png(f, rgb8))])
     return result
+
+
+def _image_size(width, height, device) -> tuple[int, int]:
+    """``(width, height)``: as given, one given for both, or the default for ``device``."""
+    from vtkillum.core.defaults import default_image_size
+
+    if width is None and height is None:
+        return default_image_size(device)
+    width = height if width is None else width
+    height = width if height is None else height
+    for name, value in (("width", width), ("height", height)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+            raise ValueError(f"{name} must be a positive integer, got {_short(value)}")
+    return int(width), int(height)
 
 
 # === plotting =========================================================================================

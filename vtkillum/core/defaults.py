@@ -33,9 +33,19 @@ Light (:func:`key_light`)
     Irradiance :data:`KEY_IRRADIANCE`, so that an opaque lit surface of albedo 0.9 is
     near white at exposure 1 (the CLI's automatic exposure rescales anyway).
 
-Exposure (:func:`auto_exposure`)
+Exposure (:func:`auto_exposure`, :func:`picture`)
     The 99.5th percentile of the brightest channel over the pixels the volume covers
     (``alpha > 0.02``; all pixels if it covers fewer than 0.1 %) maps to white.
+
+Image size (:func:`default_image_size`)
+    256 x 256 on a CPU (warp runs kernels on one core there), 512 x 512 with CUDA.
+
+The command line (``vtkillum render``) and the pyvista accessor (``grid.illum.render``)
+both take these defaults from here, :func:`default_scene` for the camera and light,
+:func:`picture` for the exposure of a PNG and :func:`default_image_size`, so that the
+same data, transfer function and method give the same picture in both.
+:func:`camera_inside_warning` is the one line both print when a camera starts inside
+the data (a scene written for other units, say metres for data in millimetres).
 
 numpy only (a core module): no vtk, no warp.
 """
@@ -82,6 +92,9 @@ GRID_VIEW = (-0.4, -0.3, -1.0)
 #: Vertical view angle of the default camera (degrees) and margin around the foreground.
 VIEW_ANGLE = 30.0
 MARGIN = 1.08
+#: Default image side (pixels) on a CPU and with CUDA.
+CPU_IMAGE_SIDE = 256
+GPU_IMAGE_SIDE = 512
 #: Anatomical frames: the world axis pointing anterior, and superior.
 ANATOMICAL_AXES = {"LPS": ((0.0, -1.0, 0.0), (0.0, 0.0, 1.0)),
                    "RAS": ((0.0, 1.0, 0.0), (0.0, 0.0, 1.0))}
@@ -415,3 +428,49 @@ def auto_exposure(radiance, alpha=None, background=(0.0, 0.0, 0.0), percentile: 
         return 1.0
     level = float(np.percentile(values, percentile))
     return 1.0 / level if level > 0 else 1.0
+
+
+def picture(radiance, alpha=None, background=(0.0, 0.0, 0.0), exposure="auto",
+            gamma: float = 2.2) -> np.ndarray:
+    """The 8-bit RGB picture (H, W, 3) of a render, as written to a PNG.
+
+    The radiance composited over ``background``, multiplied by ``exposure`` (``"auto"``:
+    :func:`auto_exposure`; else a positive factor), clipped to [0, 1] and gamma-encoded
+    (:func:`vtkillum.core.tonemap.tonemap`).
+    """
+    from vtkillum.core.tonemap import tonemap
+
+    if isinstance(exposure, str):
+        if exposure.lower() != "auto":
+            raise ValueError(f"exposure must be a positive number or 'auto', got {exposure!r}")
+        exposure = auto_exposure(radiance, alpha=alpha, background=background)
+    elif not (np.isfinite(float(exposure)) and float(exposure) > 0):
+        raise ValueError(f"exposure must be a positive number or 'auto', got {exposure!r}")
+    return tonemap(radiance, alpha, background, float(exposure), gamma=gamma)
+
+
+# --- image size and camera checks -------------------------------------------------------------------
+def default_image_size(device: str) -> tuple[int, int]:
+    """``(width, height)`` of a picture when none is asked for, on a resolved ``device``:
+    :data:`CPU_IMAGE_SIDE` squared on a CPU, :data:`GPU_IMAGE_SIDE` squared with CUDA."""
+    side = GPU_IMAGE_SIDE if str(device).lower().startswith("cuda") else CPU_IMAGE_SIDE
+    return side, side
+
+
+def camera_inside_warning(camera: Camera, volume) -> str | None:
+    """One line when ``camera`` starts inside ``volume``'s box, else ``None``.
+
+    Such a picture shows the inside of the data (often uniform noise): usually the
+    camera was written for other units than the data's (millimetres for medical images).
+    Not an error: a view from inside can be meant.
+    """
+    position = np.asarray(camera.position, dtype=np.float64)
+    local = volume.to_local(position)
+    if not np.all((local >= 0.0) & (local <= volume.extent)):
+        return None
+    lo, hi = volume.bounds[0::2], volume.bounds[1::2]
+    box = ", ".join(f"{a}: {l:.4g} to {h:.4g}" for a, l, h in zip("xyz", lo, hi))
+    where = ", ".join(f"{v:.4g}" for v in position)
+    return (f"the camera at ({where}) is inside the data ({box}, in the data's units); the "
+            "picture shows the inside of the volume; place the camera outside (e.g. leave "
+            "the camera out of the scene for the default view)")
