@@ -339,3 +339,21 @@ def test_scene_and_export_of_a_series(data, tmp_path, capsys):
     assert main(["export", str(data["nifti"]), "--time-step", "3", "-o",
                  str(tmp_path / "x.vti")]) == 0
     np.testing.assert_array_equal(read_volume(tmp_path / "x.vti").scalars, ball(3))
+
+
+def test_one_file_is_a_volume_not_a_series(data, tmp_path):
+    """A pattern matching one file, or a directory holding one, is that volume: rendered
+    under the output name, served without time steps."""
+    write_vti(tmp_path / "only_7.vti", ball(1))
+    for spec in (str(tmp_path / "only_*.vti"), tmp_path):
+        series = open_time_series(spec)
+        assert (series.kind, series.is_series, len(series)) == ("volume", False, 1)
+    source = TimeSeriesSource(tmp_path)
+    source.UpdateInformation()
+    info = source.GetOutputInformation(0)
+    assert not info.Has(source.GetExecutive().TIME_STEPS())
+    source.Update()
+    assert source.GetOutputDataObject(0).GetDimensions() == SHAPE
+    out = tmp_path / "one.png"
+    assert main(["render", str(tmp_path / "only_*.vti"), "-o", str(out), *RENDER]) == 0
+    assert out.is_file()

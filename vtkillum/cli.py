@@ -312,8 +312,7 @@ def run_render(args) -> int:
                                getattr(args, "time_step", None))
     if series is not None:
         return run_render_series(args, series)
-    if isinstance(args.input, list):
-        args.input = args.input[0]
+    args.input = single_input(args.input)  # a pattern or directory of one file: that file
     if Path(args.output).suffix.lower() in ANIMATION_FORMATS:
         raise UserError(f"output {_short(args.output)}: an animation needs a time series (a 4-D "
                         f"NIfTI, a .pvd or .series file, several files); {args.input} is one "
@@ -629,6 +628,18 @@ def open_input_series(spec, array=None, component=None, time_step=None):
     if time_step is not None:
         series.index(time_step)  # a ValueError naming the steps there are
     return series
+
+
+def single_input(spec):
+    """The file (or DICOM directory, or ``builtin:...``) of an input that is not a time
+    series: ``spec`` itself, or the one file a pattern or directory names."""
+    from vtkillum.data.builtin import is_builtin
+    from vtkillum.io.time_series import open_time_series
+
+    spec = spec[0] if isinstance(spec, (list, tuple)) and len(spec) == 1 else spec
+    if isinstance(spec, (list, tuple)) or is_builtin(spec) or Path(spec).exists():
+        return spec
+    return str(open_time_series(spec).files[0])
 
 
 def series_scene(series, steps, scene_path=None, aspect: float = 1.0):

@@ -3,18 +3,20 @@
 A time series is a list of steps, each a time and a volume. :func:`open_time_series`
 finds one in
 
-=================================  ===========================================================
-a 4-D NIfTI (``.nii``/``.nii.gz``)  one volume per time step, at ``toffset + t * pixdim[4]``
-                                   (:func:`vtkillum.io.readers.time_steps`)
-``.pvd``                           a VTK collection: ``<DataSet timestep="..." file="..."/>``,
-                                   one file per time (one ``part``), times as written
-``.series``                        ParaView's file-series JSON: ``{"files": [{"name": ...,
-                                   "time": ...}, ...]}``
-a glob pattern (``'step_*.vti'``)  the matching volume files, one step each
-a list of files                    what the shell makes of an unquoted pattern
-a directory                        its volume files (all of one extension), or the one
-                                   ``.pvd``/``.series`` file in it
-=================================  ===========================================================
+a 4-D NIfTI (``.nii``, ``.nii.gz``)
+    one volume per time step, at ``toffset + t * pixdim[4]``
+    (:func:`vtkillum.io.readers.time_steps`);
+``.pvd``
+    a VTK collection, ``<DataSet timestep="..." file="..."/>``: one file per time (one
+    ``part``), at the times written;
+``.series``
+    ParaView's file-series JSON, ``{"files": [{"name": ..., "time": ...}, ...]}``;
+a glob pattern (``'step_*.vti'``)
+    the matching volume files, one step each (one file: a single volume);
+a list of files
+    what the shell makes of an unquoted pattern;
+a directory
+    its volume files (all of one extension), or the one ``.pvd``/``.series`` file in it.
 
 Files of a series are ordered naturally (``step_2`` before ``step_10``) and their
 times are their positions 0, 1, 2, ... (VTK's file-series convention), except where a
@@ -235,8 +237,10 @@ def open_time_series(spec, array: str | None = None, component=None,
 
 
 def _file_series(name: str, files, **options) -> TimeSeries:
-    """One step per file, naturally ordered, times 0, 1, 2, ..."""
+    """One step per file, naturally ordered, times 0, 1, 2, ... (one file: that volume)."""
     files = sorted({Path(p) for p in files}, key=_natural_key)
+    if len(files) == 1 and not files[0].is_dir():
+        return open_time_series(files[0], **options)
     formats = {}
     for path in files:
         if path.is_dir():
@@ -471,8 +475,12 @@ class TimeSeriesSource(VTKPythonAlgorithmBase):
         info.Set(vtkDataObject.DIRECTION(),
                  tuple(matrix.GetElement(r, c) for r in range(3) for c in range(3)), 9)
         times = self._series.times
-        info.Set(SDDP.TIME_STEPS(), times, len(times))
-        info.Set(SDDP.TIME_RANGE(), [times[0], times[-1]], 2)
+        if self._series.is_series:
+            info.Set(SDDP.TIME_STEPS(), times, len(times))
+            info.Set(SDDP.TIME_RANGE(), [times[0], times[-1]], 2)
+        else:  # one volume: not time dependent
+            info.Remove(SDDP.TIME_STEPS())
+            info.Remove(SDDP.TIME_RANGE())
         return 1
 
     def RequestData(self, request, inInfo, outInfo):
