@@ -470,7 +470,9 @@ def run_render_series(args, series) -> int:
     over the pixels of all frames, so brightness changes between frames are the data's.
     Outputs: an animation (``.gif``, ``.mp4``: :mod:`vtkillum.io.animation`), one file per
     step named ``NAME_0000.EXT`` (the step's index, :func:`numbered_output`), or with
-    ``--time-step`` the output name itself.
+    ``--time-step`` the output name itself. Pictures with a fixed ``--exposure`` and
+    ``.npy``/``.npz`` files are written as each step is done; an automatic exposure and
+    an animation keep the frames (16 bytes per pixel) until all are rendered.
 
     The CLI renders whole images with the core methods (:func:`vtkillum.core.render.render`),
     not through the illumination filters: ``emission``, ``single``, ``path`` and
@@ -542,14 +544,22 @@ def run_render_series(args, series) -> int:
     cache = frame_cache()
     settings = (args.method, scene_json(scene), width, height, device,
                 json.dumps(options, sort_keys=True, default=str))
-    results, cached, interrupted = [], 0, None
+    # Pictures with a fixed exposure and radiance files are written as each step is done;
+    # an automatic exposure (over all frames) and an animation keep the frames until the
+    # end (16 bytes per pixel and step).
+    keep = animation or (exposure == "auto" and Path(args.output).suffix.lower() == ".png")
+    results, written, done, cached, interrupted = [], [], 0, 0, None
     start = time.perf_counter()
     for n, k in enumerate(steps):
         key = (series.key(k), settings)
         result = cache.lookup(key)
         if result is not None:
             cached += 1
-            results.append(result)
+            done += 1
+            if keep:
+                results.append(result)
+            else:
+                written += write_result(targets[n], result, scene.background, exposure)
             continue
         volume = series.read(k)
         label = f"{args.method} {width}x{height} {series.label(k)}"
@@ -566,13 +576,17 @@ def run_render_series(args, series) -> int:
             if args.scene is None or str(err).startswith(str(args.scene)):
                 raise
             raise ValueError(f"{err} (scene file {args.scene})") from err
-        results.append(result)
+        done += 1
+        if keep:
+            results.append(result)
+        else:
+            written += write_result(targets[n], result, scene.background, exposure)
         if interrupted is not None:  # a path render stopped: write the steps rendered so far
             break
         cache.store(key, result, result.radiance.nbytes + result.alpha.nbytes)
     elapsed = time.perf_counter() - start
 
-    if exposure == "auto" and (animation or Path(args.output).suffix.lower() == ".png"):
+    if exposure == "auto" and keep:
         # One exposure for every frame: the 99.5th percentile of all frames' covered pixels.
         exposure = auto_exposure(np.concatenate([r.radiance for r in results]),
                                  alpha=np.concatenate([r.alpha for r in results]),
@@ -582,15 +596,14 @@ def run_render_series(args, series) -> int:
 
         frames = [tonemap(r.radiance, r.alpha, scene.background, exposure) for r in results]
         written = [write_animation(args.output, frames, fps)]
-    else:
-        written = []
+    elif keep:
         for target, result in zip(targets, results):
             written += write_result(target, result, scene.background, exposure)
     if interrupted is not None:
         done, wanted, signum = interrupted
         how = ("interrupted" if signum == signal.SIGINT
                else f"terminated ({signal.Signals(signum).name})")
-        _report(f"vtkillum: {how}: wrote {len(results)} of {len(steps)} steps, the last with "
+        _report(f"vtkillum: {how}: wrote {done} of {len(steps)} steps, the last with "
                 f"{done} of {wanted} samples per pixel ({width}x{height}, {elapsed:.1f} s)")
         return 128 + signum
     if not args.quiet:
