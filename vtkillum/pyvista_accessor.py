@@ -863,7 +863,8 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
         of :mod:`vtkillum.io.illumination_arrays`: per-light ``transmittance`` and
         ``scattered_fluence``, or only a ``fluence`` taken as isotropic scattered light)
         or :func:`ambient_extinction` (an image with an ``ambient_extinction`` array) --,
-        a VTK algorithm or output port producing one, an ``IlluminationVolume`` or
+        a VTK algorithm or output port producing one (an ``AmbientExtinctionFilter``
+        included), an ``IlluminationVolume`` or
         ``(nx, ny, nz, 3)`` scattered-fluence array, the name of one of those functions
         (``"transmittance"``, ``"convection_diffusion"``, ``"photon_density"``,
         ``"many_lights"``, ``"ambient_extinction"``: computed here with these lights,
@@ -907,9 +908,9 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     Ambient scattering computes its ambient extinction and radiance cache in the mapper
     (the OpenGL path needs them as its own textures, at most 4 lights): from the
     output of :func:`ambient_extinction` it takes the radius and the lights (recorded
-    with the output; an :class:`~vtkillum.filters.AmbientExtinctionFilter` output made
-    elsewhere records neither: the filter's default radius, 4 voxels, and ``lights``
-    are used), not the arrays.
+    with the output; an :class:`~vtkillum.filters.AmbientExtinctionFilter` given itself,
+    or its output port, gives its own; its output image alone records neither: the
+    filter's default radius, 4 voxels, and ``lights`` are used), not the arrays.
 
     Examples
     --------
@@ -947,17 +948,24 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
         if "anisotropy" in inspect.signature(method).parameters:
             settings["anisotropy"] = anisotropy
         illumination = method(grid, core_lights, scalars, **settings)
-    if isinstance(illumination, vtkImageData):
+    ambient = _ambient_settings(illumination)  # None, or (radius options, stored lights)
+    if ambient is not None and ambient[1]:
+        if lights is not None and not _same_lights(core_lights, ambient[1]):
+            raise ValueError(
+                "the illumination was computed with other lights than lights=...; leave lights "
+                "out (the illumination's are used) or recompute the illumination with them")
+        core_lights = ambient[1]
+    elif isinstance(illumination, vtkImageData):
         core_lights = _illumination_lights(illumination, lights, core_lights)
     scene = Scene(transfer_function=tf, opacity_unit_distance=inputs.unit_distance,
                   albedo=albedo, anisotropy=anisotropy, lights=core_lights,
                   step_size=step_size, shading=dict(SHADING_DEFAULTS, **(shading or {})))
     data, array_name = _mapper_input(grid, inputs)
-    if _is_ambient_output(illumination):
+    if ambient is not None:
         from vtkillum.mappers.ambient_volume_mapper import AmbientScatteringVolume
 
         volume = AmbientScatteringVolume(data, scene, array_name=array_name, exposure=exposure,
-                                         **_ambient_options(illumination))
+                                         **ambient[0])
     else:
         volume = IlluminatedVolume(data, scene, illumination=illumination,
                                    array_name=array_name, exposure=exposure, jitter=jitter)
@@ -979,24 +987,36 @@ def _add_ambient_field(image, radius, radius_units) -> None:
     image.GetFieldData().AddArray(array)
 
 
-def _is_ambient_output(illumination) -> bool:
-    """True for an ambient-extinction output: an image with an ``ambient_extinction`` point
-    array and no illumination-volume arrays (those take precedence)."""
+def _ambient_settings(illumination):
+    """``(options, lights)`` when ``illumination`` is ambient extinction, else ``None``.
+
+    An :class:`AmbientExtinctionFilter` (or its output port) gives its own ``Radius``,
+    ``RadiusUnits`` and lights (it need not have run: the mapper computes what it
+    shows). An image with an ``ambient_extinction`` point array and no illumination-volume
+    arrays (those take precedence) gives what :func:`ambient_extinction` recorded with it
+    (nothing recorded: the filter's default radius, no lights).
+    """
+    from vtkmodules.vtkCommonExecutionModel import vtkAlgorithmOutput
+
+    from vtkillum.io.illumination_arrays import lights_from_field
+
+    producer = (illumination.GetProducer() if isinstance(illumination, vtkAlgorithmOutput)
+                else illumination)
+    if isinstance(producer, AmbientExtinctionFilter):
+        options = {"radius": producer.GetRadius(), "radius_units": producer.GetRadiusUnits()}
+        return options, list(producer.GetLights()) if producer.GetComputeRadiance() else []
     if not isinstance(illumination, vtkImageData):
-        return False
+        return None
     pd = illumination.GetPointData()
-    return (pd.GetArray("ambient_extinction") is not None
-            and pd.GetArray("transmittance") is None and pd.GetArray("fluence") is None)
-
-
-def _ambient_options(image) -> dict:
-    """``radius`` and ``radius_units`` recorded by :func:`ambient_extinction` (none: the
-    filter's defaults)."""
-    array = image.GetFieldData().GetArray(AMBIENT_FIELD)
-    if array is None or array.GetNumberOfComponents() < 2:
-        return {}
-    radius, units = (array.GetComponent(0, c) for c in range(2))
-    return {"radius": float(radius), "radius_units": "world" if units > 0.5 else "voxels"}
+    if (pd.GetArray("ambient_extinction") is None or pd.GetArray("transmittance") is not None
+            or pd.GetArray("fluence") is not None):
+        return None
+    options = {}
+    array = illumination.GetFieldData().GetArray(AMBIENT_FIELD)
+    if array is not None and array.GetNumberOfComponents() >= 2:
+        radius, units = (array.GetComponent(0, c) for c in range(2))
+        options = {"radius": float(radius), "radius_units": "world" if units > 0.5 else "voxels"}
+    return options, lights_from_field(illumination) or []
 
 
 def _mapper_input(grid, inputs: _Inputs):

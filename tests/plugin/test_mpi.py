@@ -25,7 +25,7 @@ def runs(pvbatch_summary):
     from pathlib import Path
 
     script = Path(__file__).with_name("pvbatch_mpi.py")
-    return {ranks: pvbatch_summary(script, f"mpi{ranks}", timeout=600, ranks=ranks)
+    return {ranks: pvbatch_summary(script, f"mpi{ranks}", timeout=300, ranks=ranks)
             for ranks in (1, *RANKS)}
 
 
