@@ -133,3 +133,22 @@ def test_ambient_extinction_alone_is_shown_with_the_lights_given(grid):
     check_lit(image, "ambient, lights given")
     left, right = halves(image)
     assert left > 1.2 * right, (left, right)
+
+
+@pytest.mark.parametrize("given", ["filter", "port"])
+def test_ambient_extinction_filter_itself_gives_its_radius_and_lights(grid, given):
+    """An AmbientExtinctionFilter (or its output port) from a VTK pipeline: the mapper
+    takes the filter's Radius, RadiusUnits and lights."""
+    from vtkillum.filters import AmbientExtinctionFilter
+
+    algorithm = AmbientExtinctionFilter()
+    algorithm.SetInputData(grid)
+    algorithm.SetRadius(1.5)
+    algorithm.SetRadiusUnits("world")
+    algorithm.SetLights([light(-1.0)])
+    image, actor = picture(grid, algorithm if given == "filter" else algorithm.GetOutputPort())
+    assert isinstance(actor, AmbientScatteringVolume)
+    assert actor.state.radius == pytest.approx(1.5)
+    check_lit(image, f"ambient {given}")
+    left, right = halves(image)
+    assert right > 1.2 * left, (left, right)
