@@ -269,11 +269,11 @@ PATH_PASSES = textwrap.dedent("""
 """)
 
 
-def path_render(output: Path, signals: list[int], after: int = 3):
-    """Start a long path render, send ``signals`` after ``after`` passes."""
+def path_render(output: Path, signals: list[int], after: int = 3, size=(12, 10)):
+    """Start a long path render, send ``signals`` after ``after`` passes of a ``size`` image."""
     process = subprocess.Popen(
         [sys.executable, "-c", PATH_PASSES, "render", "builtin:ct:16", "-m", "path", "--spp",
-         "100000", "--size", "12", "10", "--device", "cpu", "-o", str(output)],
+         "100000", "--size", *map(str, size), "--device", "cpu", "-o", str(output)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
     try:
         while True:
@@ -308,7 +308,11 @@ def test_sigterm_during_a_path_render_writes_the_samples_taken(tmp_path, signum)
 
 def test_a_second_sigterm_stops_the_path_render_at_once(tmp_path):
     (tmp_path / "p.png").write_text("old")
-    status, err = path_render(tmp_path / "p.png", [signal.SIGTERM, signal.SIGTERM])
+    # Passes long enough (a larger image) that the second signal arrives before the pass
+    # under way ends, even on a loaded machine (with 12x10 pixels the pass could finish and
+    # write the picture between the two signals).
+    status, err = path_render(tmp_path / "p.png", [signal.SIGTERM, signal.SIGTERM],
+                              size=(160, 128))
     assert status == 143, err
     assert "terminated (SIGTERM)" in err
     assert (tmp_path / "p.png").read_text() == "old"
