@@ -18,10 +18,29 @@ are not timed. The renderers take turns frame by frame, so that a change of the 
 load (the development machines are shared) affects all of them alike. The table gives the
 median ms per frame and the median over the rounds of the ratio IlluminatedVolume / VTK.
 
+``--quality`` measures instead what the picture of a still camera is worth and what it
+costs, the way pyvista's ``add_illuminated_volume`` shows data (``cmap="bone"``,
+``opacity="linear"``, a transmittance volume of one directional light, exposure 4π, the
+default sample distance: half the smallest spacing; an isometric camera), on the
+README's CT head (``builtin:ct:128``) and the MNI152 T1 template (nilearn) at full
+and half resolution. Per scene it prints the error of each picture against a reference
+of the same view and step (the mean of ``--reference-frames`` accumulated frames: the
+value that jitter averages to), in 8-bit levels over the pixels the volume covers: RMS,
+RMS after a 3 × 3 mean (what the eye integrates), 99th percentile and the share of
+pixels off by 3 levels or more (speckle); and the median ms per frame, the variants
+taking turns frame by frame:
+
+* before: the white-noise hash of the first sample (one frame), and ``jitter=False``;
+* after: one frame of interleaved gradient noise, and the mean of 4, 8, 16 frames
+  accumulated while the camera rests (``IlluminatedVolume.accumulate``);
+* ms: an interactive frame (camera turning) before and after, a still frame that adds
+  to the mean (read back, summed, written back) and a frame once the mean converged.
+
 Examples
 --------
 VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow python benchmarks/bench_opengl.py
 python benchmarks/bench_opengl.py --size 128 --image 512 --frames 5 --reach 0.25 1.0
+python benchmarks/bench_opengl.py --quality --image 256 --datasets head mni mni-half
 """
 
 from __future__ import annotations
@@ -168,10 +187,188 @@ def _read(window) -> np.ndarray:
     grab.SetInput(window)
     grab.SetInputBufferTypeToRGB()
     grab.ReadFrontBufferOff()
+    grab.ShouldRerenderOff()  # a render would add a frame to an accumulating volume
     grab.Update()
     out = grab.GetOutput()
     w, h, _ = out.GetDimensions()
     return vtk_to_numpy(out.GetPointData().GetScalars()).reshape(h, w, 3)[::-1]
+
+
+# --- --quality: speckle and terraces of a still picture -----------------------------------------
+#: The first-sample offset before the accumulation (commit 8ff7e48): a white-noise hash
+#: (pcg2d) of the pixel, the same in every frame.
+WHITE_NOISE_XI = """    if (il_jitter != 0)
+    {
+      uvec2 v = uvec2(gl_FragCoord.xy) + uvec2(uint(il_jitter) * 1664525u, 1013904223u);
+      v = v * 1664525u + 1013904223u;
+      v.x += v.y * 1664525u;
+      v.y += v.x * 1664525u;
+      v = v ^ (v >> 16u);
+      v.x += v.y * 1664525u;
+      v.y += v.x * 1664525u;
+      v = v ^ (v >> 16u);
+      il_xi = float(v.x >> 8u) * (1.0 / 16777216.0);
+    }
+"""
+
+
+def white_noise_ray_init() -> str:
+    """GLSL_RAY_INIT with the offset of before the accumulation (:data:`WHITE_NOISE_XI`)."""
+    from vtkillum.mappers.illuminated_volume_mapper import GLSL_RAY_INIT
+
+    start = GLSL_RAY_INIT.index("    if (il_jitter != 0)")
+    end = GLSL_RAY_INIT.index("    g_dataPos +=")
+    return GLSL_RAY_INIT[:start] + WHITE_NOISE_XI + GLSL_RAY_INIT[end:]
+
+
+def quality_grid(name: str):
+    """``(pyvista.ImageData, zoom)`` of a ``--quality`` scene."""
+    import pyvista as pv
+
+    if name == "head":
+        from vtkillum.data.builtin import load_builtin
+        from vtkillum.io.convert import image_data_from_volume
+
+        return pv.wrap(image_data_from_volume(load_builtin("builtin:ct:128"))), 1.6
+    if name in ("mni", "mni-half"):
+        import tempfile
+
+        from nilearn import datasets
+
+        with tempfile.TemporaryDirectory() as tmp:
+            path = f"{tmp}/mni152.nii.gz"
+            datasets.load_mni152_template().to_filename(path)
+            grid = pv.read(path)
+        if name == "mni-half":  # every second point: 2 mm spacing
+            dims = grid.dimensions
+            grid = grid.extract_subset((0, dims[0] - 1, 0, dims[1] - 1, 0, dims[2] - 1),
+                                       rate=(2, 2, 2))
+        return grid, 1.5
+    raise ValueError(f"unknown --quality dataset {name!r}; head, mni or mni-half")
+
+
+def quality_scene(name: str, image_size: int):
+    """A pyvista plotter showing one scene twice: ``(plotter, volumes)``, volumes keyed by
+    variant (``before``: white-noise offsets, no accumulation; ``after``), one visible."""
+    import pyvista as pv
+
+    import vtkillum
+
+    grid, zoom = quality_grid(name)
+    lit = grid.illum.transmittance(vtkillum.DirectionalLight((-0.3, -1.0, -1.0), (3, 3, 3)),
+                                   cmap="bone", opacity="linear")
+    plotter = pv.Plotter(off_screen=True, window_size=(image_size, image_size))
+    plotter.set_background("black")
+    volumes = {}
+    for variant in ("before", "after"):
+        volumes[variant] = vtkillum.add_illuminated_volume(
+            plotter, grid, illumination=lit, cmap="bone", opacity="linear", render=False)
+    before = volumes["before"]
+    before.accumulate = 0
+    before.GetShaderProperty().AddFragmentShaderReplacement(
+        "//VTK::Shading::Init", True, white_noise_ray_init(), False)
+    plotter.camera_position = "iso"
+    plotter.camera.zoom(zoom)
+    return plotter, volumes
+
+
+def _show_only(volumes, variant: str) -> None:
+    for name, volume in volumes.items():
+        volume.SetVisibility(name == variant)
+
+
+def picture_errors(image, reference) -> tuple[float, float, float, float]:
+    """Errors of ``image`` against ``reference`` (8-bit levels) over the pixels the
+    reference covers: RMS, RMS after a 3 × 3 mean (the error the eye integrates: fine
+    noise averages out there, terraces and clumps stay), 99th percentile, and the share
+    of pixels off by 3 levels or more (speckle)."""
+    covered = reference.max(axis=-1) > 2.0
+    diff = image.astype(np.float64) - reference
+    padded = np.pad(diff, ((1, 1), (1, 1), (0, 0)), mode="edge")
+    h, w = diff.shape[:2]
+    smooth = sum(padded[i:i + h, j:j + w] for i in range(3) for j in range(3)) / 9.0
+    err = np.abs(diff)[covered].max(axis=-1)
+    return (float(np.sqrt(np.mean(diff[covered] ** 2))),
+            float(np.sqrt(np.mean(smooth[covered] ** 2))),
+            float(np.percentile(err, 99)), float(np.mean(err >= 3.0)))
+
+
+def quality(opts) -> int:
+    """The ``--quality`` tables (see the module docstring)."""
+    print(f"window {vtkRenderWindow().GetClassName()}, image {opts.image}^2, reference: "
+          f"mean of {opts.reference_frames} accumulated frames; errors in 8-bit levels over "
+          "the covered pixels; ms: median of "
+          f"{opts.frames} frames, the variants taking turns")
+    print("| data | picture | RMS | RMS of the 3x3 mean | p99 | pixels off by >= 3 | "
+          "ms per frame |")
+    print("|---|---|---|---|---|---|---|")
+    for name in opts.datasets:
+        plotter, volumes = quality_scene(name, opts.image)
+        window = plotter.render_window
+        after = volumes["after"]
+        _show_only(volumes, "after")
+        after.accumulate = opts.reference_frames
+        after.refine()
+        reference = _read(window).astype(np.float64)
+        after.accumulate = 16
+        pictures = {}
+        _show_only(volumes, "before")
+        window.Render()
+        pictures["before: white-noise offsets, 1 frame"] = _read(window)
+        volumes["before"].jitter = False
+        window.Render()
+        pictures["before and after: jitter=False"] = _read(window)
+        volumes["before"].jitter = True
+        _show_only(volumes, "after")
+        for frames in (1, 4, 8, 16):
+            after.refine(frames)  # the first render after a change is frame 0: 1 frame
+            pictures[f"after: {frames} frame{'s' * (frames > 1)} (IGN"
+                     f"{', accumulated' if frames > 1 else ''})"] = _read(window)
+        times = _quality_times(window, plotter.renderer, volumes, opts.frames)
+        rows = [(label, picture_errors(image, reference)) for label, image in pictures.items()]
+        for label, (rms, smooth, p99, speckle) in rows:
+            key = ("interactive, before" if label.startswith("before: white") else
+                   "interactive, after" if label.startswith("after: 1 frame") else
+                   "still, adding a frame" if label.startswith("after: 16") else None)
+            ms = f"{times[key]:.0f} ({key})" if key else ""
+            print(f"| {name} | {label} | {rms:.2f} | {smooth:.2f} | {p99:.1f} | "
+                  f"{100 * speckle:.2f} % | {ms} |", flush=True)
+        print(f"| {name} | after, converged (the stored mean shown) | | | | | "
+              f"{times['converged']:.0f} |", flush=True)
+        if opts.save:
+            _save(opts.save, f"quality_{name}_reference.png", reference.astype(np.uint8))
+            for i, image in enumerate(pictures.values()):
+                _save(opts.save, f"quality_{name}_{i}.png", image)
+        plotter.close()
+    return 0
+
+
+def _quality_times(window, renderer, volumes, frames: int) -> dict:
+    """Median ms of interactive frames before/after (taking turns), of still frames that add
+    to the mean and of frames once it converged."""
+    camera = renderer.GetActiveCamera()
+    turns = {"interactive, before": [], "interactive, after": []}
+
+    def timed():
+        t0 = time.perf_counter()
+        window.Render()
+        window.WaitForCompletion()
+        return 1000.0 * (time.perf_counter() - t0)
+
+    for i in range(frames):
+        for key, variant in (("interactive, before", "before"), ("interactive, after", "after")):
+            _show_only(volumes, variant)
+            camera.Azimuth(1.0 if i % 2 == 0 else -1.0)
+            turns[key].append(timed())
+    _show_only(volumes, "after")
+    timed()  # frame 0
+    still = [timed() for _ in range(frames)]
+    after = volumes["after"]
+    after.refine()
+    converged = [timed() for _ in range(frames)]
+    return {**{k: statistics.median(v) for k, v in turns.items()},
+            "still, adding a frame": statistics.median(still),
+            "converged": statistics.median(converged)}
 
 
 def main(argv=None) -> int:
@@ -179,13 +376,24 @@ def main(argv=None) -> int:
     parser.add_argument("--size", type=int, default=128, help="volume points per axis")
     parser.add_argument("--image", type=int, default=512, help="window width and height")
     parser.add_argument("--frames", type=int, default=5, help="timed frames per renderer")
-    parser.add_argument("--datasets", nargs="+", default=["ct", "plume"])
+    parser.add_argument("--datasets", nargs="+", default=None,
+                        help="ct, plume (default both); with --quality: head, mni, mni-half "
+                             "(default all three)")
+    parser.add_argument("--quality", action="store_true",
+                        help="speckle/terraces of still pictures and ms per frame, before "
+                             "and after the accumulation (see the module docstring)")
+    parser.add_argument("--reference-frames", type=int, default=128,
+                        help="--quality: frames accumulated for the reference picture")
     parser.add_argument("--reach", type=float, nargs="+", default=[0.1, 0.25, 0.5, 1.0],
                         help="VTK's GlobalIlluminationReach values to run")
     parser.add_argument("--blending", type=float, default=1.0,
                         help="VTK's VolumetricScatteringBlending (0 surface, 1 volumetric)")
     parser.add_argument("--save", help="folder for the last frame of each renderer (PNG)")
     opts = parser.parse_args(argv)
+    if opts.quality:
+        opts.datasets = opts.datasets or ["head", "mni", "mni-half"]
+        return quality(opts)
+    opts.datasets = opts.datasets or ["ct", "plume"]
 
     window = vtkRenderWindow()
     print(f"window {window.GetClassName()}, volume {opts.size}^3, image {opts.image}^2, "

@@ -80,7 +80,8 @@ laid out in textures (all names start with ``il_``):
   ``il_source(p, d, color)`` (``J / σt``). Declares the per-ray globals ``il_dir``
   and ``il_step``.
 * :data:`GLSL_RAY_INIT` -- per ray (``//VTK::Shading::Init``): ray direction and step
-  in the local frame from VTK's ``g_dirStep``, first-sample offset (``il_jitter``).
+  in the local frame from VTK's ``g_dirStep``, first-sample offset (``il_jitter``,
+  ``il_frame``); draws nothing while the accumulator holds its mean (``il_hold``).
 * :data:`GLSL_SAMPLE` -- per sample (``//VTK::Shading::Impl``): classification,
   source, front-to-back compositing into ``g_fragColor`` (premultiplied), so VTK's
   early termination at alpha ``1 - 1/255`` applies.
@@ -88,7 +89,35 @@ laid out in textures (all names start with ``il_``):
 :func:`shading_uniforms` computes the uniform values for a volume, scene and lights and
 :func:`set_uniforms` writes them to a ``vtkUniforms`` (``il_exposure`` and
 ``il_jitter`` come from the volume's :attr:`~IlluminatedVolume.exposure` and
-:attr:`~IlluminatedVolume.jitter`).
+:attr:`~IlluminatedVolume.jitter`, ``il_frame`` and ``il_hold`` from the renderer's
+accumulator through :meth:`IlluminatedVolume.set_frame`).
+
+Still pictures: jitter and accumulation
+---------------------------------------
+Samples lie at ``t0 + (k + ξ) Δ`` from the box entry, ``Δ`` the sample distance
+(the scene's step, default half the smallest data spacing; VTK's automatic sample
+distances are off, so moving the camera does not coarsen it). Where a surface is
+thinner than ``Δ`` the picture depends on ``ξ``: one ``ξ`` for all pixels
+(``jitter=False``, ``ξ = 1/2``, the warp caster's ``jitter=False``) draws wood-grain
+terraces and streaks along the sample planes; a white-noise ``ξ`` per pixel (before
+issue 34) draws salt-and-pepper speckle of the same depth. Now, with ``jitter=True``:
+
+* ``ξ = fract(ign(pixel) + k φ)``: interleaved gradient noise (Jimenez 2014), whose
+  neighbouring pixels take evenly spread offsets (no clumps) fixed to the screen (no
+  crawling while the camera moves), plus ``k`` times the golden ratio conjugate ``φ``
+  in frame ``k`` of an accumulation (the R1 sequence: each pixel's offsets over frames
+  are evenly spread, so their mean converges like ``1/k``, white noise like
+  ``1/sqrt(k)``);
+* while the camera, window, scene and data rest, every render adds a frame and the
+  renderer shows the mean (:mod:`vtkillum.mappers.accumulation`, up to
+  :attr:`~IlluminatedVolume.accumulate` frames, then it holds the mean and the volume
+  draws nothing); any change starts again. An interactive frame costs what it cost
+  before (nothing is read back in frame 0); a still frame adds a read-back and a
+  write of the viewport.
+
+Measured with ``benchmarks/bench_opengl.py --quality`` (pyvista's ``add_illuminated_volume``
+defaults, 256² pixels, llvmpipe; RMS error in 8-bit levels against the mean of 128 frames
+of the same view): see ``docs/benchmarks.md``.
 
 Tolerance vs the warp caster
 ----------------------------
@@ -122,12 +151,11 @@ CPU and pays for much of the code behind a branch not taken:
 
 Simplifications and limits
 --------------------------
-* Samples lie at ``t0 + (k + ξ) Δ`` from the box entry, ``ξ`` a per-pixel hash in
-  [0, 1) by default (``jitter=True``, like the warp caster's default: deterministic steps
-  through a sharp surface show wood-grain rings, jitter turns them into noise) or 1/2
-  with ``jitter=False`` (the warp caster with ``jitter=False``, what the tests compare).
-  The hash is not the warp caster's random stream, so jittered images agree with it
-  only on average. VTK's own ``UseJittering`` (a tiled noise texture) is off.
+* Jittered pictures (above) agree with the warp caster's only on average (its offsets
+  are its own random stream); the tests compare ``jitter=False``. VTK's own
+  ``UseJittering`` (a tiled noise texture) is off.
+* The accumulated mean is of 8-bit frames read back from the frame buffer (each within
+  half a level of its radiance; the varying offsets dither the sum).
 * Grids are interpolated by the texture unit (trilinear, clamped to the box as the
   warp samplers; GPUs may use 8-bit interpolation weights).
 * Input: point data with one component (the core's convention), not split into
@@ -149,7 +177,7 @@ import numpy as np
 import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (OpenGL factory overrides)
 from vtkmodules.util.numpy_support import numpy_to_vtk
 from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
-from vtkmodules.vtkCommonCore import vtkOutputWindow
+from vtkmodules.vtkCommonCore import vtkCommand, vtkOutputWindow, vtkWeakReference
 from vtkmodules.vtkCommonDataModel import vtkImageData
 from vtkmodules.vtkCommonExecutionModel import vtkAlgorithm
 from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
@@ -164,6 +192,7 @@ from vtkillum.core.transfer_function import TABLE_SIZE
 from vtkillum.core.volume import Volume
 from vtkillum.io.convert import add_point_array, image_like, volume_from_image_data
 from vtkillum.io.illumination_arrays import illumination_from_image, lights_from_field
+from vtkillum.mappers.accumulation import accumulator_for, existing_accumulator
 from vtkillum.mappers.camera_bridge import GridSummary, apply_scene_to_volume_property
 from vtkillum.mappers.inputs import check_covers, connect_input, rendered_point_array
 
@@ -174,6 +203,9 @@ MAX_LIGHTS = 8
 #: ``vtkillum.core.raycast.RAYCAST_OPTIONS["near_cells"]`` (kept here so that the OpenGL
 #: path imports no warp; a test checks they agree).
 NEAR_CELLS = 2.0
+
+#: Default frames an :class:`IlluminatedVolume` averages while the view rests.
+ACCUMULATE = 16
 
 #: Ports of the mapper (= indices of ``in_volume[]`` in the shader).
 OPTICS_PORT, DATA_PORT, DIRECT_PORT_A, DIRECT_PORT_B, SCATTERED_PORT = range(5)
@@ -206,8 +238,11 @@ UNIFORMS = {
                       "I / max(d, r)^2; vtkillum.core.lights.resolved_radius)",
     "il_near": "float: length of the exact near-field march (world units)",
     "il_hasScattered": "int: 1 when a scattered fluence is bound",
-    "il_jitter": "int: 0 samples at step midpoints; n > 0 jitters the first sample per pixel "
-                 "(n seeds the hash)",
+    "il_jitter": "int: 0 samples at step midpoints; 1 offsets each pixel's first sample "
+                 "(interleaved gradient noise, R1 sequence over frames)",
+    "il_frame": "int: frame of the accumulation (0: a frame after a change; "
+                "vtkillum.mappers.accumulation)",
+    "il_hold": "int: 1 draws nothing (the accumulator shows its stored mean)",
 }
 
 # --- GLSL ----------------------------------------------------------------------------------------
@@ -575,10 +610,18 @@ vec3 il_source(vec3 p, vec3 d, vec3 color)
 # Per ray, before the loop (//VTK::Shading::Init; the tag is kept for VTK's own code).
 # g_dataPos is in the texture coordinates of the multi-volume's box; VTK starts one step
 # (g_rayJitter = g_dirStep with VTK's jittering off) inside it. The first sample goes to
-# fraction xi of the first step: 1/2 (the warp caster's jitter=False), or with il_jitter a
-# per-pixel hash in [0, 1) (pcg2d, Jarzynski & Olano 2020), which turns the rings of
-# deterministic steps through sharp surfaces into noise without repeating per tile.
+# fraction xi of the first step: 1/2 (the warp caster's jitter=False), or with il_jitter
+# xi = fract(ign(pixel) + il_frame * phi): interleaved gradient noise (Jimenez 2014) puts
+# different offsets in neighbouring pixels without the clumps of white noise (no salt and
+# pepper), fixed to the screen (no crawling while the camera moves); frame k of an
+# accumulation adds k times the golden ratio conjugate (the R1 sequence), so every pixel's
+# offsets over frames are evenly spread over [0, 1) and their mean converges like 1/k
+# (white noise: 1/sqrt(k)). il_hold: the accumulator shows its stored mean; draw nothing.
 GLSL_RAY_INIT = """//VTK::Shading::Init
+  if (il_hold != 0)
+  {
+    discard;
+  }
   {
     il_initLayout();
     mat4 il_texToWorld = in_volumeMatrix[0] * in_textureDatasetMatrix[0];
@@ -596,15 +639,9 @@ GLSL_RAY_INIT = """//VTK::Shading::Init
     float il_xi = 0.5;
     if (il_jitter != 0)
     {
-      uvec2 v = uvec2(gl_FragCoord.xy) + uvec2(uint(il_jitter) * 1664525u, 1013904223u);
-      v = v * 1664525u + 1013904223u;
-      v.x += v.y * 1664525u;
-      v.y += v.x * 1664525u;
-      v = v ^ (v >> 16u);
-      v.x += v.y * 1664525u;
-      v.y += v.x * 1664525u;
-      v = v ^ (v >> 16u);
-      il_xi = float(v.x >> 8u) * (1.0 / 16777216.0);
+      float il_ign = fract(52.9829189 * fract(dot(floor(gl_FragCoord.xy),
+                                                  vec2(0.06711056, 0.00583715))));
+      il_xi = fract(il_ign + fract(float(il_frame) * 0.6180339887));
     }
     g_dataPos += il_xi * g_dirStep - g_rayJitter;
   }
@@ -672,9 +709,18 @@ class IlluminatedVolume(vtkMultiVolume):
         Length of the exact near-field march in transmittance-grid cells (default
         :data:`NEAR_CELLS`, the warp caster's; 0 reads the grid at the sample).
     jitter : bool
-        Offset each pixel's first sample by a hash in [0, 1) of a step (default True):
-        noise instead of wood-grain rings at sharp surfaces. ``False``: samples at step
-        midpoints, as the warp caster with ``jitter=False``.
+        Offset each pixel's first sample by a fraction of a step (default True):
+        interleaved gradient noise, different in neighbouring pixels and fixed to the
+        screen, instead of the wood-grain terraces that one offset for all pixels draws at
+        sharp surfaces. ``False``: samples at step midpoints, as the warp caster with
+        ``jitter=False``, and no accumulation.
+    accumulate : int
+        Frames averaged while the view rests (default :data:`ACCUMULATE`; 0: every
+        render shows one frame). Each render after the first with an unchanged camera,
+        window, scene and data adds a frame with the next offset of each pixel's
+        sequence; any change starts again (:mod:`vtkillum.mappers.accumulation`). In a
+        window with an interactor the frames are added by a timer; off screen, each
+        ``Render()`` adds one, or :meth:`refine` renders until the mean has converged.
 
     Notes
     -----
@@ -691,7 +737,8 @@ class IlluminatedVolume(vtkMultiVolume):
 
     def __init__(self, data, scene: Scene | None = None, illumination=None,
                  array_name: str | None = None, exposure: float = 1.0,
-                 near_cells: float = NEAR_CELLS, jitter: bool = True) -> None:
+                 near_cells: float = NEAR_CELLS, jitter: bool = True,
+                 accumulate: int = ACCUMULATE) -> None:
         super().__init__()
         self.inputs = IlluminationInputs()
         self.inputs.SetArrayName(array_name)
@@ -731,6 +778,15 @@ class IlluminatedVolume(vtkMultiVolume):
         self._exposure = 1.0
         self.exposure = exposure
         self.jitter = jitter
+        self._accumulate = 0
+        self.accumulate = accumulate
+        self.set_frame(0, False)
+        # Attach the renderers that show this volume to their accumulator at each render
+        # (a weak reference: the mapper must not keep its volume alive).
+        weak = vtkWeakReference()
+        weak.Set(self)
+        self.mapper.AddObserver(vtkCommand.VolumeMapperRenderStartEvent,
+                                lambda caller, event: _attach_renderers(weak.Get()))
         self._scene = None
         self._ready = False
         self.near_cells = near_cells
@@ -810,6 +866,77 @@ class IlluminatedVolume(vtkMultiVolume):
         self.Modified()
 
     @property
+    def accumulate(self) -> int:
+        """Frames averaged while the view rests (0: no accumulation)."""
+        return self._accumulate
+
+    @accumulate.setter
+    def accumulate(self, value: int) -> None:
+        if isinstance(value, bool) or int(value) != value or value < 0:
+            raise ValueError(f"accumulate must be a non-negative number of frames, got "
+                             f"{value!r}")
+        self._accumulate = int(value)
+        self.Modified()
+
+    @property
+    def frames(self) -> int:
+        """Frames in the mean that the (first) renderer showing this volume shows now.
+
+        0 after a change (camera, window, scene, data), before the second render.
+        """
+        acc = self._accumulator()
+        return acc.count if acc is not None else 0
+
+    def refine(self, frames: int | None = None) -> int:
+        """Render the window showing this volume until its mean holds ``frames`` frames.
+
+        Default: :attr:`accumulate` frames (converged). For off-screen windows and
+        scripts (an interactive window refines by itself while the camera rests).
+        Returns the frames in the mean.
+        """
+        acc = self._accumulator(create=True)
+        if acc is None:
+            raise ValueError("the volume is in no renderer: add it (renderer.AddVolume, "
+                             "plotter.add_actor) first")
+        return acc.refine(frames)
+
+    def set_frame(self, index: int, hold: bool) -> None:
+        """Sample with the offsets of accumulation frame ``index``; ``hold``: draw nothing.
+
+        Called by the renderer's :class:`~vtkillum.mappers.accumulation.FrameAccumulator`
+        before each render; changes no modification time.
+        """
+        uniforms = self.GetShaderProperty().GetFragmentCustomUniforms()
+        uniforms.SetUniformi("il_frame", int(index))
+        uniforms.SetUniformi("il_hold", int(bool(hold)))
+
+    def content_mtime(self) -> int:
+        """Latest modification of anything that changes this volume's picture.
+
+        The volume, mapper and properties, the shader, the inputs stage, its input data
+        and the textures (data, illumination, optics table); not the per-frame uniforms
+        of :meth:`set_frame`. The accumulator starts again when it grows.
+        """
+        inputs = self.inputs
+        objects = [self, self.mapper, self.GetShaderProperty(), inputs,
+                   inputs.GetOutputDataObject(0), inputs.data_image, *inputs.direct_images,
+                   inputs.scattered_image]
+        for port in range(inputs.GetNumberOfInputPorts()):
+            if inputs.GetNumberOfInputConnections(port):
+                objects.append(inputs.GetInputDataObject(port, 0))
+        for volume in self.volumes:
+            objects += [volume, volume.GetProperty()]
+        return max(o.GetMTime() for o in objects if o is not None)
+
+    def _accumulator(self, create: bool = False):
+        """The accumulator of the first renderer showing this volume (None: none)."""
+        for i in range(self.GetNumberOfConsumers()):
+            consumer = self.GetConsumer(i)
+            if consumer is not None and consumer.IsA("vtkRenderer"):
+                return accumulator_for(consumer) if create else existing_accumulator(consumer)
+        return None
+
+    @property
     def near_cells(self) -> float:
         """Exact near-field march in transmittance-grid cells (0: read the grid at the sample)."""
         return self.inputs.near_cells
@@ -872,6 +999,16 @@ class IlluminatedVolume(vtkMultiVolume):
         image = self.inputs.GetInputDataObject(0, 0)
         scalars = rendered_point_array(image, self.inputs.GetArrayName())
         return GridSummary(image, scalars)
+
+
+def _attach_renderers(volume) -> None:
+    """Give every renderer showing ``volume`` its accumulator (once per renderer)."""
+    if volume is None:
+        return
+    for i in range(volume.GetNumberOfConsumers()):
+        consumer = volume.GetConsumer(i)
+        if consumer is not None and consumer.IsA("vtkRenderer"):
+            accumulator_for(consumer)
 
 
 class IlluminationInputs(VTKPythonAlgorithmBase):
@@ -1199,6 +1336,7 @@ __all__ = [
     "GLSL_RAY_INIT",
     "GLSL_SAMPLE",
     "GLSL_SHADING_DEC",
+    "ACCUMULATE",
     "MAX_LIGHTS",
     "NEAR_CELLS",
     "UNIFORMS",

@@ -51,7 +51,7 @@ def save_screenshot(window, path) -> Path:
     return Path(path)
 
 
-def show(window, screenshot=None, interact: bool | None = None):
+def show(window, screenshot=None, interact: bool | None = None, refine: bool = True):
     """Render ``window``; write ``screenshot`` (a .png path) if given; interact if possible.
 
     Parameters
@@ -62,6 +62,10 @@ def show(window, screenshot=None, interact: bool | None = None):
         PNG written after the first render.
     interact : bool, optional
         Start an interactor (default: when :func:`has_display`).
+    refine : bool
+        Before the screenshot, render until the mean of the accumulating volumes'
+        jittered frames has converged (:mod:`vtkillum.mappers.accumulation`; a still
+        picture without speckle). An interactive window refines by itself.
 
     Returns
     -------
@@ -76,6 +80,14 @@ def show(window, screenshot=None, interact: bool | None = None):
     for _ in range(renderers.GetNumberOfItems()):
         renderers.GetNextItem().ResetCameraClippingRange()
     window.Render()
+    if refine and screenshot is not None:
+        from vtkillum.mappers.accumulation import existing_accumulator
+
+        renderers.InitTraversal()
+        for _ in range(renderers.GetNumberOfItems()):
+            accumulator = existing_accumulator(renderers.GetNextItem())
+            if accumulator is not None:
+                accumulator.refine()
     written = save_screenshot(window, screenshot) if screenshot is not None else None
     if interact:
         import vtkmodules.vtkInteractionStyle  # noqa: F401  (the default interactor style)
