@@ -1,6 +1,6 @@
 """Issue 13: a good first picture of one's own data without flags, export, quiet start.
 
-Renders run at small sizes (the CLI's default is 512²); the criteria are the issue's:
+Renders run at small sizes (the CLI's default is 256² on a CPU); the criteria are the issue's:
 the PNG uses the dynamic range (99th percentile above 200/255), is not blank, and a
 medical image is seen from the front with superior up and the patient's left on the
 right of the picture.
