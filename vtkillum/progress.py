@@ -321,11 +321,12 @@ class ProgressReporter:
         stage = self.watch.stage if self.watch is not None else None
         return stage or self.activity or RENDERING
 
-    def line(self, now: float | None = None) -> tuple[str, float | None]:
-        """The progress line for ``now`` and the estimate it states."""
+    def line(self, now: float | None = None, fraction: bool = True) -> tuple[str, float | None]:
+        """The progress line for ``now`` and the estimate it states (``fraction``: with
+        the percentage done, which a bar shows itself)."""
         now = self.clock() if now is None else now
         parts = [self.doing()]
-        if self._fraction is not None and not self.watch_compiling():
+        if fraction and self._fraction is not None and not self.watch_compiling():
             parts.append(f"{100 * self._fraction:.0f} %")
         if self._detail:
             parts.append(self._detail)
@@ -380,8 +381,9 @@ class ProgressReporter:
             self.lines += 1
 
     def _refresh_bar(self, now: float) -> None:
-        text, _ = self.line(now)
-        self.bar.set_postfix_str(text.split(": ", 1)[1], refresh=True)
+        text, _ = self.line(now, fraction=False)
+        self.bar.status = text.split(": ", 1)[1]
+        self.bar.refresh()
         self._last_line = now
 
     def write(self, text: str) -> None:
@@ -424,11 +426,10 @@ class ProgressReporter:
         self.watch = KernelWatch(self.clock, on_launch=self._on_launch).__enter__()
         self._start = self.clock()
         if mode == "bar":
-            from tqdm import tqdm
-
-            # Our own "spent / left" in the postfix: tqdm's would count compile time as work.
-            self.bar = tqdm(total=100, desc=self.description, file=self.stream, leave=False,
-                            bar_format="{desc}: {percentage:3.0f}%|{bar}| {postfix}")
+            # Our own "spent / left" after the bar: tqdm's would count compile time as work.
+            self.bar = _bar_class()(total=100, desc=self.description, file=self.stream,
+                                    leave=False,
+                                    bar_format="{desc}: {percentage:3.0f}%|{bar}| {status}")
         if self.heartbeat:
             self._thread = threading.Thread(target=self._beat, name="vtkillum-progress",
                                             daemon=True)
@@ -444,3 +445,17 @@ class ProgressReporter:
         if self.bar is not None:
             self.bar.close()
         return False
+
+
+def _bar_class():
+    """tqdm with a ``status`` text after the bar (its postfix field would start with ', ')."""
+    from tqdm import tqdm
+
+    class StatusBar(tqdm):
+        status = ""
+
+        @property
+        def format_dict(self):
+            return dict(super().format_dict, status=self.status)
+
+    return StatusBar
