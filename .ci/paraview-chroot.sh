@@ -14,7 +14,8 @@
 # $VTKILLUM_CI_CACHE/SUITE (default /var/cache/vtkillum-ci/SUITE, ~4.5 GB):
 #   * absent (or a build that did not finish): built with debootstrap + apt (Debian's
 #     paraview, python3-paraview, xvfb, Mesa), then a virtual environment with
-#     vtkillum[test] (pip, from PyPI): ~5-10 min on 2 cores, longer on a loaded machine;
+#     vtkillum[test] (pip, from PyPI): measured on 2 cores 3 min (forky) on a quiet machine,
+#     7-11 min at load 10;
 #   * present: only refreshed: this working tree (tracked and untracked, not ignored
 #     files) replaces the chroot's copy in /root/vtkillum and is installed again into the
 #     chroot's venv (/opt/vtkillum-venv, kept between runs); `apt-get upgrade` is not run

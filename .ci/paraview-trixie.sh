@@ -4,8 +4,8 @@
 # host's ParaView 5.11 and ParaView 6.1): run it, as root on a Debian 12 machine, before
 # resolving an issue that touches the ParaView plugin:
 #
-#   sudo .ci/paraview-trixie.sh                      # all of tests/plugin (~10 min cached)
+#   sudo .ci/paraview-trixie.sh                      # all of tests/plugin (6-13 min cached)
 #   sudo .ci/paraview-trixie.sh -q tests/plugin/test_render.py
 #
-# The first run builds the chroot (~5-10 min on 2 cores, ~4.5 GB); see .ci/paraview-chroot.sh.
+# The first run builds the chroot (4-8 min on 2 cores, ~4.5 GB); see .ci/paraview-chroot.sh.
 exec "$(dirname "$0")/paraview-chroot.sh" trixie "$@"
