@@ -86,15 +86,15 @@ STAGE_NAMES = {
     "convection_diffusion.diffusion": "diffusion",
     "convection_diffusion.solver": "diffusion",
     "convection_diffusion.reconstruction": "light volume",
-    "photon.tables": "photon tables",
-    "photon.density": "photon emission",
+    "photon.tables": "transfer-function tables",
+    "photon.density": "photon density",
     "photon.tracing": "photon tracing",
     "photon.storage": "photon tracing",
-    "photon.hashgrid": "photon map",
+    "photon.hashgrid": "photon hash grid",
     "photon.segments": "gathering photons along view rays",
     "photon.mapper": "photon map",
     "many_lights.walk": "light paths (virtual lights)",
-    "many_lights.contribution": "virtual lights",
+    "many_lights.contribution": "virtual-light contributions",
     "many_lights.avsm": "transmittance caching (AVSM)",
     "many_lights.gather": "gathering virtual lights",
     "refraction.sweep": "plane sweep",
@@ -176,7 +176,7 @@ class KernelWatch:
 
         def load(module, *args, **kwargs):
             key = threading.get_ident()
-            if key in watch._loads:  # nested (warp loads dependencies itself)
+            if key in watch._loads:  # a load within a load: timed by the outer one
                 return original_load(module, *args, **kwargs)
             watch._loads[key] = [watch.clock(), False]
             try:
@@ -375,7 +375,11 @@ class ProgressReporter:
             if since < due or self._stop.is_set():
                 return
             text, left = self.line(now)
-            print(text, file=self.stream, flush=True)
+            try:
+                print(text, file=self.stream, flush=True)
+            except (OSError, ValueError):  # the stream went away (SIGHUP, a closed pipe)
+                self._stop.set()  # the render goes on; progress stops
+                return
             self._last_line = now
             self.printed.append((now, text, left))
             self.lines += 1
@@ -408,7 +412,7 @@ class ProgressReporter:
                         self._refresh_bar(now)
                 else:
                     self._maybe_print(now)
-            except (OSError, ValueError):  # the stream went away (a closed pipe)
+            except (OSError, ValueError):  # the stream went away (SIGHUP, a closed pipe)
                 return
 
     # -- context manager ------------------------------------------------------------------
