@@ -47,7 +47,10 @@ Lights are :class:`vtkillum.DirectionalLight` / :class:`vtkillum.PointLight`, or
 ``pyvista.Light`` objects (a directional light travels from ``position`` towards
 ``focal_point`` with irradiance ``intensity * color``; a positional one becomes
 a point light of intensity ``intensity * color``). Default: one white directional
-light travelling along (1, -1, -1).
+light travelling along (1, -1, -1) for the filters; :func:`render` takes the command
+line's defaults (:mod:`vtkillum.core.defaults`: the data-aware camera, a key light from
+its upper front-left, automatic exposure, 256² on a CPU and 512² with CUDA), so that it
+draws what ``vtkillum render`` draws.
 """
 
 from __future__ import annotations
