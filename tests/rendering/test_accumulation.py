@@ -37,7 +37,7 @@ pytest.importorskip("vtkmodules.vtkRenderingVolumeOpenGL2")
 from vtkmodules.vtkRenderingCore import vtkRenderer
 
 from vtkillum.io.convert import image_data_from_volume
-from vtkillum.mappers import IlluminatedVolume
+from vtkillum.mappers import IlluminatedVolume, accumulation
 from vtkillum.mappers.illuminated_volume_mapper import ACCUMULATE
 
 SIZE = 64
@@ -99,11 +99,22 @@ def rms_levels(image, reference) -> float:
 def sphere():
     """The scene and its reference: the mean of REFERENCE_FRAMES frames (8-bit levels)."""
     volume, scene, illumination = sphere_scene()
-    actor, window = show(volume, scene, illumination, accumulate=REFERENCE_FRAMES)
-    assert actor.refine() == REFERENCE_FRAMES
-    reference = shown(window)
-    window.Finalize()
+    settled = accumulation.SETTLED_LEVELS
+    accumulation.SETTLED_LEVELS = -1.0  # all the frames, no early end
+    try:
+        actor, window = show(volume, scene, illumination, accumulate=REFERENCE_FRAMES)
+        assert actor.refine() == REFERENCE_FRAMES
+        reference = shown(window)
+        window.Finalize()
+    finally:
+        accumulation.SETTLED_LEVELS = settled
     return volume, scene, illumination, reference
+
+
+@pytest.fixture
+def exact_counts(monkeypatch):
+    """Frame counts as asked for: no early end of the accumulation."""
+    monkeypatch.setattr(accumulation, "SETTLED_LEVELS", -1.0)
 
 
 def test_accumulated_still_picture_has_no_speckle_or_terraces(sphere):
@@ -118,11 +129,12 @@ def test_accumulated_still_picture_has_no_speckle_or_terraces(sphere):
     assert actor.frames == 0
     assert actor.refine(4) == 4
     four = rms_levels(shown(window), reference)
-    assert actor.refine() == ACCUMULATE == 16
+    frames = actor.refine()  # the default: up to ACCUMULATE frames, or settled before
+    assert 8 <= frames <= ACCUMULATE == 16
     still = rms_levels(shown(window), reference)
     window.Finalize()
     print(f"RMS vs reference (8-bit levels): jitter=False {terraces:.2f}, one frame "
-          f"{speckle:.2f}, 4 frames {four:.2f}, {ACCUMULATE} frames {still:.2f}")
+          f"{speckle:.2f}, 4 frames {four:.2f}, {frames} frames {still:.2f}")
     assert terraces > 2 * SPECKLE_TOL
     assert speckle > 2 * SPECKLE_TOL
     assert still < SPECKLE_TOL / 2 < four < speckle
@@ -147,12 +159,14 @@ def test_accumulated_picture_is_unbiased(sphere):
     means = [float(image.mean()) for image in (accumulated, fixed, fine, reference)]
     print("mean level: accumulated {:.3f}, jitter=False {:.3f}, step/8 {:.3f}, "
           "reference {:.3f}".format(*means))
+    # Measured 75.4, 76.2, 76.7, 75.4: what is left is the one-voxel step's own bias,
+    # which the step midpoints (jitter=False) have too.
     assert abs(means[0] / means[1] - 1.0) < 0.02
-    assert abs(means[0] / means[2] - 1.0) < 0.02
+    assert abs(means[0] / means[2] - 1.0) < 0.03
     assert abs(means[0] / means[3] - 1.0) < 0.002
 
 
-def test_camera_move_restarts_the_accumulation(sphere):
+def test_camera_move_restarts_the_accumulation(sphere, exact_counts):
     volume, scene, illumination, reference = sphere
     actor, window = show(volume, scene, illumination)
     window.Render()
@@ -181,7 +195,7 @@ def test_camera_move_restarts_the_accumulation(sphere):
     window.Finalize()
 
 
-def test_converged_mean_is_held_and_edits_restart(sphere):
+def test_converged_mean_is_held_and_edits_restart(sphere, exact_counts):
     volume, scene, illumination, reference = sphere
     actor, window = show(volume, scene, illumination, accumulate=6)
     actor.refine()
@@ -223,7 +237,26 @@ def test_no_accumulation_without_jitter_or_frames(sphere):
         lonely.refine()
 
 
-def test_two_volumes_in_one_renderer_share_one_mean(sphere):
+def test_a_view_the_offsets_do_not_change_settles_early():
+    """Smooth data (the blobs, a soft transfer function): a frame soon moves the mean by
+    less than half an 8-bit level, so the mean is complete and further frames cost
+    nothing."""
+    from helpers import blob_tf, blob_volume, zoomed_camera
+
+    volume = blob_volume()
+    scene = Scene(transfer_function=blob_tf(), camera=zoomed_camera(volume),
+                  lights=[DirectionalLight((0.6, -1.0, 0.2), (2.0, 2.0, 2.0))])
+    actor, window = show(volume, scene, None)
+    frames = actor.refine()
+    assert 2 <= frames < ACCUMULATE
+    settled = shown(window)
+    window.Render()
+    assert actor.frames == frames
+    assert np.array_equal(shown(window), settled)
+    window.Finalize()
+
+
+def test_two_volumes_in_one_renderer_share_one_mean(sphere, exact_counts):
     """Both volumes take the frame index from the renderer's one accumulator: the mean is
     summed once (not the mean of a mean), and the picture equals one volume's when the
     other is outside the view."""
@@ -240,7 +273,7 @@ def test_two_volumes_in_one_renderer_share_one_mean(sphere):
     window.Finalize()
 
 
-def test_accumulation_in_a_pyvista_plotter(sphere):
+def test_accumulation_in_a_pyvista_plotter(sphere, exact_counts):
     """pyvista windows (multisampled frame buffer) accumulate the same way.
 
     The reference is made in the plotter: where the rasteriser shades every sample of a
@@ -272,3 +305,29 @@ def test_accumulation_in_a_pyvista_plotter(sphere):
           f"{rms_levels(still, reference):.2f} levels RMS")
     assert rms_levels(still, reference) < SPECKLE_TOL / 2
     assert rms_levels(single, reference) > 2 * rms_levels(still, reference)
+
+
+def test_an_interactor_refines_while_the_view_rests(sphere, exact_counts):
+    """With an initialised interactor each frame asks for the next one through a one-shot
+    timer (here a generic interactor whose host fires the timers by hand)."""
+    from vtkmodules.vtkCommonCore import vtkCommand
+    from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
+
+    volume, scene, illumination, reference = sphere
+    actor, window = show(volume, scene, illumination, accumulate=4)
+    interactor = vtkGenericRenderWindowInteractor()
+    interactor.SetRenderWindow(window)
+    pending = []
+    interactor.AddObserver(vtkCommand.CreateTimerEvent,
+                           lambda caller, event: pending.append(caller.GetTimerEventPlatformId()))
+    interactor.Initialize()  # renders: the volume attaches the renderer's accumulator
+    window.Render()  # frame 0: asks for a timer
+    fired = 0
+    while pending and fired < 10:
+        interactor.SetTimerEventPlatformId(pending.pop(0))
+        interactor.TimerEvent()  # renders the next frame
+        fired += 1
+    assert actor.frames == 4
+    assert fired == 4  # one frame per timer, none once the mean has converged
+    interactor.SetRenderWindow(None)
+    window.Finalize()

@@ -14,8 +14,11 @@ Per renderer::
     frame k>=1 (nothing changed since frame k-1): the volumes sample with offset index k;
                the viewport is read back (RGBA, [0, 1]) and added to a float sum; the mean
                of frames 1..k is written back before the window shows it
-    converged  (``accumulate`` frames summed): the volumes draw nothing (their shader
-               discards every fragment) and the stored mean is written back
+    converged  (``accumulate`` frames summed, or a frame that moved the mean by at most
+               :data:`SETTLED_LEVELS` anywhere: more frames would not change what 8 bits
+               show; a view that the offsets hardly change, e.g. smooth smoke, stops after
+               a few frames): the volumes draw nothing (their shader discards every
+               fragment) and the stored mean is written back
 
 "Nothing changed" compares, before and after each render, the camera (view matrix,
 projection without the clipping range, which moves with the bounds but does not move
@@ -45,11 +48,17 @@ without one (off screen, scripts), each ``window.Render()`` adds a frame, and
 from __future__ import annotations
 
 import numpy as np
+from vtkmodules.util.misc import calldata_type
 from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
+from vtkmodules.util.vtkConstants import VTK_INT
 from vtkmodules.vtkCommonCore import vtkCommand, vtkFloatArray, vtkWeakReference
 
 #: Milliseconds between the frames an interactor's timer adds while the view rests.
 REFINE_INTERVAL_MS = 10
+
+#: A frame that moves the mean by at most this many 8-bit levels in every pixel and
+#: channel ends the accumulation early (negative: never).
+SETTLED_LEVELS = 0.5
 
 # renderer address -> FrameAccumulator (removed when the renderer is deleted)
 _ACCUMULATORS: dict[str, FrameAccumulator] = {}
@@ -90,6 +99,9 @@ class FrameAccumulator:
     count : int
         Frames in the mean shown (0 while the mean is not in use: frame 0, or no
         accumulating volume).
+    converged : bool
+        The mean is complete (``limit`` frames, or settled early): later renders show it
+        and the volumes draw nothing.
     """
 
     def __init__(self, renderer) -> None:
@@ -98,6 +110,7 @@ class FrameAccumulator:
         self.frame = 0
         self.count = 0
         self.limit = 0
+        self.converged = False
         self._sum = None
         self._key = None
         self._hold = False
@@ -115,6 +128,7 @@ class FrameAccumulator:
         """Forget the frames: the next render is frame 0."""
         self.frame = 0
         self.count = 0
+        self.converged = False
         self._sum = None
         self._key = None
         self._hold = False
@@ -132,7 +146,7 @@ class FrameAccumulator:
         self._tags = []
 
     def refine(self, frames: int | None = None) -> int:
-        """Render the window until ``frames`` frames (default: converged) are in the mean.
+        """Render the window until ``frames`` frames are in the mean, or it converged.
 
         Returns the number of frames in the mean. Renders stop early when the view keeps
         changing between renders (nothing can accumulate then).
@@ -144,7 +158,7 @@ class FrameAccumulator:
         window.Render()  # brings limit and key up to date (a first render is frame 0)
         target = self.limit if frames is None else min(int(frames), self.limit)
         budget = target + 2  # frame 0 and one restart
-        while self.count < target and budget > 0:
+        while self.count < target and not self.converged and budget > 0:
             window.Render()
             budget -= 1
         return self.count
@@ -169,8 +183,10 @@ class FrameAccumulator:
         view = camera.GetViewTransformMatrix()
         aspect = renderer.GetTiledAspectRatio()
         projection = camera.GetProjectionTransformMatrix(aspect, -1.0, 1.0)
-        matrices = tuple(view.GetElement(i, j) for i in range(4) for j in range(4)) + tuple(
-            projection.GetElement(i, j) for i in (0, 1, 3) for j in range(4))
+        # 7 significant digits: a screenshot filter re-rendering the same view moves the
+        # projection by rounding errors (1e-8), which must not restart the mean.
+        matrices = tuple(f"{view.GetElement(i, j):.7g}" for i in range(4) for j in range(4)) + \
+            tuple(f"{projection.GetElement(i, j):.7g}" for i in (0, 1, 3) for j in range(4))
         window = renderer.GetRenderWindow()
         return (matrices, tuple(renderer.GetSize()), tuple(renderer.GetOrigin()),
                 tuple(window.GetSize()) if window is not None else None,
@@ -192,7 +208,9 @@ class FrameAccumulator:
             self.frame += 1
         else:
             self.reset()
-        self._hold = self.count >= self.limit > 0 and self._sum is not None
+        if self._sum is not None and self.count >= self.limit:
+            self.converged = True
+        self._hold = self.converged
         for prop in ours:
             prop.set_frame(self.frame, self._hold)
         self._key = self._view_key(renderer, ours, others)
@@ -214,11 +232,17 @@ class FrameAccumulator:
             self._write(renderer, self._sum / self.count)
             return
         rgba = self._read(renderer)
-        self._sum = rgba if self._sum is None else self._sum + rgba
-        self.count += 1
-        if self.count > 1:
+        if self._sum is None:
+            self._sum = rgba
+            self.count = 1
+        else:
+            # the mean moves by (frame - previous mean) / count
+            step = np.abs(rgba - self._sum / self.count).max() / (self.count + 1)
+            self._sum += rgba
+            self.count += 1
             self._write(renderer, self._sum / self.count)
-        if self.count < self.limit:
+            self.converged = step <= SETTLED_LEVELS / 255.0
+        if self.count < self.limit and not self.converged:
             self._schedule(renderer)
 
     def _on_delete(self, renderer, event) -> None:
@@ -261,8 +285,11 @@ class FrameAccumulator:
         weak.Set(interactor)
         timer_id = None
 
-        def on_timer(caller, event):
-            if self._timer is None or caller.GetTimerEventId() != timer_id:
+        @calldata_type(VTK_INT)
+        def on_timer(caller, event, fired=None):
+            # The fired timer's id comes as call data (some interactors also set it as
+            # TimerEventId); other timers of the interactor are not ours.
+            if self._timer is None or timer_id not in (fired, caller.GetTimerEventId()):
                 return
             self._stop_timer()
             if self.renderer is not None and caller.GetEnableRender():
@@ -288,4 +315,4 @@ def _address(prop) -> str:
     return prop.GetAddressAsString("vtkObject")
 
 
-__all__ = ["REFINE_INTERVAL_MS", "FrameAccumulator", "accumulator_for", "existing_accumulator"]
+__all__ = ["REFINE_INTERVAL_MS", "SETTLED_LEVELS", "FrameAccumulator", "accumulator_for", "existing_accumulator"]

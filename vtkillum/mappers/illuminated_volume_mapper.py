@@ -890,9 +890,10 @@ class IlluminatedVolume(vtkMultiVolume):
     def refine(self, frames: int | None = None) -> int:
         """Render the window showing this volume until its mean holds ``frames`` frames.
 
-        Default: :attr:`accumulate` frames (converged). For off-screen windows and
-        scripts (an interactive window refines by itself while the camera rests).
-        Returns the frames in the mean.
+        Default: :attr:`accumulate` frames, or fewer where a frame moved the mean by at
+        most half an 8-bit level (a view the offsets hardly change; the mean is complete).
+        For off-screen windows and scripts (an interactive window refines by itself
+        while the camera rests). Returns the frames in the mean.
         """
         acc = self._accumulator(create=True)
         if acc is None:
