@@ -9,6 +9,7 @@ from vtkillum.core.lights import DirectionalLight, PointLight
 from vtkillum.core.render import METHODS, render
 from vtkillum.core.scene import Scene
 from vtkillum.core.transfer_function import TransferFunction
+from vtkillum.core.units import WorldUnits
 from vtkillum.core.volume import Volume
 
 
@@ -94,7 +95,9 @@ def test_table1_invalidation(device):
     assert go(scene) == ["radiance"]  # light: radiance cache only
     scene.lights = [PointLight((2, 2, 2), (5, 5, 5), radius=0.5)]
     assert go(scene) == ["radiance"]  # the light's size (held irradiance within it) too
-    assert cache._lights.radius.numpy()[0] == pytest.approx(0.5)
+    # the cache works in render()'s canonical units (vtkillum.core.units): lengths / L
+    length = WorldUnits.for_volume(vol).length
+    assert cache._lights.radius.numpy()[0] * length == pytest.approx(0.5)
     scene.transfer_function = TransferFunction([0, 1], [0, 0.3])
     assert go(scene) == ["sat", "extinction", "radiance"]  # TF: everything
     assert go(scene, radius=6.0) == ["extinction", "radiance"]  # radius: SAT kept
