@@ -33,8 +33,9 @@ taking turns frame by frame:
 * before: the white-noise hash of the first sample (one frame), and ``jitter=False``;
 * after: one frame of interleaved gradient noise, and the mean of 4, 8, 16 frames
   accumulated while the camera rests (``IlluminatedVolume.accumulate``);
-* ms: an interactive frame (camera turning) before and after, a still frame that adds
-  to the mean (read back, summed, written back) and a frame once the mean converged.
+* ms: an interactive frame (camera turning) before and after (and the median over the
+  rounds of their ratio), a still frame that adds to the mean (read back, summed,
+  written back) and a frame once the mean converged.
 
 Examples
 --------
@@ -338,6 +339,8 @@ def quality(opts) -> int:
                   f"{100 * speckle:.2f} % | {ms} |", flush=True)
         print(f"| {name} | after, converged (the stored mean shown) | | | | | "
               f"{times['converged']:.0f} |", flush=True)
+        print(f"| {name} | interactive frame after / before (median over the rounds) | | | | | "
+              f"{times['ratio']:.3f} |", flush=True)
         if opts.save:
             _save(opts.save, f"quality_{name}_reference.png", reference.astype(np.uint8))
             for i, image in enumerate(pictures.values()):
@@ -370,6 +373,8 @@ def _quality_times(window, renderer, volumes, frames: int) -> dict:
     after.refine()
     converged = [timed() for _ in range(frames)]
     return {**{k: statistics.median(v) for k, v in turns.items()},
+            "ratio": statistics.median(a / b for a, b in zip(turns["interactive, after"],
+                                                             turns["interactive, before"])),
             "still, adding a frame": statistics.median(still),
             "converged": statistics.median(converged)}
 

@@ -40,7 +40,8 @@ visible such prop has ``jitter`` on and ``accumulate > 0``; it sums up to the la
 so ``renderer.AddVolume(volume)`` or pyvista's ``plotter.add_actor(volume)`` is enough.
 
 Where the window has an initialised interactor, a one-shot timer renders the next frame
-while the view rests (the accumulation then runs by itself in an interactive window);
+while the view rests, not during a drag (the accumulation then runs by itself in an
+interactive window, starting with the still render that ends an interaction);
 without one (off screen, scripts), each ``window.Render()`` adds a frame, and
 :meth:`FrameAccumulator.refine` renders until the mean has converged.
 """
@@ -292,6 +293,9 @@ class FrameAccumulator:
             if self._timer is None or timer_id not in (fired, caller.GetTimerEventId()):
                 return
             self._stop_timer()
+            style = caller.GetInteractorStyle()
+            if style is not None and style.IsA("vtkInteractorStyle") and style.GetState() != 0:
+                return  # a drag is under way; the style's still render at its end resumes
             if self.renderer is not None and caller.GetEnableRender():
                 caller.Render()
 
