@@ -214,7 +214,7 @@ def test_stage_names(module, stage):
 # --- every method, through the command line -------------------------------------------------------
 #: Method -> options that keep its render small.
 SMALL = {"path": ["--spp", "2"], "photon": ["--option", "photons=2000"],
-         "many-lights": ["--option", "count=8"]}
+         "many-lights": ["--option", "count=8", "--option", "sets=1"]}
 
 
 @pytest.mark.parametrize("method", sorted(m for m in METHODS if m not in cli.HIDDEN_METHODS))

@@ -238,8 +238,8 @@ def test_photon_density_accessor_matches_the_filter_convention():
     depth = (10 - np.arange(11)) * 0.1
     np.testing.assert_allclose(t[3, 3, :], np.exp(-2.0 * depth), rtol=2e-3, atol=1e-5)
     assert "scattered_fluence" in out.point_data
-    with pytest.raises(ValueError, match="photons must be a positive integer"):
-        grid.illum.photon_density(light, transfer_function=grey(2.0), photons=0, device="cpu")
+    with pytest.raises(ValueError, match="photons must be an integer >= 0"):
+        grid.illum.photon_density(light, transfer_function=grey(2.0), photons=-1, device="cpu")
 
 
 # --- issue 15, row 8: the accessor takes the filters' options and checks its arguments -----------

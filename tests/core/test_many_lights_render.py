@@ -9,7 +9,7 @@ from vtkillum.core.scene import METHOD_OPTIONS, Scene
 from vtkillum.data.accuracy_suite import _medium_scene, _side_light, cloud
 
 SIZE = 16
-FAST = {"count": 24, "avsm_resolution": 8}
+FAST = {"count": 24, "avsm_resolution": 8, "sets": 1}
 
 
 @pytest.fixture(scope="module")
@@ -91,8 +91,11 @@ def test_black_lights_give_no_virtual_lights(scene):
 @pytest.mark.parametrize("bad, match", [
     ({"count": 0}, "count must be a positive integer"),
     ({"count": 2.5}, "count must be a positive integer"),
-    ({"vsl_radius": 0.0}, "vsl_radius must be a positive number"),
-    ({"vsl_radius": -1.0}, "vsl_radius must be a positive number"),
+    ({"vsl_radius": -1.0}, "vsl_radius must be a number of voxels >= 0"),
+    ({"vsl_neighbours": 0}, "vsl_neighbours must be a positive integer"),
+    ({"sets": -1}, "sets must be an integer >= 0"),
+    ({"time_budget": -1.0}, "time_budget must be a number >= 0"),
+    ({"virtual_lights": "disc"}, "virtual_lights must be one of"),
     ({"avsm_nodes": 1}, "avsm_nodes"),
     ({"avsm_nodes": 17}, "avsm_nodes"),
     ({"avsm_resolution": 1}, "avsm_resolution"),

@@ -92,8 +92,9 @@ def test_transparent_transfer_function_gives_black_image():
 
 
 @pytest.mark.parametrize("option, value, match", [
-    ("photons", 0, "positive integer"), ("radius", 0.0, "radius must be positive"),
-    ("radius", -1.0, "radius must be positive"), ("max_order", -1, "max_order"),
+    ("photons", -1, "integer >= 0"), ("photons", 2.5, "integer >= 0"),
+    ("radius", -1.0, "radius must be a number >= 0"), ("max_order", -1, "max_order"),
+    ("kernel_photons", 0, "kernel_photons must be a positive integer"),
     ("segments", 0, "segments"), ("direct", "both", "direct"), ("passes", 0, "passes"),
     ("photon_count", 5, "unknown photon option"),
 ])

@@ -34,7 +34,7 @@ ORIGIN = np.array([-3.0, 2.0, 1.0])
 SCALES = (1e-12, 1e12, 1e20)
 #: Cheap settings for the slow methods (the same at every scale).
 OPTIONS = {"path": {"spp": 2, "seed": 3}, "photon": {"photons": 4000},
-           "many-lights": {"count": 16, "avsm_resolution": 8}}
+           "many-lights": {"count": 16, "avsm_resolution": 8, "sets": 1}}
 #: Relative tolerance (max |difference| / max): deterministic methods differ by float32
 #: rounding of the scaled inputs; Monte Carlo methods with the same seed by a decision
 #: that rounding flips now and then (measured <= 1.4e-4).

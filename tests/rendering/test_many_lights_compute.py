@@ -14,7 +14,7 @@ from vtkillum.mappers import ComputeVolumeRenderer
 from vtkillum.mappers.camera_bridge import camera_from_vtk
 
 SIZE = 20
-OPTIONS = {"count": 32, "avsm_resolution": 8, "jitter": False, "seed": 2}
+OPTIONS = {"count": 32, "avsm_resolution": 8, "jitter": False, "seed": 2, "sets": 1}
 
 
 def shown_cloud(scene=None, **options):

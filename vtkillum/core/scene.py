@@ -64,7 +64,8 @@ METHOD_OPTIONS: dict[str, dict] = {
         "gather": "centred",           # "centred" or the paper's Algorithm 1 ("paper")
     },
     "photon": {  # photon mapping with Historygrams (Jönsson et al. 2012), core/photon/render.py
-        "photons": 200000, "radius": 2.0, "max_order": 0, "segments": 8, "seed": 0,
+        "photons": 0, "radius": 0.0, "kernel_photons": 64, "max_order": 0, "segments": 8,
+        "seed": 0,
         "historygrams": True, "spatial_historygram": True, "direct": "exact", "passes": 1,
         "alpha": 0.6666666666666666, "surface_range": [0.0, 0.0], "surface_gradient": 0.02,
         "surface_diffuse": 0.6, "surface_specular": 0.4, "surface_shininess": 40.0,
@@ -76,11 +77,12 @@ METHOD_OPTIONS: dict[str, dict] = {
         "early_termination": 0.999, "seed": 0,
     },
     "many_lights": {                   # see vtkillum.core.many_lights.render
-        "count": 256, "sets": 1, "max_sets": 64, "virtual_lights": "spherical",
-        "vsl_radius": 2.0, "vsl_radius_mfp": 0.5, "radius_exponent": 1.0 / 3.0,
-        "transmittance": "avsm", "avsm_resolution": 48, "avsm_nodes": 8,
+        "count": 1024, "sets": 0, "max_sets": 64, "time_budget": 30.0, "noise_target": 0.03,
+        "virtual_lights": "clamped", "vsl_radius": 0.0, "vsl_radius_mfp": 0.0,
+        "vsl_neighbours": 16, "radius_exponent": 1.0 / 3.0,
+        "transmittance": "avsm", "avsm_resolution": 16, "avsm_nodes": 8,
         "avsm_lookup": "trilinear", "distance_sampling": "delta-tracking", "phase_sampling": "hg",
-        "view_samples": 8, "update_fraction": 0.1, "update_budget": 0,
+        "view_samples": 4, "update_fraction": 0.1, "update_budget": 0,
         "scale_range": [1.0, 1.0], "density_scale": 1.0, "seed": 0,
     },
 }

@@ -17,7 +17,7 @@ from vtkillum.io.illumination_arrays import illumination_arrays
 
 #: Filter property -> (option name, validator description) of the core's many_lights options.
 _CHOICES = {
-    "VirtualLights": ("virtual_lights", ("spherical", "point")),
+    "VirtualLights": ("virtual_lights", ("clamped", "spherical", "point")),
     "Transmittance": ("transmittance", ("avsm", "ray-marching")),
     "AVSMLookup": ("avsm_lookup", ("trilinear", "point")),
     "DistanceSampling": ("distance_sampling", ("delta-tracking", "ray-marching")),
@@ -60,20 +60,24 @@ class ManyLightsFilter(IlluminationFilterBase):
     Parameters
     ----------
     Count : int
-        Virtual lights (at least 1); default 256. Whole light paths are kept, so there
-        may be a few more.
+        Virtual lights (at least 1); default 1024 (256 before issue 34). Whole light paths
+        are kept, so there may be a few more.
     Seed : int
         Seed of the light paths; default 0.
     VirtualLights : str
-        ``"spherical"`` (default, VSLs) or ``"point"``.
+        ``"clamped"`` (default: bounded contributions, the clamped light spread over the
+        VL's sphere, :mod:`vtkillum.core.many_lights.clamp`), ``"spherical"`` (VSLs, the
+        default before issue 34) or ``"point"``.
     VSLRadius : float
-        VSL radius in voxels (x mean spacing); default 2.
+        Clamping or VSL radius in voxels (x mean spacing); 0 (default): automatic (clamped:
+        from the VLs' density; spherical: 2, the old default).
     VSLRadiusMFP : float
-        ... and at most this many mean free paths at the VL (0: no such bound); 0.5.
+        ... and at most this many mean free paths at the VL (0: no such bound, the
+        default; 0.5 before issue 34).
     Transmittance : str
         ``"avsm"`` (default) or ``"ray-marching"`` (exact).
     AVSMResolution : int
-        Texels per cube-map face edge; default 48.
+        Texels per cube-map face edge; default 16 (48 before issue 34).
     AVSMNodes : int
         (depth, transmittance) nodes per texel, 2 .. 16; default 8.
     AVSMLookup : str
@@ -109,15 +113,15 @@ class ManyLightsFilter(IlluminationFilterBase):
     def __init__(self) -> None:
         super().__init__()
         self.SetNumberOfOutputPorts(2)
-        self._count = 256
+        self._count = 1024
         self._seed = 0
-        self._vsl_radius = 2.0
-        self._vsl_radius_mfp = 0.5
+        self._vsl_radius = 0.0
+        self._vsl_radius_mfp = 0.0
         self._density_scale = 1.0
         self._step_size = 0.0
-        self._avsm_resolution = 48
+        self._avsm_resolution = 16
         self._avsm_nodes = 8
-        self._choice = {"virtual_lights": "spherical", "transmittance": "avsm",
+        self._choice = {"virtual_lights": "clamped", "transmittance": "avsm",
                         "avsm_lookup": "trilinear", "distance_sampling": "delta-tracking",
                         "phase_sampling": "hg"}
         self.state = None
@@ -171,7 +175,10 @@ class ManyLightsFilter(IlluminationFilterBase):
         return self._seed
 
     def SetVSLRadius(self, radius: float) -> None:
-        self.set_parameter("_vsl_radius", _positive(radius, "VSLRadius"))
+        radius = float(radius)
+        if not (np.isfinite(radius) and radius >= 0):
+            raise ValueError(f"VSLRadius must be >= 0 voxels (0: automatic), got {radius}")
+        self.set_parameter("_vsl_radius", radius)
 
     def GetVSLRadius(self) -> float:
         return self._vsl_radius

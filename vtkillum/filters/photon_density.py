@@ -37,9 +37,13 @@ class PhotonDensityFilter(IlluminationFilterBase):
     Parameters
     ----------
     Photons : int
-        Photon paths ``P_n`` per pass (default 200000).
+        Photon paths ``P_n`` per pass; 0 (default): from a pilot trace, enough photons for
+        a kernel of 2 voxels (:func:`vtkillum.core.photon.radius.auto_photons`; 200000
+        before issue 34).
     Radius : float
-        Photon radius in voxels (× mean input spacing) of the first pass (default 2).
+        Photon radius in voxels (× mean input spacing) of the first pass; 0 (default):
+        chosen from the photon map (:mod:`vtkillum.core.photon.radius`; 2 before issue
+        34).
     MaxOrder : int
         ``S_n``: interactions per photon at most; 1 = single scattering, 0 (default) =
         unbounded (Russian roulette only).
@@ -72,8 +76,8 @@ class PhotonDensityFilter(IlluminationFilterBase):
 
     def __init__(self) -> None:
         super().__init__()
-        self._photons = 200_000
-        self._radius = 2.0
+        self._photons = 0
+        self._radius = 0.0
         self._max_order = 0
         self._seed = 0
         self._passes = 1
@@ -94,8 +98,8 @@ class PhotonDensityFilter(IlluminationFilterBase):
 
     def SetRadius(self, radius: float) -> None:
         radius = float(radius)
-        if not (np.isfinite(radius) and radius > 0):
-            raise ValueError(f"Radius must be a positive number of voxels, got {radius}")
+        if not (np.isfinite(radius) and radius >= 0):
+            raise ValueError(f"Radius must be >= 0 voxels (0: automatic), got {radius}")
         self.set_parameter("_radius", radius)
 
     def GetRadius(self) -> float:

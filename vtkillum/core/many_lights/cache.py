@@ -39,10 +39,20 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.many_lights.avsm import STOP_TRANSMITTANCE, ShadowMapPool, empty_maps
+from vtkillum.core.many_lights.clamp import (
+    RADIUS_MAX_BOX,
+    RADIUS_MIN_VOXELS,
+    knn_radii,
+    near_field,
+)
 from vtkillum.core.many_lights.gather import VirtualLights
 from vtkillum.core.many_lights.vlset import Environment, VirtualLightSet
 from vtkillum.core.many_lights.walk import WALK_SALT, WalkSetup, make_sources, walk_params
 from vtkillum.core.warp_common import make_lights, make_medium, stream_seed
+
+
+#: VSL radius in voxels when ``vsl_radius`` is 0 (automatic) and VLs are spherical.
+SPHERICAL_RADIUS = 2.0
 
 
 class ManyLightsState:
@@ -70,6 +80,7 @@ class ManyLightsState:
         self.vls = VirtualLightSet(opts["count"], self.pool, device)
         self.epoch = 0
         self.timings: dict = {}
+        self._knn = None  # (positions, automatic clamping radii) of the last VLs
         self._set_optics(self._optics(scene))
         self.generate()
 
@@ -193,18 +204,37 @@ class ManyLightsState:
                            stop, self.epoch)
 
     def radii(self, shrink: float = 1.0) -> np.ndarray:
-        """VSL radius of each VL (world units; zeros for point VLs).
+        """VSL or clamping radius of each VL (world units; zeros for point VLs).
 
-        ``r_j = shrink * min(vsl_radius * mean spacing, vsl_radius_mfp / (S sigma_t(x_j)))``:
-        at most ``vsl_radius`` voxels and at most ``vsl_radius_mfp`` mean free paths at the
-        VL (0: no such bound), so that the regularisation's bias, which grows with the
-        optical size of the sphere, stays small in dense matter at any resolution.
+        ``r_j = shrink * min(r0_j, vsl_radius_mfp / (S sigma_t(x_j)))``, with ``r0_j``
+        ``vsl_radius`` voxels, or when that is 0 (automatic) :data:`SPHERICAL_RADIUS`
+        voxels for VSLs and the distance to the ``vsl_neighbours``-th nearest VL of the set
+        for clamped VLs (:func:`~vtkillum.core.many_lights.clamp.knn_radii`). The bound of
+        ``vsl_radius_mfp`` mean free paths (0: none) keeps the bias of a VSL, which grows
+        with the optical size of its sphere, small in dense matter; clamped VLs compensate
+        that bias and need no such bound.
         """
         o = self.opts
         n = self.vls.n_vls
         if o["virtual_lights"] == "point" or n == 0:
             return np.zeros(n, np.float32)
-        r = np.full(n, o["vsl_radius"] * self.volume.mean_spacing())
+        voxel = self.volume.mean_spacing()
+        if o["vsl_radius"] > 0:
+            r = np.full(n, o["vsl_radius"] * voxel)
+        elif o["virtual_lights"] == "clamped":
+            pos = self.vls.position
+            if self._knn is None or not np.array_equal(self._knn[0], pos):
+                hi = max(RADIUS_MAX_BOX * float(np.min(self.volume.extent)),
+                         RADIUS_MIN_VOXELS * voxel)
+                # One radius for the set (the median): per-VL radii gave the VLs of densely
+                # lit regions small, bright spheres (rel. RMSE 0.29 against 0.21 on the
+                # MNI brain, 1024 VLs).
+                knn = knn_radii(pos, self.vls.vl_path, o["vsl_neighbours"],
+                                RADIUS_MIN_VOXELS * voxel, hi)
+                self._knn = (pos.copy(), np.full(n, np.median(knn)))
+            r = self._knn[1].copy()
+        else:
+            r = np.full(n, SPHERICAL_RADIUS * voxel)
         if o["vsl_radius_mfp"] > 0:
             sigma = self.vls.extinction().astype(np.float64)
             with np.errstate(divide="ignore"):
@@ -218,6 +248,11 @@ class ManyLightsState:
         """
         d = self.vls.dev
         radii = self.radii() if radii is None else np.asarray(radii, np.float32)
+        clamped = self.opts["virtual_lights"] == "clamped"
+        near = np.zeros(len(radii), np.float32)
+        if clamped and len(radii):
+            near = near_field(self.medium, d["position"], radii, self.opts["vl_step"],
+                              self.device)
         v = VirtualLights()
         v.position = d["position"]
         v.direction = d["direction"]
@@ -225,7 +260,10 @@ class ManyLightsState:
         v.slot = d["slot"]
         v.radius = wp.array(radii if len(radii) else np.zeros(1, np.float32), dtype=wp.float32,
                             device=self.device)
+        v.near = wp.array(near if len(near) else np.zeros(1, np.float32), dtype=wp.float32,
+                          device=self.device)
         v.count = self.vls.n_vls
+        v.clamped = int(clamped)
         return v
 
     def maps(self):

@@ -27,6 +27,10 @@ per multiple-scattering position sums the virtual lights (:func:`vl_kernel`):
      replaced by ``Omega / (pi r^2)`` = ``1 / (pi r^2 p(Omega))``. Bounded (at most
      ``2 / r^2``), and equal to the point light's ``1 / d^2 (1 + r^2 / (4 d^2) + ...)``
      far away, so the estimate tends to the unregularised one as ``r`` shrinks.
+   * clamped virtual lights (``VirtualLights.clamped``,
+     :mod:`~vtkillum.core.many_lights.clamp`): ``1 / |x_t - x_j|^2`` replaced by the
+     clamped term ``(1 - b) / d^2`` times the transmittance plus the compensation
+     ``b A_j`` (no transmittance), ``b`` a smooth window of radius ``r``; no cone sample.
 
    ``w`` points from ``x_t`` towards the VL, ``d`` is the view ray's direction, ``w_j``
    the direction in which light arrived at the VL, ``f`` the HG phase function (light
@@ -55,6 +59,7 @@ from vtkillum.core.many_lights.avsm import (
     lookup_function,
     texel_view,
 )
+from vtkillum.core.many_lights.clamp import clamped_geometry
 from vtkillum.core.raycast import single_scatter_light
 from vtkillum.core.raymarch import pixel_ray, sample_count
 from vtkillum.core.warp_common import (
@@ -89,18 +94,22 @@ TILE_COLS = wp.constant(4)
 class VirtualLights:
     """The VLs on the device: ``position`` (local frame), incident travel ``direction``,
     ``power`` (RGB, see the module docstring), AVSM ``slot``, ``radius`` of each spherical
-    light (world units; 0: a point light); ``count``."""
+    or clamped light (world units; 0: a point light), ``near`` the compensation amplitude
+    ``A_j`` of a clamped light (:mod:`~vtkillum.core.many_lights.clamp`); ``count``, and
+    ``clamped`` (1: the radius is a clamping radius, 0: a VSL's)."""
 
     position: wp.array(dtype=wp.vec3)
     direction: wp.array(dtype=wp.vec3)
     power: wp.array(dtype=wp.vec3)
     slot: wp.array(dtype=wp.int32)
     radius: wp.array(dtype=wp.float32)
+    near: wp.array(dtype=wp.float32)
     count: int
+    clamped: int
 
 
 #: One VL for :func:`avsm_vl_kernel`: position (0-2), radius (3), direction (4-6), AVSM slot
-#: (7, exact as a float below 2^24), power (8-10).
+#: (7, exact as a float below 2^24), power (8-10), compensation amplitude ``A_j`` (11).
 VLRecord = wp.types.vector(length=12, dtype=wp.float32)
 
 
@@ -123,6 +132,7 @@ def record_kernel(vls: VirtualLights, records: wp.array(dtype=VLRecord)):
     rec[8] = w[0]
     rec[9] = w[1]
     rec[10] = w[2]
+    rec[11] = vls.near[j]
     records[j] = rec
 
 
@@ -231,8 +241,9 @@ def gather_device(medium: Medium, cam: CameraParams, lights: Lights, vls: Virtua
                 wp.launch(work_kernel, dim=n_slots, inputs=[flags, offsets, n_slots, work, active],
                           device=device)
                 wp.launch(avsm_vl_kernel(maps.node_count), dim=n_slots,
-                          inputs=[medium, cam, maps, texels, records, params, row0, nrows, work,
-                                  active, position, weight], device=device, block_dim=128)
+                          inputs=[medium, cam, maps, texels, records, vls.clamped, params, row0,
+                                  nrows, work, active, position, weight], device=device,
+                          block_dim=128)
             else:
                 wp.launch(vl_kernel, dim=(S, nrows, width),
                           inputs=[medium, cam, vls, maps, params, row0, position, weight],
@@ -291,16 +302,19 @@ def vl_transmittance(m: Medium, vls: VirtualLights, sm: ShadowMaps, prm: GatherP
 
 
 @wp.func
-def vl_geometry(v: wp.vec3, r: float, g: float, state: wp.uint32):
+def vl_geometry(v: wp.vec3, r: float, g: float, clamped: int, state: wp.uint32):
     """Where VL ``j`` is seen from a shading point: ``v`` is the VL's centre minus the point,
-    ``r`` its radius (0: a point light), ``g`` the medium's HG parameter.
+    ``r`` its radius (0: a point light), ``g`` the medium's HG parameter, ``clamped`` 1 for
+    a clamped VL (``r`` its clamping radius).
 
-    Returns ``(valid, toward, dist, w, kernel, state)``: ``toward`` the unit direction to
-    the centre at distance ``dist``, ``w`` the direction the phase functions see (a cone
-    sample for a spherical light) and ``kernel`` the geometry term of the module
-    docstring; ``valid`` 0 for a point light at the point itself. The cone is not sampled
-    for an isotropic medium (``g = 0``): there ``w`` only enters constant phase functions,
-    so the light is the same and the random numbers are saved.
+    Returns ``(valid, toward, dist, w, kernel, window, state)``: ``toward`` the unit
+    direction to the centre at distance ``dist``, ``w`` the direction the phase functions
+    see (a cone sample for a spherical light), ``kernel`` the geometry term of the module
+    docstring (to be multiplied by the transmittance) and ``window`` the weight ``b`` of a
+    clamped VL's compensation (0 otherwise); ``valid`` 0 for a point light at the point
+    itself. The cone is not sampled for an isotropic medium (``g = 0``): there ``w`` only
+    enters constant phase functions, so the light is the same and the random numbers are
+    saved.
     """
     dist = wp.length(v)
     toward = wp.vec3(0.0, 0.0, 1.0)
@@ -308,7 +322,10 @@ def vl_geometry(v: wp.vec3, r: float, g: float, state: wp.uint32):
         toward = v * (1.0 / dist)
     w = toward
     kernel = float(0.0)
-    if r > 0.0:
+    window = float(0.0)
+    if clamped != 0:
+        kernel, window = clamped_geometry(dist, r)
+    elif r > 0.0:
         ratio = wp.min(1.0, r / wp.max(dist, 1.0e-30))
         cos_max = wp.sqrt(wp.max(0.0, 1.0 - ratio * ratio))
         if g != 0.0:
@@ -318,7 +335,7 @@ def vl_geometry(v: wp.vec3, r: float, g: float, state: wp.uint32):
         kernel = 2.0 * (1.0 - cos_max) / (r * r)
     elif dist > 0.0:
         kernel = 1.0 / (dist * dist)
-    return int(dist > 0.0 or r > 0.0), toward, dist, w, kernel, state
+    return int(dist > 0.0 or r > 0.0), toward, dist, w, kernel, window, state
 
 
 @wp.func
@@ -335,15 +352,15 @@ def vl_light(m: Medium, vls: VirtualLights, sm: ShadowMaps, prm: GatherParams, x
         pw = vls.power[j]
         if pw[0] + pw[1] + pw[2] <= 0.0:
             continue
-        valid, toward, dist, w, kernel, state = vl_geometry(vls.position[j] - x, vls.radius[j],
-                                                            m.g, state)
+        valid, toward, dist, w, kernel, window, state = vl_geometry(
+            vls.position[j] - x, vls.radius[j], m.g, vls.clamped, state)
         if valid == 0:
             continue
         T = vl_transmittance(m, vls, sm, prm, j, x, toward, dist, xi, stop_t)
         phase = hg_phase(wp.dot(vls.direction[j], -w), m.g)
         if receive_phase != 0:
             phase = phase * hg_phase(wp.dot(w, d), m.g)
-        acc += (phase * T * kernel) * pw
+        acc += (phase * (T * kernel + window * vls.near[j])) * pw
     return acc, state
 
 
@@ -588,7 +605,8 @@ def avsm_vl_kernel(count: int):
 
     @wp.kernel(module_options={"fast_math": True}, module="unique")
     def kernel(m: Medium, cam: CameraParams, sm: ShadowMaps, texels: wp.array(dtype=Any),
-               records: wp.array(dtype=VLRecord), prm: GatherParams, row0: int, nrows: int,
+               records: wp.array(dtype=VLRecord), clamped: int, prm: GatherParams, row0: int,
+               nrows: int,
                work: wp.array(dtype=wp.int32), active: wp.array(dtype=wp.int32),
                position: wp.array3d(dtype=wp.vec3), weight: wp.array3d(dtype=wp.vec3)):
         i = wp.tid()
@@ -610,7 +628,8 @@ def avsm_vl_kernel(count: int):
             if pw[0] + pw[1] + pw[2] <= 0.0:
                 continue
             v = wp.vec3(rec[0], rec[1], rec[2]) - x
-            valid, toward, dist, w, kern, state = vl_geometry(v, rec[3], m.g, state)
+            valid, toward, dist, w, kern, window, state = vl_geometry(v, rec[3], m.g, clamped,
+                                                                      state)
             if valid == 0:
                 continue
             T = lookup(sm, texels, int(rec[7]), -v, dist)
@@ -620,7 +639,7 @@ def avsm_vl_kernel(count: int):
             if m.g != 0.0:
                 phase = (hg_phase(wp.dot(wp.vec3(rec[4], rec[5], rec[6]), -w), m.g)
                          * hg_phase(wp.dot(w, d), m.g))
-            acc += (phase * T * kern) * pw
+            acc += (phase * (T * kern + window * rec[11])) * pw
         weight[level, r, c] = wp.cw_mul(wgt, acc)
 
     return kernel

@@ -6,9 +6,10 @@
 VLs' multiple scattering (:mod:`~vtkillum.core.many_lights.gather`). Sets are
 independent (set ``s`` uses the path streams of ``(seed, s)``) and are combined as one
 estimate: single scattering averaged over the sets' jittered passes, multiple
-scattering summed over all VLs and divided by the total number of light paths. The VSL
-radius of set ``s`` is ``r_s = r_0 (s + 1)^-beta`` (``radius_exponent`` ``beta``), so
-the accumulated image converges to the unregularised estimate, i.e. to the path tracer.
+scattering summed over all VLs and divided by the total number of light paths. The
+radius of the VLs of set ``s`` (VSL or clamping radius) is ``r_s = r_0 (s + 1)^-beta``
+(``radius_exponent`` ``beta``), so the accumulated image converges to the unregularised
+estimate, i.e. to the path tracer.
 
 :class:`ManyLightsRenderer` is the progressive form (like
 :class:`~vtkillum.core.pathtrace.PathTracer`): ``run(n)`` adds sets, ``reset(camera)``
@@ -18,22 +19,37 @@ is one interactive frame: a step of progressive regeneration while the set is st
 (the image then shows set 0 alone), else one more set.
 
 Options (keyword arguments; the first group defaults to the scene's ``many_lights``
-section, :data:`vtkillum.core.scene.METHOD_OPTIONS`):
+section, :data:`vtkillum.core.scene.METHOD_OPTIONS`). The defaults make a first picture
+without blobs (issue 34, ``docs/many_lights.md``); the paper's setting of earlier versions
+is ``count=256 sets=1 virtual_lights=spherical vsl_radius=2 vsl_radius_mfp=0.5
+avsm_resolution=48 view_samples=8``.
 
-``count``               VLs per set (256)
-``sets``                VL sets rendered by ``render`` (1)
+``count``               VLs per set (1024)
+``sets``                VL sets rendered by ``render``; 0 (default): automatic, sets are
+                        added until the estimated noise (:meth:`ManyLightsRenderer.noise`)
+                        is at most ``noise_target`` (0.03; 0: no target), or the next set
+                        would end later than ``time_budget`` seconds after the start (30;
+                        0: none), or ``max_sets``; at least one. The number of sets then
+                        depends on the machine's speed: give ``sets`` for a reproducible
+                        image
 ``max_sets``            sets a progressive renderer accumulates at most (64)
-``virtual_lights``      ``"spherical"`` (VSLs, eq. 5) or ``"point"`` (VPLs, eq. 4)
-``vsl_radius``          VSL radius ``r_0`` in voxels (x mean spacing) (2)
-``vsl_radius_mfp``      ... and at most this many mean free paths at the VL (0.5; 0: off)
+``virtual_lights``      ``"clamped"`` (default: bounded contributions, the clamped energy
+                        spread nearby, :mod:`~vtkillum.core.many_lights.clamp`),
+                        ``"spherical"`` (VSLs, eq. 5) or ``"point"`` (VPLs, eq. 4)
+``vsl_radius``          radius ``r_0`` of clamped or spherical VLs in voxels (x mean
+                        spacing); 0 (default): automatic, for clamped VLs the median
+                        distance to the ``vsl_neighbours``-th nearest other light path
+                        (16), for VSLs 2 voxels
+``vsl_radius_mfp``      ... and at most this many mean free paths at the VL (0: no bound,
+                        the default; 0.5 was the VSLs' default)
 ``radius_exponent``     ``beta`` of the radius schedule, in [0, 1) (1/3)
 ``transmittance``       ``"avsm"`` (cached) or ``"ray-marching"`` (exact)
-``avsm_resolution``     texels per cube-map face edge (48)
+``avsm_resolution``     texels per cube-map face edge (16)
 ``avsm_nodes``          nodes ``m`` per texel, 2 .. 16 (8)
 ``avsm_lookup``         ``"trilinear"`` or ``"point"``
 ``distance_sampling``   ``"ray-marching"`` (Algorithm 1) or ``"delta-tracking"``
 ``phase_sampling``      ``"hg"`` (importance sampling) or ``"isotropic"`` (section 5.2)
-``view_samples``        multiple-scattering positions per view ray (8)
+``view_samples``        multiple-scattering positions per view ray (4)
 ``update_fraction``     fraction of the paths regenerated per frame after an edit (0.1)
 ``update_budget``       most AVSMs rebuilt per frame (0: no limit)
 ``scale_range``         ``[S_min, S_max]`` of eq. 8; equal values: sample the current medium
@@ -63,20 +79,23 @@ from vtkillum.core.warp_common import make_camera, stream_seed
 
 #: The scene section's fields and defaults (``METHOD_OPTIONS["many_lights"]``).
 DEFAULTS = {
-    "count": 256,
-    "sets": 1,
+    "count": 1024,
+    "sets": 0,
     "max_sets": 64,
-    "virtual_lights": "spherical",
-    "vsl_radius": 2.0,
-    "vsl_radius_mfp": 0.5,
+    "time_budget": 30.0,
+    "noise_target": 0.03,
+    "virtual_lights": "clamped",
+    "vsl_radius": 0.0,
+    "vsl_radius_mfp": 0.0,
+    "vsl_neighbours": 16,
     "radius_exponent": 1.0 / 3.0,
     "transmittance": "avsm",
-    "avsm_resolution": 48,
+    "avsm_resolution": 16,
     "avsm_nodes": 8,
     "avsm_lookup": "trilinear",
     "distance_sampling": "delta-tracking",
     "phase_sampling": "hg",
-    "view_samples": 8,
+    "view_samples": 4,
     "update_fraction": 0.1,
     "update_budget": 0,
     "scale_range": [1.0, 1.0],
@@ -112,13 +131,36 @@ def render_many_lights(volume, scene, width: int, height: int, device: str | Non
         Radiance = single + multiple scattering; ``info`` holds ``single`` and
         ``multiple`` (the two terms, (H, W, 3)), VL and path counts, timings in ms.
     """
+    start = time.perf_counter()
     renderer = ManyLightsRenderer(volume, scene, width, height, device, **options)
-    sets = renderer.opts["sets"]
-    for i in range(sets):
+    o = renderer.opts
+    if o["sets"] > 0:
+        for i in range(o["sets"]):
+            renderer.run(1)
+            if progress is not None:
+                progress((i + 1) / o["sets"])
+        return renderer.result()
+    # Automatic: add sets until the noise estimate meets the target, the next set would end
+    # past the time budget (set 0 is always rendered), or max_sets.
+    budget, target = o["time_budget"], o["noise_target"]
+    while True:
         renderer.run(1)
+        n = renderer.passes
+        elapsed = time.perf_counter() - start
+        noise = renderer.noise()
+        if n >= o["max_sets"]:
+            renderer.stopped = "max_sets"
+        elif noise is not None and target > 0 and noise <= target:
+            renderer.stopped = "noise_target"
+        elif budget > 0 and elapsed * (n + 1) / n > budget:
+            renderer.stopped = "time_budget"
         if progress is not None:
-            progress((i + 1) / sets)
-    return renderer.result()
+            fractions = [n / o["max_sets"]]
+            if budget > 0:
+                fractions.append(elapsed / budget)
+            progress(1.0 if renderer.stopped else min(max(fractions), 0.99))
+        if renderer.stopped:
+            return renderer.result()
 
 
 class ManyLightsRenderer:
@@ -180,7 +222,9 @@ class ManyLightsRenderer:
         self._single = np.zeros((*shape, 3))
         self._multiple = np.zeros((*shape, 3))
         self._alpha = np.zeros(shape)
+        self._square = np.zeros((*shape, 3))  # sum of the sets' multiple terms squared
         self._paths = 0
+        self.stopped = None
         self.passes = 0
         self._render_ms = 0.0
         return self
@@ -245,6 +289,8 @@ class ManyLightsRenderer:
             "method": "many-lights",
             "device": self.device,
             "sets": self.passes,
+            "noise": self.noise(),
+            "stopped": self.stopped,
             "vls": vls.n_vls,
             "paths": vls.n_paths,
             "stale_paths": vls.stale_paths,
@@ -260,6 +306,22 @@ class ManyLightsRenderer:
         }
         return RenderResult(single + multiple, (self._alpha / n).astype(np.float32),
                             self.units.info(info))
+
+    def noise(self) -> float | None:
+        """Estimated relative standard error of the image (``None`` before two sets).
+
+        ``sqrt(mean(var)) / sqrt(mean(L^2))`` over pixels and channels, ``var`` the
+        variance of the mean of the sets' multiple-scattering terms (from their spread;
+        the single term's jitter noise is left out), ``L`` the accumulated radiance.
+        """
+        n = self.passes
+        if n < 2:
+            return None
+        mean = self._multiple / max(self._paths, 1)
+        var = np.maximum(self._square / n - np.square(mean), 0.0) / (n - 1)
+        image = self._single / n + mean
+        power = float(np.mean(np.square(image)))
+        return float(np.sqrt(np.mean(var) / power)) if power > 0 else 0.0
 
     def shrink(self, set_index: int) -> float:
         """Factor ``(s + 1)^-beta`` of the VSL radii of set ``s``."""
@@ -284,6 +346,7 @@ class ManyLightsRenderer:
         self._single += single
         self._alpha += alpha
         self._multiple += multiple * paths
+        self._square += np.square(multiple, dtype=np.float64)
         self._paths += paths
         self.passes += 1
 
@@ -303,15 +366,32 @@ def parse_options(options: dict, volume, scene) -> dict:
     count = _positive_int(opts["count"], "many_lights.count",
                           " (use method 'single' for no multiple scattering)")
     opts["count"] = count
-    opts["sets"] = _positive_int(opts["sets"], "many_lights.sets")
+    sets = opts["sets"]
+    if not _is_integral(sets) or int(sets) < 0:
+        raise ValueError(f"many_lights.sets must be an integer >= 0 (0: automatic, until "
+                         f"noise_target or time_budget), got {sets!r}")
+    opts["sets"] = int(sets)
+    for key in ("time_budget", "noise_target"):
+        value = opts[key]
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or \
+                not (np.isfinite(value) and value >= 0):
+            raise ValueError(f"many_lights.{key} must be a number >= 0 (0: none), got "
+                             f"{value!r}")
+        opts[key] = float(value)
     opts["max_sets"] = _positive_int(opts["max_sets"], "many_lights.max_sets")
-    _choice(opts, "virtual_lights", ("spherical", "point"))
+    _choice(opts, "virtual_lights", ("clamped", "spherical", "point"))
     _choice(opts, "transmittance", tuple(TRANSMITTANCE))
     _choice(opts, "avsm_lookup", tuple(FILTERS))
     _choice(opts, "distance_sampling", tuple(SAMPLING))
     _choice(opts, "phase_sampling", ("hg", "isotropic"))
-    opts["vsl_radius"] = _positive_float(opts["vsl_radius"], "many_lights.vsl_radius",
-                                         " voxels (use virtual_lights='point' for point lights)")
+    radius = opts["vsl_radius"]
+    if isinstance(radius, bool) or not isinstance(radius, (int, float, np.floating)) or \
+            not (np.isfinite(radius) and radius >= 0):
+        raise ValueError(f"many_lights.vsl_radius must be a number of voxels >= 0 (0: "
+                         f"automatic; use virtual_lights='point' for point lights), got "
+                         f"{radius!r}")
+    opts["vsl_radius"] = float(radius)
+    opts["vsl_neighbours"] = _positive_int(opts["vsl_neighbours"], "many_lights.vsl_neighbours")
     mfp = opts["vsl_radius_mfp"]
     if isinstance(mfp, bool) or not isinstance(mfp, (int, float, np.floating)) or \
             not (np.isfinite(mfp) and mfp >= 0):

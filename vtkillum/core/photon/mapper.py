@@ -56,6 +56,7 @@ from vtkillum.core.photon.historygram import (
     photon_query_kernel,
 )
 from vtkillum.core.photon.material import make_surface
+from vtkillum.core.photon.radius import PILOT_PHOTONS, auto_photons, auto_radius
 from vtkillum.core.photon.segments import (
     ViewParams,
     composite_segments,
@@ -73,6 +74,7 @@ DIRECT_MODES = ("exact", "photons")
 #: Salts of the seeds derived from the user's seed.
 PHOTON_SALT = 0x50484F54
 VIEW_SALT = 0x56494557
+PILOT_SALT = 0x50494C54
 SHADOW_SALT = 0x53484457
 
 
@@ -92,9 +94,14 @@ class PhotonMapper:
     device : str
         Warp device.
     photons : int
-        Photon paths per map ``P_n`` (> 0).
+        Photon paths per map ``P_n`` (> 0); 0: chosen by a pilot trace at each full trace
+        (:func:`~vtkillum.core.photon.radius.auto_photons`: enough photons for
+        ``kernel_photons`` in a kernel of the old default radius of 2 voxels, within
+        bounds) and kept through incremental updates.
     radius : float
-        Photon radius ``r`` of the first pass, world units (> 0).
+        Photon radius ``r`` of the first pass, world units (> 0); 0: chosen from the photon
+        map after each full trace (:func:`~vtkillum.core.photon.radius.auto_radius`,
+        ``kernel_photons`` per kernel) and kept through incremental updates.
     max_order : int
         ``S_n``: most interactions per photon (1: single scattering; 0: unbounded).
     segments : int
@@ -119,17 +126,22 @@ class PhotonMapper:
         ``surface_range``, ``surface_gradient``, ``surface_diffuse``, ``surface_specular``,
         ``surface_shininess``: the optional BRDF of surface-like samples
         (:mod:`~vtkillum.core.photon.material`); default off.
+    kernel_photons : int
+        Photons per kernel the automatic radius aims at (``radius`` 0).
     """
 
     def __init__(self, device: str, photons: int, radius: float, max_order: int = 0,
                  segments: int = 8, seed: int = 0, historygrams: bool = True,
                  spatial_historygram: bool = True, direct: str = "exact", alpha: float = 2 / 3,
                  photon_step: float | None = None, memory_limit_mb: float | None = None,
-                 surface: dict | None = None) -> None:
-        check_config(photons, radius, max_order, segments, direct, alpha)
+                 surface: dict | None = None, kernel_photons: int = 64) -> None:
+        check_config(photons, radius, max_order, segments, direct, alpha, kernel_photons)
         self.device = device
         keep_pool_memory(device)
         self.photons = int(photons)
+        self.auto_photons = self.photons == 0
+        self.auto_radius = float(radius) == 0.0
+        self.kernel_photons = int(kernel_photons)
         self.radius = float(radius)
         self.max_order = int(max_order)
         self.segments = int(segments)
@@ -162,6 +174,7 @@ class PhotonMapper:
         self._query_buffers = None  # the photon query's flags and restarts (kept: 2 × 4 N bytes)
         self.last_update: dict = {}
         self.last_render: dict = {}
+        self.pilot: dict = {}  # the automatic photon count's pilot trace
 
     # --- photons ---------------------------------------------------------------------------------
     def update(self, volume, transfer_function, unit_distance: float, albedo: float, g: float,
@@ -193,14 +206,22 @@ class PhotonMapper:
             # for the work queued before it.
             self.lights = make_lights(lights, volume, device)
             self.surface = make_surface(self.surface_options, volume)
+            if self.auto_photons:
+                self.photons = self._photons_from_pilot(volume, medium, lights, step)
             self.emitters, _ = make_emitters(lights, volume, self.photons, device)
             self.map = PhotonMap(self.photons, device, stream_seed(self.seed, 0, PHOTON_SALT),
                                  self.max_order, step, self.memory_limit_mb, self.surface)
+            if self.auto_radius:
+                # The radius comes from the photons: trace (and wait) first.
+                trace = self.map.trace(medium, self.emitters, volume.value_range)
+                self.radius = self._radius_from_map(volume)
             # σ̄t needs no photons: queued first, the device works on it while the host
             # prepares the trace.
             self.extinction = mean_extinction(self.medium, volume, self.radius, device,
                                               None, bin_scale(volume.value_range))
-            trace = self.map.trace(medium, self.emitters, volume.value_range, resolve=False)
+            if not self.auto_radius:
+                trace = self.map.trace(medium, self.emitters, volume.value_range,
+                                       resolve=False)
             stats.update(mode="full", photons_retraced=self.photons, photon_fraction=1.0,
                          query_bins=BITS)
             stats["ms"]["trace"] = trace["ms"]
@@ -244,6 +265,31 @@ class PhotonMapper:
         stats["capped"] = self.map.stats.get("capped", 0)
         self.last_update = stats
         return stats
+
+    def _radius_from_map(self, volume, pm: PhotonMap | None = None) -> float:
+        """The automatic radius of the current map (or of ``pm``), from its gathered
+        photons."""
+        pm = self.map if pm is None else pm
+        return auto_radius(self._gathered(pm), volume.extent, volume.mean_spacing(),
+                           self.kernel_photons)
+
+    def _gathered(self, pm: PhotonMap) -> np.ndarray:
+        n = pm.total
+        order = pm.interactions.order.numpy()[:n]
+        return pm.interactions.pos.numpy()[:n][order >= self.min_order]
+
+    def _photons_from_pilot(self, volume, medium, lights, step: float) -> int:
+        """Photon count of the automatic mode: a pilot map of :data:`PILOT_PHOTONS` (its
+        own seed) says how densely photons land (:func:`auto_photons`)."""
+        emitters, _ = make_emitters(lights, volume, PILOT_PHOTONS, self.device)
+        pilot = PhotonMap(PILOT_PHOTONS, self.device, stream_seed(self.seed, 0, PILOT_SALT),
+                          self.max_order, step, self.memory_limit_mb, self.surface)
+        pilot.trace(medium, emitters, volume.value_range)
+        count = auto_photons(self._gathered(pilot), PILOT_PHOTONS, volume.extent,
+                             volume.mean_spacing(), self.kernel_photons)
+        self.pilot = {"photons": PILOT_PHOTONS, "gathered": int(len(self._gathered(pilot))),
+                      "chosen": count}
+        return count
 
     def _incremental(self, volume, hq: tuple):
         """Query the photons (one wait, for how many to retrace) and queue their retrace;
@@ -561,12 +607,19 @@ def keep_pool_memory(device: str) -> None:
         pass
 
 
-def check_config(photons, radius, max_order, segments, direct, alpha) -> None:
+def check_config(photons, radius, max_order, segments, direct, alpha,
+                 kernel_photons=64) -> None:
     """Raise ``ValueError`` naming the first invalid photon-mapping setting."""
-    if isinstance(photons, bool) or not float(photons).is_integer() or int(photons) < 1:
-        raise ValueError(f"photon.photons must be a positive integer, got {photons!r}")
-    if not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"photon.radius must be positive, got {radius!r}")
+    if isinstance(photons, bool) or not float(photons).is_integer() or int(photons) < 0:
+        raise ValueError(f"photon.photons must be an integer >= 0 (0: automatic), got "
+                         f"{photons!r}")
+    if not (np.isfinite(radius) and radius >= 0):
+        raise ValueError(f"photon.radius must be a number >= 0 (0: automatic), got "
+                         f"{radius!r}")
+    if isinstance(kernel_photons, bool) or not float(kernel_photons).is_integer() or \
+            int(kernel_photons) < 1:
+        raise ValueError(f"photon.kernel_photons must be a positive integer, got "
+                         f"{kernel_photons!r}")
     if isinstance(max_order, bool) or not float(max_order).is_integer() or int(max_order) < 0:
         raise ValueError(f"photon.max_order (S_n) must be an integer >= 0 (0: unbounded), got "
                          f"{max_order!r}")

@@ -14,8 +14,14 @@ Options (keyword arguments; the photon ones default to the scene's ``photon``
 section, see :data:`vtkillum.core.scene.METHOD_OPTIONS`; on the command line
 ``--option photons=400000`` etc.):
 
-``photons``             photon paths ``P_n`` per pass (default 200000)
-``radius``              photon radius in voxels (× mean spacing) of the first pass (2)
+``photons``             photon paths ``P_n`` per pass; 0 (default): from a pilot trace, enough
+                        for ``kernel_photons`` in a kernel of 2 voxels, 100 000 to 1 000 000
+                        (:func:`~vtkillum.core.photon.radius.auto_photons`); 200000 was the
+                        default
+``radius``              photon radius in voxels (× mean spacing) of the first pass; 0
+                        (default): chosen from the photon map so that a kernel holds
+                        ``kernel_photons`` (64) photons where three quarters of them hold
+                        more (:mod:`~vtkillum.core.photon.radius`); 2 was the default
 ``max_order``           ``S_n``: interactions per photon at most; 1 = single scattering,
                         0 = unbounded (Russian roulette only; default)
 ``segments``            view-ray segments ``V_n`` (8)
@@ -55,7 +61,8 @@ from vtkillum.core.raymarch import ray_options
 from vtkillum.core.render import RenderResult
 
 #: The scene section's fields and their defaults (mirrors ``METHOD_OPTIONS["photon"]``).
-PHOTON_DEFAULTS = {"photons": 200_000, "radius": 2.0, "max_order": 0, "segments": 8, "seed": 0,
+PHOTON_DEFAULTS = {"photons": 0, "radius": 0.0, "kernel_photons": 64, "max_order": 0,
+                   "segments": 8, "seed": 0,
                    "historygrams": True, "spatial_historygram": True, "direct": "exact",
                    "passes": 1, "alpha": 2.0 / 3.0, **SURFACE_DEFAULTS}
 EXTRA = {"step_size": None, "jitter": True, "early_termination": 0.999, "photon_step": None,
@@ -70,7 +77,8 @@ def render_photon(volume, scene, width: int, height: int, device: str | None = N
     opts = parse_options(options, volume, scene)
     mapper = opts["mapper"]
     if mapper is None:
-        config = tuple((k, opts[k]) for k in ("photons", "radius", "max_order", "segments",
+        config = tuple((k, opts[k]) for k in ("photons", "radius", "kernel_photons",
+                                              "max_order", "segments",
                                               "seed", "historygrams", "spatial_historygram",
                                               "direct", "alpha", "photon_step",
                                               "memory_limit_mb")) + surface_key(opts)
@@ -112,7 +120,7 @@ def make_mapper(volume, device: str, opts: dict) -> PhotonMapper:
                         opts["max_order"], opts["segments"], opts["seed"],
                         opts["historygrams"], opts["spatial_historygram"], opts["direct"],
                         opts["alpha"], opts["photon_step"], opts["memory_limit_mb"],
-                        {k: opts[k] for k in SURFACE_DEFAULTS})
+                        {k: opts[k] for k in SURFACE_DEFAULTS}, opts["kernel_photons"])
 
 
 def parse_options(options: dict, volume, scene) -> dict:
@@ -126,7 +134,7 @@ def parse_options(options: dict, volume, scene) -> dict:
     opts.update(EXTRA)
     opts.update(options)
     check_config(opts["photons"], opts["radius"], opts["max_order"], opts["segments"],
-                 opts["direct"], opts["alpha"])
+                 opts["direct"], opts["alpha"], opts["kernel_photons"])
     passes = opts["passes"]
     if isinstance(passes, bool) or not float(passes).is_integer() or int(passes) < 1:
         raise ValueError(f"photon.passes must be a positive integer, got {passes!r}")
@@ -138,7 +146,7 @@ def parse_options(options: dict, volume, scene) -> dict:
         raise ValueError(f"photon_step must be a positive number of world units, got {step!r}")
     make_surface(opts, volume)  # validates the surface options
     opts.update(ray_options(opts, volume, scene))
-    for key in ("photons", "max_order", "segments", "passes"):
+    for key in ("photons", "kernel_photons", "max_order", "segments", "passes"):
         opts[key] = int(opts[key])
     opts["radius"] = float(opts["radius"])
     return opts
