@@ -172,7 +172,7 @@ def test_errors_name_the_property(run):
                                     "not be 0 0 0")
     assert errors["albedo"].startswith("Albedo must lie in [0, 1]")
     assert errors["fixed"] is None
-    assert errors["photon_radius"].startswith("Radius must be a positive number of voxels")
+    assert errors["photon_radius"].startswith("Radius must be >= 0 voxels (0: automatic)")
     assert "vtkIllum Light Transmittance: Lights row 2: Type must be 0" in log
     for name in ("AddLight", "AddDirectionalLight", "SetAlbedo", "Traceback"):
         assert name not in log, name
