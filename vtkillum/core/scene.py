@@ -64,7 +64,7 @@ METHOD_OPTIONS: dict[str, dict] = {
         "gather": "centred",           # "centred" or the paper's Algorithm 1 ("paper")
     },
     "photon": {  # photon mapping with Historygrams (Jönsson et al. 2012), core/photon/render.py
-        "photons": 0, "radius": 0.0, "kernel_photons": 64, "max_order": 0, "segments": 8,
+        "photons": 0, "radius": 0.0, "kernel_photons": 128, "max_order": 0, "segments": 8,
         "seed": 0,
         "historygrams": True, "spatial_historygram": True, "direct": "exact", "passes": 1,
         "alpha": 0.6666666666666666, "surface_range": [0.0, 0.0], "surface_gradient": 0.02,
@@ -77,7 +77,7 @@ METHOD_OPTIONS: dict[str, dict] = {
         "early_termination": 0.999, "seed": 0,
     },
     "many_lights": {                   # see vtkillum.core.many_lights.render
-        "count": 1024, "sets": 0, "max_sets": 64, "time_budget": 30.0, "noise_target": 0.03,
+        "count": 1024, "sets": 0, "max_sets": 64, "time_budget": 60.0, "noise_target": 0.03,
         "virtual_lights": "clamped", "vsl_radius": 0.0, "vsl_radius_mfp": 0.0,
         "vsl_neighbours": 16, "radius_exponent": 1.0 / 3.0,
         "transmittance": "avsm", "avsm_resolution": 16, "avsm_nodes": 8,

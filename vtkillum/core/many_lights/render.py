@@ -28,7 +28,7 @@ avsm_resolution=48 view_samples=8``.
 ``sets``                VL sets rendered by ``render``; 0 (default): automatic, sets are
                         added until the estimated noise (:meth:`ManyLightsRenderer.noise`)
                         is at most ``noise_target`` (0.03; 0: no target), or the next set
-                        would end later than ``time_budget`` seconds after the start (30;
+                        would end later than ``time_budget`` seconds after the start (60;
                         0: none), or ``max_sets``; at least one. The number of sets then
                         depends on the machine's speed: give ``sets`` for a reproducible
                         image
@@ -82,7 +82,7 @@ DEFAULTS = {
     "count": 1024,
     "sets": 0,
     "max_sets": 64,
-    "time_budget": 30.0,
+    "time_budget": 60.0,
     "noise_target": 0.03,
     "virtual_lights": "clamped",
     "vsl_radius": 0.0,

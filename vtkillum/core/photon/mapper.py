@@ -134,7 +134,7 @@ class PhotonMapper:
                  segments: int = 8, seed: int = 0, historygrams: bool = True,
                  spatial_historygram: bool = True, direct: str = "exact", alpha: float = 2 / 3,
                  photon_step: float | None = None, memory_limit_mb: float | None = None,
-                 surface: dict | None = None, kernel_photons: int = 64) -> None:
+                 surface: dict | None = None, kernel_photons: int = 128) -> None:
         check_config(photons, radius, max_order, segments, direct, alpha, kernel_photons)
         self.device = device
         keep_pool_memory(device)
@@ -608,7 +608,7 @@ def keep_pool_memory(device: str) -> None:
 
 
 def check_config(photons, radius, max_order, segments, direct, alpha,
-                 kernel_photons=64) -> None:
+                 kernel_photons=128) -> None:
     """Raise ``ValueError`` naming the first invalid photon-mapping setting."""
     if isinstance(photons, bool) or not float(photons).is_integer() or int(photons) < 0:
         raise ValueError(f"photon.photons must be an integer >= 0 (0: automatic), got "

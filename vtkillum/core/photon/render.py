@@ -15,12 +15,12 @@ section, see :data:`vtkillum.core.scene.METHOD_OPTIONS`; on the command line
 ``--option photons=400000`` etc.):
 
 ``photons``             photon paths ``P_n`` per pass; 0 (default): from a pilot trace, enough
-                        for ``kernel_photons`` in a kernel of 2 voxels, 100 000 to 1 000 000
+                        for ``kernel_photons`` in a kernel of 2 voxels, 200 000 to 1 000 000
                         (:func:`~vtkillum.core.photon.radius.auto_photons`); 200000 was the
                         default
 ``radius``              photon radius in voxels (× mean spacing) of the first pass; 0
                         (default): chosen from the photon map so that a kernel holds
-                        ``kernel_photons`` (64) photons where three quarters of them hold
+                        ``kernel_photons`` (128) photons where three quarters of them hold
                         more (:mod:`~vtkillum.core.photon.radius`); 2 was the default
 ``max_order``           ``S_n``: interactions per photon at most; 1 = single scattering,
                         0 = unbounded (Russian roulette only; default)
@@ -61,7 +61,7 @@ from vtkillum.core.raymarch import ray_options
 from vtkillum.core.render import RenderResult
 
 #: The scene section's fields and their defaults (mirrors ``METHOD_OPTIONS["photon"]``).
-PHOTON_DEFAULTS = {"photons": 0, "radius": 0.0, "kernel_photons": 64, "max_order": 0,
+PHOTON_DEFAULTS = {"photons": 0, "radius": 0.0, "kernel_photons": 128, "max_order": 0,
                    "segments": 8, "seed": 0,
                    "historygrams": True, "spatial_historygram": True, "direct": "exact",
                    "passes": 1, "alpha": 2.0 / 3.0, **SURFACE_DEFAULTS}
