@@ -115,9 +115,30 @@ issue 34) draws salt-and-pepper speckle of the same depth. Now, with ``jitter=Tr
   before (nothing is read back in frame 0); a still frame adds a read-back and a
   write of the viewport.
 
-Measured with ``benchmarks/bench_opengl.py --quality`` (pyvista's ``add_illuminated_volume``
-defaults, 256² pixels, llvmpipe; RMS error in 8-bit levels against the mean of 128 frames
-of the same view): see ``docs/benchmarks.md``.
+Measured with ``benchmarks/bench_opengl.py --quality --image 256`` (pyvista's
+``add_illuminated_volume`` defaults: bone, linear opacity, a transmittance volume,
+isometric view; llvmpipe on 2 shared cores). Error against the mean of 128 frames of the
+same view, in 8-bit levels over the covered pixels: RMS / RMS of the 3 × 3 mean (what
+the eye integrates) / share of pixels off by 3 levels or more:
+
+================================  ====================  ====================  ====================
+picture                           README head (128³)    MNI152 T1, 1 mm       MNI152 T1, 2 mm
+================================  ====================  ====================  ====================
+before: white noise, 1 frame      1.06 / 0.38 / 2.1 %   0.68 / 0.22 / 0.4 %   0.83 / 0.28 / 1.6 %
+``jitter=False``                  1.08 / 0.39 / 2.1 %   0.68 / 0.24 / 0.4 %   0.83 / 0.40 / 1.6 %
+after: 1 frame                    1.05 / 0.37 / 2.2 %   0.68 / 0.21 / 0.4 %   0.83 / 0.22 / 1.7 %
+after: mean of 4 frames           0.40 / 0.15 / 0.5 %   0.41 / 0.17 / 0       0.44 / 0.17 / 0
+after: mean of 16 frames          0.16 / 0.05 / 0       0.20 / 0.07 / 0       0.21 / 0.07 / 0
+================================  ====================  ====================  ====================
+
+On a sharp surface sampled every voxel (``tests/rendering/test_accumulation.py``) the
+RMS goes from 9.3 (``jitter=False``) and 10.2 (one frame) to 0.44. The ring and dot
+patterns that remain in these pictures are the data's: trilinear interpolation of
+one-voxel material borders (the CT phantom) and of the template's brain mask; the warp
+caster and a 16 times finer step show them too. Frame times on the same views (256²,
+median over 10 rounds taking turns): an interactive frame after / before 0.995–1.005;
+a still frame that adds to the mean costs what an interactive one does; once converged,
+12–22 ms instead of 600–1000 ms.
 
 Tolerance vs the warp caster
 ----------------------------
