@@ -20,11 +20,11 @@ Per renderer::
                a few frames): the volumes draw nothing (their shader discards every
                fragment) and the stored mean is written back
 
-"Nothing changed" compares, before and after each render, the camera (view matrix,
-projection without the clipping range, which moves with the bounds but does not move
-any pixel), the viewport's pixels and background, each accumulating volume's content
-(:meth:`~vtkillum.mappers.IlluminatedVolume.content_mtime`: data, illumination, scene,
-exposure, ...) and every other visible prop's redraw time. A change seen only after a
+"Nothing changed" compares, before and after each render, the camera (view matrix and
+projection to 7 digits, without the clipping range, which moves with the bounds but
+does not move any pixel), the viewport's size and background, each accumulating
+volume's content (:meth:`~vtkillum.mappers.IlluminatedVolume.content_mtime`: data,
+illumination, scene, exposure, ...) and every other visible prop's redraw time. A change seen only after a
 render (a pipeline that executed during it, e.g. a new time step) restarts with that
 frame as frame 0.
 
