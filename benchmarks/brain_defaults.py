@@ -96,8 +96,8 @@ def main(argv=None) -> None:
     write_strip(images, Path(args.out))
 
 
-def write_strip(images, out: Path) -> None:
-    """The images side by side at the first one's automatic exposure, labelled."""
+def write_strip(images, out: Path, columns: int = 4) -> None:
+    """The images in rows of ``columns`` at the first one's automatic exposure, labelled."""
     from PIL import Image, ImageDraw
 
     from vtkillum.core.defaults import auto_exposure
@@ -110,9 +110,10 @@ def write_strip(images, out: Path) -> None:
         ImageDraw.Draw(tile).text((3, 2), label, fill=(255, 255, 255))
         tiles.append(tile)
     w, h = tiles[0].size
-    strip = Image.new("RGB", (w * len(tiles), h))
+    rows = -(-len(tiles) // columns)
+    strip = Image.new("RGB", (w * min(columns, len(tiles)), h * rows))
     for i, tile in enumerate(tiles):
-        strip.paste(tile, (i * w, 0))
+        strip.paste(tile, ((i % columns) * w, (i // columns) * h))
     strip.save(out)
     print(f"wrote {out}")
 

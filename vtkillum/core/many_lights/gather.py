@@ -30,7 +30,8 @@ per multiple-scattering position sums the virtual lights (:func:`vl_kernel`):
    * clamped virtual lights (``VirtualLights.clamped``,
      :mod:`~vtkillum.core.many_lights.clamp`): ``1 / |x_t - x_j|^2`` replaced by the
      clamped term ``(1 - b) / d^2`` times the transmittance plus the compensation
-     ``b A_j`` (no transmittance), ``b`` a smooth window of radius ``r``; no cone sample.
+     ``b A_j`` (no transmittance; the two phase functions averaged over the direction in
+     between, :func:`spread_phase`), ``b`` a smooth window of radius ``r``; no cone sample.
 
    ``w`` points from ``x_t`` towards the VL, ``d`` is the view ray's direction, ``w_j``
    the direction in which light arrived at the VL, ``f`` the HG phase function (light
@@ -339,6 +340,20 @@ def vl_geometry(v: wp.vec3, r: float, g: float, clamped: int, state: wp.uint32):
 
 
 @wp.func
+def spread_phase(incident: wp.vec3, d: wp.vec3, g: float):
+    """The two phase functions of a clamped VL's compensation towards the camera.
+
+    Within the sphere the spread light has no direction to the VL, so the pair of
+    scatterings is averaged over that direction ``w`` (uniformly, as the compensation's
+    energy was): the VL scatters light arriving along ``incident`` into ``-w``, the
+    shading point scatters that into ``-d``. Two HG lobes in a row integrate to an HG
+    lobe of ``g^2`` (their Legendre coefficients multiply), so the mean of the pair is
+    ``f_HG(incident . -d; g^2) / (4 pi)``: ``1 / (4 pi)^2`` for ``g = 0``.
+    """
+    return ISOTROPIC_PHASE * hg_phase(wp.dot(incident, -d), g * g)
+
+
+@wp.func
 def vl_light(m: Medium, vls: VirtualLights, sm: ShadowMaps, prm: GatherParams, x: wp.vec3,
              d: wp.vec3, receive_phase: int, xi: float, stop_t: float, state: wp.uint32):
     """Light from all VLs at ``x``: ``sum_j L_j`` per unit ``sigma_s`` (RGB).
@@ -358,9 +373,13 @@ def vl_light(m: Medium, vls: VirtualLights, sm: ShadowMaps, prm: GatherParams, x
             continue
         T = vl_transmittance(m, vls, sm, prm, j, x, toward, dist, xi, stop_t)
         phase = hg_phase(wp.dot(vls.direction[j], -w), m.g)
+        spread = window * vls.near[j]
         if receive_phase != 0:
             phase = phase * hg_phase(wp.dot(w, d), m.g)
-        acc += (phase * (T * kernel + window * vls.near[j])) * pw
+            spread = spread * spread_phase(vls.direction[j], d, m.g)
+        else:
+            spread = spread * ISOTROPIC_PHASE
+        acc += (phase * T * kernel + spread) * pw
     return acc, state
 
 
@@ -639,7 +658,10 @@ def avsm_vl_kernel(count: int):
             if m.g != 0.0:
                 phase = (hg_phase(wp.dot(wp.vec3(rec[4], rec[5], rec[6]), -w), m.g)
                          * hg_phase(wp.dot(w, d), m.g))
-            acc += (phase * (T * kern + window * rec[11])) * pw
+            spread = window * rec[11]
+            if window > 0.0:
+                spread = spread * spread_phase(wp.vec3(rec[4], rec[5], rec[6]), d, m.g)
+            acc += (phase * T * kern + spread) * pw
         weight[level, r, c] = wp.cw_mul(wgt, acc)
 
     return kernel
