@@ -42,7 +42,7 @@ def uniform(n, extent, seed=0):
 @pytest.mark.parametrize("n, k", [(200_000, 64), (50_000, 128), (400_000, 32)])
 def test_radius_of_uniform_photons_holds_the_kernel_photons(n, k):
     extent = (64.0, 48.0, 40.0)
-    r = auto_radius(uniform(n, extent), extent, 0.25, k)
+    r = auto_radius(uniform(n, extent), extent, 0.25, k, lo=0.25)
     expected = (3.0 * k / (4.0 * np.pi * n / np.prod(extent))) ** (1.0 / 3.0)
     np.testing.assert_allclose(r, expected, rtol=0.12)
 
@@ -51,8 +51,9 @@ def test_radius_bounds():
     extent = (32.0, 32.0, 16.0)
     assert auto_radius(np.zeros((0, 3)), extent, 1.0, 64) == MAX_BOX * 16.0  # none: largest
     assert auto_radius(uniform(500, extent), extent, 1.0, 64) == MAX_BOX * 16.0  # sparse
-    assert auto_radius(uniform(2_000_000, extent), extent, 1.0, 64) == 1.0  # dense: a voxel
-    assert auto_radius(uniform(2_000_000, extent), extent, 1.0, 64, lo=0.25) < 1.0
+    dense = uniform(2_000_000, extent)
+    assert auto_radius(dense, extent, 1.0, 64) == TARGET_RADIUS_VOXELS  # never below 2 voxels
+    assert auto_radius(dense, extent, 1.0, 64, lo=0.25) < 1.0
 
 
 def test_photon_count_scales_with_the_cube_of_the_pilots_radius():

@@ -34,9 +34,15 @@ the VL's centre.
   sphere and crosses occluders thinner than ``r_j``, as under a photon-mapping kernel of
   that radius; light that a VPL would have left near the lit surface of a dense object
   is spread deeper into it, so such surfaces come out darker (MNI brain, 1024 VLs: 7 %
-  of the energy). The VL's phase function is applied towards the shading point, for both
-  terms. The image converges to the unbiased estimate as the radius shrinks with the VL
-  sets (``radius_exponent``).
+  of the energy). The image converges to the unbiased estimate as the radius shrinks
+  with the VL sets (``radius_exponent``).
+* **Phase functions.** The clamped term has a point light's (towards the VL's centre);
+  the compensation has no direction within the sphere, so its pair of phase functions is
+  averaged over it: ``f_HG(w_j . -d; g^2) / (4 pi)``
+  (:func:`~vtkillum.core.many_lights.gather.spread_phase`; ``1 / (4 pi)^2`` for
+  ``g = 0``). Evaluated towards the centre instead, the pair of ``g = 0.8`` lobes gave
+  rare pixels up to 2000 times the isotropic value (accuracy suite's forward ball: rel.
+  RMSE 2.0 after one set instead of 0.73).
 * **Radius from the VLs' density.** By default ``r`` is one radius per set: the median
   over its VLs of the distance to the ``vsl_neighbours``-th nearest *other light path*
   (:func:`knn_radii`), between one voxel and a quarter of the box's smallest side. The
