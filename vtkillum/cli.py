@@ -53,6 +53,8 @@ from pathlib import Path
 import numpy as np
 
 from vtkillum.core.defaults import default_image_size
+from vtkillum.core.denoise import RequireDenoiser
+from vtkillum.core.denoise import for_output as denoised_for_output
 from vtkillum.io.writers import (  # noqa: F401  (write_atomically, write_volume: public here too)
     TERMINATING_SIGNALS,
     VOLUME_FORMATS,
@@ -212,6 +214,10 @@ def build_parser() -> argparse.ArgumentParser:
                              "NAME_0000.EXT ...), or an animation of a time series: .gif, .mp4")
     render.add_argument("--fps", help="frames per second of a .gif/.mp4 animation (default 10)")
     render.add_argument("--scene", "-s", help="scene JSON file (see 'vtkillum scene')")
+    render.add_argument("--denoise", action=RequireDenoiser,
+                        help="denoise a .png of path, photon or many-lights with Intel Open "
+                             "Image Denoise (pip install 'vtkillum[denoise]'); .npy/.npz keep "
+                             "the raw radiance")
     _add_input_options(render)
     _add_render_options(render, methods, default_method="single")
     render.set_defaults(run=run_render)
@@ -364,6 +370,7 @@ def run_render(args) -> int:
             # Options from the scene file are checked by the method: say where they came from.
             raise ValueError(f"{err} (scene file {args.scene})") from err
         elapsed = time.perf_counter() - start
+    result = denoised_for_output(result, outputs[0], args.method, getattr(args, "denoise", False))
     written = write_result(outputs[0], result, scene.background, exposure)
     if interrupted is not None:
         done, wanted, signum = interrupted
