@@ -616,13 +616,14 @@ def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity=
 
 def photon_density(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
                    clim=None, n_colors=256, flip_scalars=False, transfer_function=None,
-                   opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, photons=200_000,
-                   radius=2.0, max_order=0, seed=0, passes=1, historygrams=True,
+                   opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, photons=0,
+                   radius=0.0, max_order=0, seed=0, passes=1, historygrams=True,
                    direct_light="exact", output_scale=1.0, device=None, rgba=False,
                    exposure=DEFAULT_EXPOSURE, component=None, nan_policy="raise"):
     """Jönsson et al.'s photon density light volume (:class:`PhotonDensityFilter`).
 
-    ``photons`` per pass, ``radius`` in voxels, ``max_order`` the maximum scattering
+    ``photons`` per pass and ``radius`` in voxels (0, the defaults: chosen from the data, as
+    the filter's ``Photons`` and ``Radius``), ``max_order`` the maximum scattering
     order S_n (0: unbounded, Russian roulette), ``passes`` of progressive photon mapping,
     ``direct_light`` ``"exact"`` (per-light transmittance, photons only for scattered
     light) or ``"photons"`` (the paper's all-photon estimate); other parameters as in
@@ -648,13 +649,14 @@ def photon_density(grid, lights=None, scalars=None, *, cmap=None, opacity="linea
 
 def many_lights(grid, lights=None, scalars=None, *, cmap=None, opacity="linear", clim=None,
                 n_colors=256, flip_scalars=False, transfer_function=None,
-                opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, count=256,
-                vsl_radius=2.0, transmittance="avsm", avsm_resolution=48, avsm_nodes=8,
+                opacity_unit_distance=None, albedo=0.9, anisotropy=0.0, count=1024,
+                vsl_radius=0.0, transmittance="avsm", avsm_resolution=16, avsm_nodes=8,
                 seed=0, output_scale=1.0, device=None, rgba=False, exposure=DEFAULT_EXPOSURE,
                 component=None, nan_policy="raise", return_virtual_lights=False):
     """Weber et al.'s many-light illumination volume (:class:`ManyLightsFilter`).
 
-    ``count`` virtual lights from random walks, spherical with ``vsl_radius`` voxels,
+    ``count`` virtual lights from random walks, clamped within ``vsl_radius`` voxels (0,
+    the default: from the data, as the filter's ``VSLRadius``),
     their transmittance from adaptive volumetric shadow maps (``transmittance="avsm"``,
     ``avsm_resolution``² texels per cube face, ``avsm_nodes`` nodes per texel) or ray
     marched (``"ray-marched"``); other parameters as in :func:`transmittance`.
