@@ -255,13 +255,14 @@ def test_an_ignored_sighup_stays_ignored_while_writing(tmp_path):
 #: A path render that says after each pass how many are done (and slows down, so that the
 #: test's signal arrives during the render).
 PATH_PASSES = textwrap.dedent("""
-    import sys, time
+    import os, sys, time
     from vtkillum.core import pathtrace
     real = pathtrace.PathTracer.run
+    pause = float(os.environ.get("PASS_PAUSE", "0.2"))
     def run(self, passes=1):
         real(self, passes)
         print(f"pass {self.passes}", flush=True)
-        time.sleep(0.2)
+        time.sleep(pause)
         return self
     pathtrace.PathTracer.run = run
     from vtkillum.cli import main
@@ -269,19 +270,27 @@ PATH_PASSES = textwrap.dedent("""
 """)
 
 
-def path_render(output: Path, signals: list[int], after: int = 3, size=(12, 10)):
-    """Start a long path render, send ``signals`` after ``after`` passes of a ``size`` image."""
+def path_render(output: Path, signals: list[int], after: int = 3, pause: float = 0.2,
+                gap: float = 0.0):
+    """Start a long path render (``pause`` s after each pass), send ``signals`` after
+    ``after`` passes, ``gap`` s apart."""
+    import os
+    import time
+
     process = subprocess.Popen(
         [sys.executable, "-c", PATH_PASSES, "render", "builtin:ct:16", "-m", "path", "--spp",
-         "100000", "--size", *map(str, size), "--device", "cpu", "-o", str(output)],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT)
+         "100000", "--size", "12", "10", "--device", "cpu", "-o", str(output)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+        env={**os.environ, "PASS_PAUSE": str(pause)})
     try:
         while True:
             line = process.stdout.readline()
             assert line, process.stderr.read()
             if line.strip() == f"pass {after}":
                 break
-        for signum in signals:
+        for k, signum in enumerate(signals):
+            if k and gap:
+                time.sleep(gap)
             process.send_signal(signum)
         _, err = process.communicate(timeout=120)
     finally:
@@ -308,11 +317,11 @@ def test_sigterm_during_a_path_render_writes_the_samples_taken(tmp_path, signum)
 
 def test_a_second_sigterm_stops_the_path_render_at_once(tmp_path):
     (tmp_path / "p.png").write_text("old")
-    # Passes long enough (a larger image) that the second signal arrives before the pass
-    # under way ends, even on a loaded machine (with 12x10 pixels the pass could finish and
-    # write the picture between the two signals).
+    # Two signals sent back to back can reach a process that was not scheduled in between
+    # as one (a pending signal is not queued twice): the second goes 0.3 s after the first,
+    # while the pass under way still pauses (3 s), so it is a second signal within that pass.
     status, err = path_render(tmp_path / "p.png", [signal.SIGTERM, signal.SIGTERM],
-                              size=(160, 128))
+                              pause=3.0, gap=0.3)
     assert status == 143, err
     assert "terminated (SIGTERM)" in err
     assert (tmp_path / "p.png").read_text() == "old"
