@@ -41,9 +41,10 @@ class Source(CountingTimeSource):
         info = outInfo.GetInformationObject(0)
         if info.Has(SDDP.UPDATE_TIME_STEP()):
             t = info.Get(SDDP.UPDATE_TIME_STEP())
-            if t in self.unreadable:  # the nearest readable step before it instead
+            step = max([s for s in self.times if s <= t] or [self.times[0]])
+            if step in self.unreadable:  # never read: the nearest readable step before it
                 info.Set(SDDP.UPDATE_TIME_STEP(), max(s for s in self.times
-                                                      if s < t and s not in self.unreadable))
+                                                      if s < step and s not in self.unreadable))
         return super().RequestData(request, inInfo, outInfo)
 
 
