@@ -311,7 +311,7 @@ def run_demo(args) -> int:
 def run_render(args) -> int:
     from vtkillum.core.defaults import camera_inside_warning
     from vtkillum.core.device import resolve_device
-    from vtkillum.core.render import method_function, render
+    from vtkillum.core.render import render
 
     # A time series renders step by step (run_render_series); one volume goes on here.
     series = open_input_series(args.input, args.array, args.component,
@@ -326,17 +326,7 @@ def run_render(args) -> int:
     outputs = check_output(args.output, OUTPUT_FORMATS)
     exposure = _parse_exposure(args.exposure)
     options = _parse_options(args.option)
-    if args.method in HIDDEN_METHODS:
-        raise UserError(f"--method {args.method} needs an illumination volume, which only the "
-                        "Python API can give (vtkillum.core.raycast.render_illuminated)")
-    fn = method_function(args.method)
-    if args.spp is not None:
-        if args.spp < 1:
-            raise UserError(f"--spp must be a positive integer, got {args.spp}")
-        if "spp" not in inspect.signature(fn).parameters:
-            raise UserError(f"--spp does not apply to the {args.method!r} method (it takes no "
-                            "samples per pixel; the path method does)")
-        options["spp"] = args.spp
+    _method_with_spp(args, options)
     device = resolve_device(args.device)
     width, height = _check_size(args.size if args.size is not None
                                 else default_image_size(device))
@@ -492,7 +482,7 @@ def run_render_series(args, series) -> int:
     """
     from vtkillum.core.defaults import auto_exposure
     from vtkillum.core.device import resolve_device
-    from vtkillum.core.render import method_function, render
+    from vtkillum.core.render import render
     from vtkillum.core.scene import scene_json
     from vtkillum.core.tonemap import tonemap
     from vtkillum.io.animation import MissingDependencyError, check_animation_support, is_animation
@@ -508,17 +498,7 @@ def run_render_series(args, series) -> int:
     exposure = _parse_exposure(args.exposure)
     options = _parse_options(args.option)
     fps = _check_fps(getattr(args, "fps", None))
-    if args.method in HIDDEN_METHODS:
-        raise UserError(f"--method {args.method} needs an illumination volume, which only the "
-                        "Python API can give (vtkillum.core.raycast.render_illuminated)")
-    fn = method_function(args.method)
-    if args.spp is not None:
-        if args.spp < 1:
-            raise UserError(f"--spp must be a positive integer, got {args.spp}")
-        if "spp" not in inspect.signature(fn).parameters:
-            raise UserError(f"--spp does not apply to the {args.method!r} method (it takes no "
-                            "samples per pixel; the path method does)")
-        options["spp"] = args.spp
+    _method_with_spp(args, options)
     time_step = getattr(args, "time_step", None)
     steps = list(range(len(series))) if time_step is None else [series.index(time_step)]
     if animation:
@@ -1054,6 +1034,24 @@ def _check_size(size) -> tuple[int, int]:
         raise UserError(f"--size {width} {height}: width and height must be integers in "
                         f"[1, {MAX_SIDE}]")
     return width, height
+
+
+def _method_with_spp(args, options: dict):
+    """The render function of ``--method``; ``--spp`` checked and put into ``options``."""
+    from vtkillum.core.render import method_function
+
+    if args.method in HIDDEN_METHODS:
+        raise UserError(f"--method {args.method} needs an illumination volume, which only the "
+                        "Python API can give (vtkillum.core.raycast.render_illuminated)")
+    fn = method_function(args.method)
+    if args.spp is not None:
+        if args.spp < 1:
+            raise UserError(f"--spp must be a positive integer, got {args.spp}")
+        if "spp" not in inspect.signature(fn).parameters:
+            raise UserError(f"--spp does not apply to the {args.method!r} method (it takes no "
+                            "samples per pixel; the path method does)")
+        options["spp"] = args.spp
+    return fn
 
 
 def _parse_exposure(text: str):
