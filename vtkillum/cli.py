@@ -364,9 +364,8 @@ def run_render(args) -> int:
     written = write_result(outputs[0], result, scene.background, exposure)
     if interrupted is not None:
         done, wanted, signum = interrupted
-        how = ("interrupted" if signum == signal.SIGINT
-               else f"terminated ({signal.Signals(signum).name})")
-        _report(f"vtkillum: {how}: wrote {', '.join(str(p) for p in written)} with {done} of "
+        _report(f"vtkillum: {_stopped(signum)}: wrote {', '.join(str(p) for p in written)} with "
+                f"{done} of "
                 f"{wanted} samples per pixel ({width}x{height}, {elapsed:.1f} s)")
         return 128 + signum
     if not args.quiet:
@@ -587,11 +586,10 @@ def run_render_series(args, series) -> int:
         for target, result in zip(targets, results):
             written += write_result(target, result, scene.background, exposure)
     if interrupted is not None:
-        done, wanted, signum = interrupted
-        how = ("interrupted" if signum == signal.SIGINT
-               else f"terminated ({signal.Signals(signum).name})")
-        _report(f"vtkillum: {how}: wrote {done} of {len(steps)} steps, the last with "
-                f"{done} of {wanted} samples per pixel ({width}x{height}, {elapsed:.1f} s)")
+        samples, wanted, signum = interrupted  # (done counts the steps)
+        _report(f"vtkillum: {_stopped(signum)}: wrote {done} of {len(steps)} steps, the last "
+                f"with {samples} of {wanted} samples per pixel ({width}x{height}, "
+                f"{elapsed:.1f} s)")
         return 128 + signum
     if not args.quiet:
         names = (", ".join(str(p) for p in written) if len(written) <= 2
@@ -1034,6 +1032,12 @@ def _check_size(size) -> tuple[int, int]:
         raise UserError(f"--size {width} {height}: width and height must be integers in "
                         f"[1, {MAX_SIDE}]")
     return width, height
+
+
+def _stopped(signum: int) -> str:
+    """How a render was stopped, for its last line: by Ctrl-C or by a terminating signal."""
+    return ("interrupted" if signum == signal.SIGINT
+            else f"terminated ({signal.Signals(signum).name})")
 
 
 def _method_with_spp(args, options: dict):
