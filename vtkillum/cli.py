@@ -365,8 +365,7 @@ def run_render(args) -> int:
     if interrupted is not None:
         done, wanted, signum = interrupted
         _report(f"vtkillum: {_stopped(signum)}: wrote {', '.join(str(p) for p in written)} with "
-                f"{done} of "
-                f"{wanted} samples per pixel ({width}x{height}, {elapsed:.1f} s)")
+                f"{done} of {wanted} samples per pixel ({width}x{height}, {elapsed:.1f} s)")
         return 128 + signum
     if not args.quiet:
         compiled = reporter.watch.compile_seconds if reporter.watch is not None else 0.0
