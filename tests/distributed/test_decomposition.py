@@ -7,7 +7,6 @@ from vtkillum.core.parallel import Decomposition, halo_exchange, split_extent, s
 
 from .conftest import all_ranks
 
-
 WHOLES = [(0, 20, 0, 20, 0, 20), (-10, 10, 0, 4, 3, 9), (0, 40, 0, 7, 0, 11),
           (0, 5, 0, 33, 0, 2), (0, 1, 0, 1, 0, 1), (0, 0, 0, 15, 0, 9)]
 

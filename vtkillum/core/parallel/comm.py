@@ -25,13 +25,13 @@ class SelfComm:
     needed there and raise.
     """
 
-    def Get_rank(self) -> int:  # noqa: N802 (mpi4py's names)
+    def Get_rank(self) -> int:
         return 0
 
-    def Get_size(self) -> int:  # noqa: N802
+    def Get_size(self) -> int:
         return 1
 
-    def Barrier(self) -> None:  # noqa: N802
+    def Barrier(self) -> None:
         return None
 
     def allreduce(self, value, op=None):
@@ -46,10 +46,10 @@ class SelfComm:
     def gather(self, value, root: int = 0):
         return [value]
 
-    def Dup(self):  # noqa: N802
+    def Dup(self):
         return self
 
-    def Free(self) -> None:  # noqa: N802
+    def Free(self) -> None:
         return None
 
 
@@ -140,7 +140,7 @@ class Parallel:
     device: str
 
     @classmethod
-    def create(cls, comm=None, device: str | None = None) -> "Parallel":
+    def create(cls, comm=None, device: str | None = None) -> Parallel:
         """The :class:`Parallel` of ``comm`` (default ``MPI_COMM_WORLD``), device per rank."""
         if isinstance(comm, Parallel):
             return comm if device is None else cls(comm.comm, comm.rank, comm.size,

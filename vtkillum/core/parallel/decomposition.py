@@ -108,7 +108,7 @@ class Decomposition:
     extents: tuple
 
     @classmethod
-    def of(cls, whole, pieces: int) -> "Decomposition":
+    def of(cls, whole, pieces: int) -> Decomposition:
         """The decomposition of ``whole`` into ``pieces`` pieces."""
         whole = tuple(int(v) for v in whole)
         if is_empty(whole):
