@@ -1,5 +1,6 @@
 """Time series (issue 34): a 4-D NIfTI's time axis, file series and ``.pvd`` files, in the
-readers, the VTK source, the filters' time cache and ``vtkillum render``.
+readers, the VTK source, the filters' time cache and ``vtkillum render``; and (issue 35)
+reading steps ahead on a background thread (``StepPrefetcher``, ``--prefetch``).
 
 The data are written here: a ball that moves along +x by two voxels per step, as a
 4-D NIfTI (VTK's writer, 2.5 s between volumes), as ``step_<k>.vti`` files (numbered
@@ -8,7 +9,15 @@ without padding, so that natural order matters: ``step_10`` after ``step_9``), a
 """
 
 import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import threading
+import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -22,7 +31,14 @@ from vtkillum.cli import main, numbered_output
 from vtkillum.core.volume import Volume
 from vtkillum.io.convert import add_point_array, image_data_from_volume
 from vtkillum.io.readers import TimeStepWarning, read_volume, time_steps
-from vtkillum.io.time_series import TimeSeries, TimeSeriesSource, open_time_series, step_at
+from vtkillum.io.time_series import (
+    PREFETCH_THREAD_NAME,
+    StepPrefetcher,
+    TimeSeries,
+    TimeSeriesSource,
+    open_time_series,
+    step_at,
+)
 
 SHAPE = (16, 12, 10)
 STEPS = 4
@@ -357,3 +373,286 @@ def test_one_file_is_a_volume_not_a_series(data, tmp_path):
     out = tmp_path / "one.png"
     assert main(["render", str(tmp_path / "only_*.vti"), "-o", str(out), *RENDER]) == 0
     assert out.is_file()
+
+
+# --- reading ahead (issue 35) ------------------------------------------------------------------
+def prefetch_threads() -> list:
+    return [t for t in threading.enumerate() if t.name == PREFETCH_THREAD_NAME and t.is_alive()]
+
+
+class Timeline:
+    """Reads and computes that sleep, with the intervals they took (``time.monotonic``)."""
+
+    def __init__(self, read_s=0.15, compute_s=0.15, fail=None):
+        self.read_s, self.compute_s, self.fail = read_s, compute_s, fail
+        self.reads, self.computes, self.read_order = {}, {}, []
+        self.lock = threading.Lock()
+
+    def read(self, step):
+        with self.lock:
+            self.read_order.append(step)
+        start = time.monotonic()
+        time.sleep(self.read_s)
+        self.reads[step] = (start, time.monotonic())
+        if step == self.fail:
+            raise OSError(f"step_{step}.vti: not a readable VTK XML file (truncated)")
+        return ("volume", step)
+
+    def compute(self, step):
+        start = time.monotonic()
+        time.sleep(self.compute_s)
+        self.computes[step] = (start, time.monotonic())
+
+    def overlap(self) -> float:
+        """Seconds during which a read and a compute ran at once."""
+        return sum(max(0.0, min(r1, c1) - max(r0, c0))
+                   for r0, r1 in self.reads.values() for c0, c1 in self.computes.values())
+
+
+def play(timeline, steps, ahead):
+    """Take ``steps`` in order from a prefetcher, computing each; what was handed over."""
+    got = []
+    with StepPrefetcher(timeline.read, ahead) as prefetcher:
+        for n, k in enumerate(steps):
+            got.append(prefetcher.take(k, then=steps[n + 1:n + 1 + ahead]))
+            assert len(prefetcher.pending) <= ahead
+            timeline.compute(k)
+    return got
+
+
+def test_prefetch_reads_the_next_step_while_this_one_computes():
+    """Measured by the overlap of the intervals, not by wall time: without prefetching
+    reads and computes never overlap; with it, every read after the first runs during the
+    compute of the step before (ideally (n - 1) / n of the reading time)."""
+    steps = list(range(5))
+    serial = Timeline()
+    assert play(serial, steps, ahead=0) == [("volume", k) for k in steps]
+    assert serial.overlap() == 0.0
+    ahead = Timeline()
+    assert play(ahead, steps, ahead=1) == [("volume", k) for k in steps]
+    reading = sum(b - a for a, b in ahead.reads.values())
+    assert ahead.overlap() >= 0.5 * reading, (ahead.overlap(), reading)
+    for k in steps[:-1]:  # step k + 1 was being read while step k computed
+        (r0, r1), (c0, c1) = ahead.reads[k + 1], ahead.computes[k]
+        assert r0 < c1 and c0 < r1, k
+    assert ahead.read_order == steps  # read once each, in order
+    assert not prefetch_threads()
+
+
+@pytest.mark.parametrize("ahead", [1, 3])
+def test_prefetch_is_bounded(ahead):
+    """Fast reads, slow computes: while step k computes nothing past k + ahead is read."""
+    timeline = Timeline(read_s=0.0, compute_s=0.05)
+    furthest = {}
+    original = timeline.compute
+
+    def compute(step):
+        time.sleep(0.05)  # time for a runaway reader to run ahead
+        with timeline.lock:
+            furthest[step] = max(timeline.read_order)
+        original(step)
+
+    timeline.compute = compute
+    steps = list(range(8))
+    play(timeline, steps, ahead)
+    assert all(furthest[k] <= k + ahead for k in steps), furthest
+    assert max(furthest[k] - k for k in steps) == ahead  # and it does read that far
+    assert timeline.read_order == steps
+
+
+@pytest.mark.parametrize("ahead", [0, 1, 2])
+def test_an_unreadable_step_is_the_same_error_at_the_same_step(ahead):
+    timeline = Timeline(read_s=0.01, compute_s=0.01, fail=2)
+    done = []
+    with pytest.raises(OSError) as caught, StepPrefetcher(timeline.read, ahead) as prefetcher:
+        steps = list(range(5))
+        for n, k in enumerate(steps):
+            prefetcher.take(k, then=steps[n + 1:n + 1 + ahead])
+            timeline.compute(k)
+            done.append(k)
+    assert done == [0, 1]  # the steps before it, all of them
+    assert str(caught.value) == "step_2.vti: not a readable VTK XML file (truncated)"
+    assert timeline.read_order[:3] == [0, 1, 2] and max(timeline.read_order) <= 2 + ahead
+    assert not prefetch_threads()
+
+
+def test_cancelling_waits_for_the_read_under_way_and_drops_the_rest():
+    """Ctrl-C while step 1 is being read and step 2 waits: leaving the block waits for
+    step 1's read, never starts step 2's, and no thread is left."""
+    timeline = Timeline(read_s=0.3)
+    started = threading.Event()
+    read = timeline.read
+
+    def reading(step):
+        if step == 1:
+            started.set()
+        return read(step)
+
+    with pytest.raises(KeyboardInterrupt), StepPrefetcher(reading, ahead=2) as prefetcher:
+        prefetcher.take(0, then=[1, 2])
+        assert started.wait(30)
+        raise KeyboardInterrupt
+    assert not prefetch_threads()
+    assert timeline.read_order == [0, 1] and 1 in timeline.reads  # finished, not abandoned
+    with pytest.raises(RuntimeError, match="after close"):
+        prefetcher.take(3)
+
+
+def test_prefetch_option_errors():
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="whole number"):
+            StepPrefetcher(lambda k: k, bad)
+        with pytest.raises(ValueError, match="whole number"):
+            TimeSeriesSource(prefetch=bad)
+
+
+def test_source_prefetch_serves_the_same_images_and_rereads_a_rewritten_step(data, tmp_path):
+    steps = tmp_path / "steps"
+    steps.mkdir()
+    for t in range(STEPS):
+        write_vti(steps / f"step_{t}.vti", ball(t))
+    plain = TimeSeriesSource(str(steps / "step_*.vti"))
+    ahead = TimeSeriesSource(str(steps / "step_*.vti"), prefetch=1)
+    assert ahead.GetPrefetch() == 1
+
+    def scalars(source, t):
+        source.UpdateTimeStep(t)
+        out = source.GetOutputDataObject(0)
+        return np.array(out.GetPointData().GetArray(0))
+
+    np.testing.assert_array_equal(scalars(ahead, 0), scalars(plain, 0))
+    assert ahead._prefetcher.pending == [1]  # step 1 is read while the pipeline works on 0
+    write_vti(steps / "step_1.vti", ball(3))  # rewritten after its read ahead
+    stamp = (steps / "step_1.vti").stat().st_mtime_ns
+    os.utime(steps / "step_1.vti", ns=(stamp + 10**9, stamp + 10**9))  # coarse clocks
+    np.testing.assert_array_equal(scalars(ahead, 1), ball(3).ravel(order="F"))
+    for t in (2.0, 3.0):
+        np.testing.assert_array_equal(scalars(ahead, t), scalars(plain, t))
+    assert ahead.reads == STEPS + 1  # one read ahead each, step 1 once more
+    assert ahead._prefetcher.pending == []  # nothing past the last step
+    ahead.SetPrefetch(0)
+    assert ahead._prefetcher is None and not prefetch_threads()
+
+
+def npy_frames(directory: Path) -> dict:
+    return {p.name: np.load(p) for p in sorted(directory.glob("*.npy"))}
+
+
+@pytest.mark.parametrize("method", ["emission", "convection-diffusion"])
+def test_render_with_prefetch_writes_the_same_files_and_uploads_ahead(data, tmp_path,
+                                                                      monkeypatch, method):
+    """``--prefetch 0, 1, 3``: the same radiance and alpha, bit for bit; with prefetching
+    every step reaches the render with its scalars already on the device."""
+    import vtkillum.cli
+
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(SCENE))
+    prepared = []
+    original = core_render.render
+
+    def spying(volume, *args, **kwargs):
+        twin = volume._derived.get("world_units.canonical", (None, volume))[1]
+        prepared.append("scalars@cpu" in twin._derived)
+        return original(volume, *args, **kwargs)
+
+    monkeypatch.setattr(core_render, "render", spying)
+    outputs = {}
+    for ahead in (0, 1, 3):
+        monkeypatch.setattr(vtkillum.cli, "_FRAME_CACHE", None)  # render every step again
+        out = tmp_path / f"prefetch{ahead}"
+        out.mkdir()
+        args = ["render", str(data["steps"] / "step_*.vti"), "-o", str(out / "f.npy"),
+                "--scene", str(scene), "--prefetch", str(ahead),
+                *[a if a != "emission" else method for a in RENDER]]
+        assert main(args) == 0
+        outputs[ahead] = npy_frames(out)
+        assert len(outputs[ahead]) == 2 * STEPS  # radiance and alpha per step
+        assert prepared == [ahead > 0] * STEPS
+        prepared.clear()
+    for ahead in (1, 3):
+        assert outputs[ahead].keys() == outputs[0].keys()
+        for name, frame in outputs[0].items():
+            np.testing.assert_array_equal(outputs[ahead][name], frame, err_msg=name)
+    assert not prefetch_threads()
+
+
+def test_render_of_a_series_with_an_unreadable_step(data, tmp_path, capsys):
+    """Step 2 is not a VTK file: with or without prefetching the steps before it are
+    written and the run ends with the same one-line error."""
+    steps = tmp_path / "steps"
+    steps.mkdir()
+    for t in range(STEPS):
+        write_vti(steps / f"step_{t}.vti", ball(t))
+    (steps / "step_2.vti").write_text("<VTKFile type=\"ImageData\"> truncated")
+    scene = tmp_path / "scene.json"  # every field given: the scene reads step 0 only
+    scene.write_text(json.dumps(SCENE))
+    seen = {}
+    for ahead in (0, 1, 2):
+        out = tmp_path / f"out{ahead}"
+        out.mkdir()
+        status = main(["render", str(steps / "step_*.vti"), "-o", str(out / "f.npz"),
+                       "--scene", str(scene), "--prefetch", str(ahead), *RENDER])
+        err = capsys.readouterr().err
+        seen[ahead] = (status, err.replace(str(out), "OUT"), sorted(os.listdir(out)))
+    assert seen[0][0] == 2 and "step_2.vti" in seen[0][1], seen[0]
+    assert seen[0][2] == ["f_0000.npz", "f_0001.npz"]
+    assert seen[1] == seen[0] and seen[2] == seen[0]
+    assert not prefetch_threads()
+
+
+def test_render_prefetch_errors(data, tmp_path, capsys):
+    assert main(["render", str(data["nifti"]), "-o", str(tmp_path / "f.png"), "--prefetch",
+                 "-1", *RENDER]) == 2
+    assert "--prefetch -1: the steps read ahead must be 0 or more" in capsys.readouterr().err
+    assert not list(tmp_path.iterdir())
+
+
+#: A series render whose steps each take a second, saying when each begins; its reads are
+#: slow too (0.5 s), so that a read is under way when the test's Ctrl-C arrives.
+SLOW_SERIES = textwrap.dedent("""
+    import sys, time
+    import vtkillum.core.render as core_render
+    import vtkillum.io.time_series as ts
+    real_read, real_render = ts.TimeSeries.read, core_render.render
+    def read(self, step):
+        time.sleep(0.5)
+        return real_read(self, step)
+    def render(volume, *args, **kwargs):
+        print("rendering", flush=True)
+        time.sleep(1.0)
+        return real_render(volume, *args, **kwargs)
+    ts.TimeSeries.read, core_render.render = read, render
+    from vtkillum.cli import main
+    status = main(sys.argv[1:])
+    import threading
+    print("threads", sorted(t.name for t in threading.enumerate()), flush=True)
+    sys.exit(status)
+""")
+
+
+def test_ctrl_c_during_a_prefetched_series_render(data, tmp_path):
+    """Ctrl-C while step 1 renders and step 2 is read: status 130, the finished step
+    written, no partial file, no thread left when main returns."""
+    scene = tmp_path / "scene.json"
+    scene.write_text(json.dumps(SCENE))
+    out = tmp_path / "out"
+    out.mkdir()
+    process = subprocess.Popen(
+        [sys.executable, "-c", SLOW_SERIES, "render", str(data["steps"] / "step_*.vti"),
+         "-o", str(out / "f.npz"), "--scene", str(scene), *RENDER],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=Path(__file__).resolve().parents[1])
+    try:
+        for _ in range(2):  # step 0, then step 1 begins (step 2 is being read)
+            line = process.stdout.readline()
+            assert line.strip() == "rendering", (line, process.stderr.read() if not line else "")
+        process.send_signal(signal.SIGINT)
+        stdout, err = process.communicate(timeout=60)
+    finally:
+        if process.poll() is None:
+            process.kill()
+    assert process.returncode == 130, err
+    assert "interrupted" in err
+    threads = stdout.strip().splitlines()[-1]
+    assert threads.startswith("threads") and PREFETCH_THREAD_NAME not in threads, threads
+    assert sorted(os.listdir(out)) == ["f_0000.npz"]

@@ -98,6 +98,13 @@ HIDDEN_METHODS = ("illumination",)
 #: estimate before going on.
 LONG_RENDER_SECONDS = 10.0
 
+#: Steps of a time series read ahead of the one rendering (``--prefetch``).
+DEFAULT_PREFETCH = 1
+
+#: Methods whose render hashes the volume's data (:attr:`Volume.content_key`): the
+#: prefetch thread computes the hash with the read (:func:`render_preparation`).
+CONTENT_KEYED_METHODS = ("convection-diffusion", "refraction")
+
 #: Output formats of ``export``.
 EXPORT_FORMATS = VOLUME_FORMATS
 
@@ -213,6 +220,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="output .png, .npy or .npz (a time series: one per step, "
                              "NAME_0000.EXT ...), or an animation of a time series: .gif, .mp4")
     render.add_argument("--fps", help="frames per second of a .gif/.mp4 animation (default 10)")
+    render.add_argument("--prefetch", type=_integer, default=DEFAULT_PREFETCH, metavar="N",
+                        help="time series: steps read (and uploaded to the device) ahead of "
+                             f"the one rendering, on a background thread (default "
+                             f"{DEFAULT_PREFETCH}; 0: read each step when its turn comes)")
     render.add_argument("--scene", "-s", help="scene JSON file (see 'vtkillum scene')")
     render.add_argument("--denoise", action=RequireDenoiser,
                         help="denoise a .png of path, photon or many-lights with Intel Open "
@@ -469,6 +480,15 @@ def run_render_series(args, series) -> int:
     ``.npy``/``.npz`` files are written as each step is done; an automatic exposure and
     an animation keep the frames (16 bytes per pixel) until all are rendered.
 
+    Steps are read ahead (``--prefetch N``, default :data:`DEFAULT_PREFETCH`): while step
+    ``t`` renders, a background thread (:class:`~vtkillum.io.time_series.StepPrefetcher`)
+    reads step ``t + 1`` and prepares it for the render (:func:`render_preparation`: its
+    value range, its canonical-unit volume, its scalars on the render device), so that a
+    series renders at the rate of the slower of reading and rendering. The pictures are
+    those of ``--prefetch 0``; a step that cannot be read stops the run at that step with
+    that step's error, after the steps before it are written, as without prefetching.
+    Each step read ahead holds its volume (host and device) until its turn.
+
     The CLI renders whole images with the core methods (:func:`vtkillum.core.render.render`),
     not through the illumination filters: ``emission``, ``single``, ``path`` and
     ``refraction`` have no filter, and a filter's light volume is only part of a frame.
@@ -484,6 +504,7 @@ def run_render_series(args, series) -> int:
     from vtkillum.core.scene import scene_json
     from vtkillum.core.tonemap import tonemap
     from vtkillum.io.animation import MissingDependencyError, check_animation_support, is_animation
+    from vtkillum.io.time_series import StepPrefetcher
 
     animation = is_animation(args.output)
     device = resolve_device(args.device)
@@ -524,7 +545,11 @@ def run_render_series(args, series) -> int:
         print(f"{series.name}: a time series of {len(series)} steps ({span}); rendering {what} "
               f"to {where}", flush=True)
 
-    volume, scene = series_scene(series, steps, args.scene, aspect=width / height)
+    ahead = getattr(args, "prefetch", DEFAULT_PREFETCH)
+    if ahead < 0:
+        raise UserError(f"--prefetch {ahead}: the steps read ahead must be 0 or more")
+    volume, scene = series_scene(series, steps, args.scene, aspect=width / height,
+                                 prefetch=ahead)
     check_memory(args.method, width, height, device, volume)
     cache = frame_cache()
     settings = (args.method, scene_json(scene), width, height, device,
@@ -534,41 +559,50 @@ def run_render_series(args, series) -> int:
     # end (16 bytes per pixel and step).
     keep = animation or (exposure == "auto" and Path(args.output).suffix.lower() == ".png")
     results, written, done, cached, interrupted = [], [], 0, 0, None
+    keys = [(series.key(k), settings) for k in steps]
+    # The steps to read, in order: those whose frames are not cached (a frame evicted
+    # meanwhile is read when its turn comes).
+    unread = [k for k, key in zip(steps, keys) if key not in cache]
+    turn = {k: m for m, k in enumerate(unread)}
     start = time.perf_counter()
-    for n, k in enumerate(steps):
-        key = (series.key(k), settings)
-        result = cache.lookup(key)
-        if result is not None:
-            cached += 1
+    with StepPrefetcher(series.read, ahead,
+                        prepare=render_preparation(args.method, device)) as prefetcher:
+        for n, k in enumerate(steps):
+            key = keys[n]
+            result = cache.lookup(key)
+            if result is not None:
+                cached += 1
+                done += 1
+                if keep:
+                    results.append(result)
+                else:
+                    written += write_result(targets[n], result, scene.background, exposure)
+                continue
+            m = turn.get(k, len(unread))
+            volume = prefetcher.take(k, then=unread[m + 1:m + 1 + ahead])  # read meanwhile
+            label = f"{args.method} {width}x{height} {series.label(k)}"
+            try:
+                with _progress_bar(args.quiet, label) as progress:
+                    if args.method == "path":
+                        result, interrupted = render_path_with_estimate(
+                            volume, scene, width, height, device, progress, quiet=args.quiet,
+                            **options)
+                    else:
+                        result = render(volume, scene, args.method, width, height, device,
+                                        progress, **options)
+            except ValueError as err:
+                if args.scene is None or str(err).startswith(str(args.scene)):
+                    raise
+                raise ValueError(f"{err} (scene file {args.scene})") from err
+            volume = None  # its device copy goes with it (the next step's is uploaded)
             done += 1
             if keep:
                 results.append(result)
             else:
                 written += write_result(targets[n], result, scene.background, exposure)
-            continue
-        volume = series.read(k)
-        label = f"{args.method} {width}x{height} {series.label(k)}"
-        try:
-            with _progress_bar(args.quiet, label) as progress:
-                if args.method == "path":
-                    result, interrupted = render_path_with_estimate(
-                        volume, scene, width, height, device, progress, quiet=args.quiet,
-                        **options)
-                else:
-                    result = render(volume, scene, args.method, width, height, device,
-                                    progress, **options)
-        except ValueError as err:
-            if args.scene is None or str(err).startswith(str(args.scene)):
-                raise
-            raise ValueError(f"{err} (scene file {args.scene})") from err
-        done += 1
-        if keep:
-            results.append(result)
-        else:
-            written += write_result(targets[n], result, scene.background, exposure)
-        if interrupted is not None:  # a path render stopped: write the steps rendered so far
-            break
-        cache.store(key, result, result.radiance.nbytes + result.alpha.nbytes)
+            if interrupted is not None:  # a path render stopped: write the steps so far
+                break
+            cache.store(key, result, result.radiance.nbytes + result.alpha.nbytes)
     elapsed = time.perf_counter() - start
 
     if exposure == "auto" and keep:
@@ -597,6 +631,33 @@ def run_render_series(args, series) -> int:
         print(f"wrote {names} ({len(steps)} step{'s' if len(steps) > 1 else ''}, "
               f"{width}x{height}, {args.method}, {device}, {elapsed:.1f} s{reused})")
     return 0
+
+
+def render_preparation(method: str, device: str):
+    """What the prefetch thread does to each step read ahead for a ``method`` render on
+    ``device`` (``prepare`` of :class:`~vtkillum.io.time_series.StepPrefetcher`): the
+    work a render would do first on a new volume, so that it is done while the step
+    before renders.
+
+    It computes the volume's value range (and its content hash for
+    :data:`CONTENT_KEYED_METHODS`), makes its canonical-unit twin
+    (:func:`vtkillum.core.units.canonical`, kept with the volume) and uploads that twin's
+    scalars to ``device`` (:func:`vtkillum.core.warp_common.device_scalars`, kept with
+    it): the render finds all three in the volume's caches and reads nothing from the
+    host. On CUDA the copy is queued on the device's stream, after the kernels of the
+    step rendering: it cannot overtake them (the results do not change), and what
+    overlaps the render is the read, the host passes and the staging of the copy.
+    """
+    def prepare(volume) -> None:
+        from vtkillum.core.units import WorldUnits
+        from vtkillum.core.warp_common import device_scalars
+
+        volume.value_range  # noqa: B018 - cached with the volume, copied to its twin
+        if method in CONTENT_KEYED_METHODS:
+            volume.content_key  # noqa: B018
+        device_scalars(WorldUnits.for_volume(volume).volume(volume), device)
+
+    return prepare
 
 
 def open_input_series(spec, array=None, component=None, time_step=None):
@@ -639,18 +700,21 @@ def single_input(spec):
     return str(open_time_series(spec).files[0])
 
 
-def series_scene(series, steps, scene_path=None, aspect: float = 1.0):
+def series_scene(series, steps, scene_path=None, aspect: float = 1.0, prefetch: int = 0):
     """``(volume, scene)`` for rendering ``steps`` of ``series`` with one scene.
 
     The scene file (read once) gives what it gives; the rest takes the data-aware defaults
     (:func:`vtkillum.core.defaults.default_scene`) of the voxelwise maximum over ``steps``
     (the first of them alone when their grids differ), so that the camera frames what any
     step shows and the transfer function covers every step's values. ``volume`` is that
-    maximum (what ``scene``'s data-dependent fields resolve on).
+    maximum (what ``scene``'s data-dependent fields resolve on). ``prefetch``: steps read
+    ahead while the maximum takes in the one before
+    (:class:`~vtkillum.io.time_series.StepPrefetcher`).
     """
     from vtkillum.core.defaults import default_scene
     from vtkillum.core.scene import read_scene_data, scene_from_data
     from vtkillum.core.volume import Volume
+    from vtkillum.io.time_series import StepPrefetcher
 
     data = read_scene_data(scene_path) if scene_path else None
     scene = scene_from_data(data, scene_path) if scene_path else None
@@ -659,14 +723,16 @@ def series_scene(series, steps, scene_path=None, aspect: float = 1.0):
         fill -= set(data)
     first = series.read(steps[0])
     peak = first.scalars
-    for k in steps[1:] if fill else []:
-        other = series.read(k)
-        if other.scalars.shape != peak.shape or not (
-                np.allclose(other.spacing, first.spacing) and np.allclose(other.origin,
-                                                                           first.origin)):
-            peak = first.scalars
-            break
-        peak = np.maximum(peak, other.scalars)
+    rest = steps[1:] if fill else []
+    with StepPrefetcher(series.read, prefetch) as prefetcher:
+        for n, k in enumerate(rest):
+            other = prefetcher.take(k, then=rest[n + 1:n + 1 + prefetch])
+            if other.scalars.shape != peak.shape or not (
+                    np.allclose(other.spacing, first.spacing) and np.allclose(other.origin,
+                                                                               first.origin)):
+                peak = first.scalars
+                break
+            peak = np.maximum(peak, other.scalars)
     volume = first if peak is first.scalars else Volume(
         peak, first.spacing, first.origin, first.direction, nan_policy="fill")
     frame = "LPS" if series.kind == "nifti" else (

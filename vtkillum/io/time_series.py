@@ -30,16 +30,27 @@ per time step (``TIME_STEPS``), so that ParaView's time controls, pyvista animat
 the illumination filters' per-time-step cache (:class:`vtkillum.filters.base.IlluminationFilterBase`)
 drive it. A time between two steps gets the step at or before it (:func:`step_at`),
 as VTK's readers and the ParaView plugin's reader do.
+
+:class:`StepPrefetcher` reads steps ahead of their use on one background thread, so that
+a series plays at the rate of the slower of reading and computing rather than of their
+sum: the command line's series renders read step ``t + 1`` (and upload it to the render
+device) while step ``t`` renders, and :class:`TimeSeriesSource` (``prefetch=1``) reads
+the step after the one a pipeline asked for while the pipeline works on it.
 """
 
 from __future__ import annotations
 
+import collections
+import contextlib
 import glob
 import json
 import re
+import threading
 import xml.etree.ElementTree as ET
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Self
 
 import numpy as np
 from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
@@ -364,6 +375,171 @@ def _natural_key(path: Path):
     return [(0, int(p), "") if p.isdigit() else (1, 0, p) for p in parts]
 
 
+#: Name of the threads of :class:`StepPrefetcher`.
+PREFETCH_THREAD_NAME = "vtkillum-prefetch"
+
+
+class StepPrefetcher:
+    """Reads the steps of a series ahead of their use, on one background thread.
+
+    While the consumer works on step ``t`` (renders it, computes its light volume), the
+    thread reads the steps the consumer names as next, so that a series plays at the
+    rate of the slower of reading and computing instead of their sum::
+
+        with StepPrefetcher(series.read, ahead=1) as steps:
+            for n, k in enumerate(order):
+                volume = steps.take(k, then=order[n + 1:n + 2])  # k + 1 read meanwhile
+                compute(volume)
+
+    Parameters
+    ----------
+    read : callable
+        ``read(step) -> value``, e.g. :meth:`TimeSeries.read`. It runs on the thread, one
+        step at a time, in the order the steps were asked for: two steps are never read
+        at once (a reader need not be thread-safe, only callable from another thread).
+    ahead : int
+        How many steps may be read ahead of the one taken (default 1). ``0``: no thread;
+        :meth:`take` reads the step itself, as if there were no prefetcher.
+    prepare : callable, optional
+        ``prepare(value)``, called on the thread after each read, before the value is
+        handed over: work the consumer would otherwise do first on each step (the command
+        line converts the volume to the render's units and uploads its scalars to the
+        render device, :func:`vtkillum.cli.render_preparation`). Its return value is not
+        used. An exception in it is dropped: it may only move work earlier, never change
+        what the consumer gets, so the consumer repeats the work and meets the error
+        itself.
+
+    Notes
+    -----
+    Results and errors are exactly those of reading without a prefetcher: :meth:`take`
+    returns the value ``read`` returned, or raises the exception ``read`` raised for that
+    step (the same object), when that step is taken, not earlier: the steps before an
+    unreadable one are all handed over first.
+
+    Memory: at most ``ahead`` values besides the one taken are held (each :meth:`take`
+    drops values read for steps it does not name, and cancels their reads not begun).
+
+    Cancellation: :meth:`close` (also on leaving a ``with`` block, whatever the exception,
+    Ctrl-C and :class:`~vtkillum.io.writers.Terminated` included) cancels the reads not
+    begun and waits for the one under way, so that no thread is left behind. A read
+    cannot be interrupted: a second Ctrl-C interrupts that wait, and the thread (a daemon)
+    ends with the process. Signals are handled on the main thread only (Python's rule),
+    so the thread never receives them.
+
+    The thread runs only while there are steps to read: it ends when it has read what
+    was asked for, and the next :meth:`take` starts another, so a prefetcher nobody
+    closes (a source dropped by a pipeline) holds no thread either.
+
+    :attr:`reads` counts the reads done (on the thread or in :meth:`take`).
+    """
+
+    def __init__(self, read, ahead: int = 1, prepare=None) -> None:
+        if isinstance(ahead, bool) or not isinstance(ahead, (int, np.integer)) or ahead < 0:
+            raise ValueError(f"prefetch: the steps read ahead must be a whole number >= 0, "
+                             f"got {ahead!r}")
+        self._read = read
+        self._prepare = prepare
+        self.ahead = int(ahead)
+        self._futures: dict = {}  # step -> Future, in the order asked for
+        self._queue: collections.deque = collections.deque()  # (step, Future) not begun
+        self._lock = threading.Lock()
+        self._thread: threading.Thread | None = None  # the thread while it reads
+        self._started: threading.Thread | None = None  # the last thread started
+        self._closed = False
+        #: Steps read so far.
+        self.reads = 0
+
+    # --- use -----------------------------------------------------------------------------
+    def take(self, step, then=()):
+        """The value of ``step``; ``then``, at most :attr:`ahead` of them, are read next.
+
+        Waits for ``step``'s read (started now if it was not asked for before); raises
+        what ``read`` raised for it. Reads of steps other than ``step`` and ``then`` are
+        dropped.
+        """
+        then = [k for k in then if k != step][:self.ahead]
+        if self.ahead == 0:
+            return self._load(step, prepare=False)
+        if self._closed:
+            raise RuntimeError("StepPrefetcher: take() after close()")
+        with self._lock:
+            keep = {step, *then}
+            for k in [k for k in self._futures if k not in keep]:
+                self._futures.pop(k).cancel()  # a read not begun is dropped; a done one freed
+            self._queue = collections.deque(
+                (k, f) for k, f in self._queue if not f.cancelled())
+            for k in (step, *then):
+                self._schedule(k)
+            future = self._futures.pop(step)
+        return future.result()
+
+    def close(self) -> None:
+        """Cancel the reads not begun, wait for the one under way, end the thread."""
+        with self._lock:
+            self._closed = True
+            for future in self._futures.values():
+                future.cancel()
+            self._futures.clear()
+            self._queue.clear()
+            thread = self._started  # the last thread started, ending or ended
+        if thread is not None and thread is not threading.current_thread():
+            thread.join()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def pending(self) -> list:
+        """The steps asked for and not taken (read, being read or waiting)."""
+        with self._lock:
+            return list(self._futures)
+
+    # --- the thread ----------------------------------------------------------------------
+    def _schedule(self, step) -> None:
+        """Ask for ``step`` (with ``_lock`` held)."""
+        if step in self._futures:
+            return
+        future = Future()
+        self._futures[step] = future
+        self._queue.append((step, future))
+        if self._thread is None:
+            self._thread = self._started = threading.Thread(
+                target=self._work, name=PREFETCH_THREAD_NAME, daemon=True)
+            self._thread.start()
+
+    def _work(self) -> None:
+        """Read the steps asked for, in order; end when there are none (a later request
+        starts a new thread), so that an idle prefetcher holds no thread."""
+        while True:
+            with self._lock:
+                if self._closed or not self._queue:
+                    if self._thread is threading.current_thread():
+                        self._thread = None
+                    return
+                step, future = self._queue.popleft()
+                if not future.set_running_or_notify_cancel():
+                    continue  # dropped before its read began
+            try:
+                value = self._load(step, prepare=True)
+            except BaseException as err:  # noqa: BLE001 - handed to the consumer as is
+                future.set_exception(err)
+            else:
+                future.set_result(value)
+            value = future = None  # held by the consumer's future only
+
+    def _load(self, step, prepare: bool):
+        value = self._read(step)
+        self.reads += 1
+        if prepare and self._prepare is not None:
+            # Its errors are dropped: it only moves work earlier (class docstring).
+            with contextlib.suppress(Exception):
+                self._prepare(value)
+        return value
+
+
 class TimeSeriesSource(VTKPythonAlgorithmBase):
     """A time series as a VTK source: one ``vtkImageData`` per time step (``TIME_STEPS``).
 
@@ -374,6 +550,14 @@ class TimeSeriesSource(VTKPythonAlgorithmBase):
         :meth:`SetFileName` / :meth:`SetSeries`.
     array, component, nan_policy
         How steps are read when ``series`` is opened here.
+    prefetch : int
+        Steps read ahead on a background thread (:class:`StepPrefetcher`): after serving
+        step ``k`` the source reads ``k + 1 .. k + prefetch`` while the pipeline works on
+        ``k``, so that a series played forward (ParaView's Play, a loop over
+        :meth:`GetTimeSteps`) waits for reading only when reading is the slower. Default
+        0 (read each step when asked for): a pipeline that jumps between times would read
+        steps it never uses, and each step read ahead holds its volume in memory.
+        :meth:`SetPrefetch` changes it.
 
     Notes
     -----
@@ -399,16 +583,19 @@ class TimeSeriesSource(VTKPythonAlgorithmBase):
     """
 
     def __init__(self, series=None, array: str | None = None, component=None,
-                 nan_policy: str = "raise") -> None:
+                 nan_policy: str = "raise", prefetch: int = 0) -> None:
         super().__init__(nInputPorts=0, nOutputPorts=1, outputType="vtkImageData")
         self._options = dict(array=array, component=component, nan_policy=nan_policy)
         self._series: TimeSeries | None = None
+        self._prefetch = 0
+        self._prefetcher: StepPrefetcher | None = None
         self._last = None  # (key, image) of the last step read
         self._dims = None  # the first step's dimensions, announced to the pipeline
         #: Steps read from files (or taken from memory) so far.
         self.reads = 0
         #: The error of the last request, or None.
         self.last_error: Exception | None = None
+        self.SetPrefetch(prefetch)
         if series is not None:
             self.SetSeries(series)
 
@@ -419,7 +606,25 @@ class TimeSeriesSource(VTKPythonAlgorithmBase):
             series = open_time_series(series, **self._options)
         self._series = series
         self._last = None
+        self._stop_prefetch()
         self.Modified()
+
+    def SetPrefetch(self, steps: int) -> None:
+        """Steps to read ahead of the one served (0: none); see the class docstring."""
+        if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)) or steps < 0:
+            raise ValueError(f"TimeSeriesSource: prefetch must be a whole number >= 0, got "
+                             f"{steps!r}")
+        if int(steps) != self._prefetch:
+            self._prefetch = int(steps)
+            self._stop_prefetch()  # not Modified(): the output does not change
+
+    def GetPrefetch(self) -> int:
+        return self._prefetch
+
+    def _stop_prefetch(self) -> None:
+        if self._prefetcher is not None:
+            self._prefetcher.close()
+            self._prefetcher = None
 
     def SetFileName(self, name) -> None:
         """Open ``name`` (a file, pattern or directory) as the series to serve."""
@@ -441,10 +646,29 @@ class TimeSeriesSource(VTKPythonAlgorithmBase):
         key = series.key(step)
         if self._last is not None and self._last[0] == key:
             return self._last[1]
-        image = image_data_from_volume(series.read(step), series.array_name)
-        self.reads += 1
+        volume = self._read(series, series.index(step), key)
+        image = image_data_from_volume(volume, series.array_name)
         self._last = (key, image)
         return image
+
+    def _read(self, series: TimeSeries, k: int, key) -> Volume:
+        """The volume of step ``k``: read now, or by the prefetcher (then ``k + 1 ..`` are
+        read next), and read again if its file changed since (another ``key``)."""
+        if self._prefetch == 0:
+            self.reads += 1
+            return series.read(k)
+        if self._prefetcher is None:
+            def read(step):
+                self.reads += 1
+                return series.key(step), series.read(step)
+
+            self._prefetcher = StepPrefetcher(read, self._prefetch)
+        then = range(k + 1, min(k + 1 + self._prefetch, len(series)))
+        read_key, volume = self._prefetcher.take(k, then)
+        if read_key != key:  # rewritten after its read: what the file holds now
+            self.reads += 1
+            volume = series.read(k)
+        return volume
 
     def volume(self, step: int) -> Volume:
         """The :class:`Volume` of ``step`` (an index)."""
@@ -517,4 +741,4 @@ class TimeSeriesSource(VTKPythonAlgorithmBase):
         return 1
 
 
-__all__ = ["TimeSeries", "TimeSeriesSource", "open_time_series", "step_at"]
+__all__ = ["StepPrefetcher", "TimeSeries", "TimeSeriesSource", "open_time_series", "step_at"]
