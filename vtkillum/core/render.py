@@ -91,15 +91,51 @@ def render(volume, scene, method: str = "emission", width: int = 256, height: in
     The scene is rendered in canonical units (:mod:`vtkillum.core.units`): any length
     unit gives the same picture, with point-light intensities in units of (world
     length)², i.e. scaled by ``s²`` when the world is scaled by ``s``. A light the
-    kernels cannot represent at the volume's scale is refused before any work starts.
+    kernels cannot represent at the volume's scale is refused before any work starts, and
+    so is a render whose device state would not fit in the device's free memory
+    (:func:`vtkillum.core.memory.check_fits` raises a ``DeviceMemoryError`` naming the
+    largest volume that fits and ``light_volume_scale``).
     """
     fn = method_function(method)
+    device = resolve_device(device)
+    check_memory(volume, scene, method, int(width), int(height), device, options)
     volume, scene, options, units = canonical(volume, scene, options)
     with units.explained():
-        result = fn(volume, scene, int(width), int(height), resolve_device(device), progress,
-                    **options)
+        result = fn(volume, scene, int(width), int(height), device, progress, **options)
     units.info(result.info)
     return result
+
+
+def check_memory(volume, scene, method: str, width: int, height: int, device: str,
+                 options: dict) -> None:
+    """:func:`vtkillum.core.memory.check_fits` for this render, once per volume, device and
+    setting that changes the footprint (a camera move or an edit is not checked again).
+
+    The settings come from ``options`` over the scene's method section; a volume whose
+    scalars are already on ``device`` counts them as free (they are reused).
+    """
+    from vtkillum.core.memory import FOOTPRINTS, check_fits
+
+    if method not in FOOTPRINTS:
+        return
+    section = {"convection-diffusion": "convection_diffusion",
+               "ambient-scattering": "ambient_scattering", "photon": "photon",
+               "many-lights": "many_lights"}.get(method)
+    merged = dict(scene.options.get(section, {}) if section else {})
+    merged.update(options)
+    scale = merged.get("light_volume_scale")
+    settings = {k: merged[k] for k in ("radiance_cache_scale", "data_textures", "photons",
+                                       "segments", "count", "avsm_resolution", "avsm_nodes",
+                                       "view_samples") if k in merged}
+    n_lights = len(scene.lights)
+    key = (method, n_lights, scale, tuple(sorted(settings.items())), width, height)
+    if getattr(volume, "_derived", None) is None:
+        check_fits(method, volume.dims, n_lights, scale, settings, (width, height), device)
+        return
+    held = 4 * int(np.prod(volume.dims)) if f"scalars@{device}" in volume._derived else 0
+    volume.derived(f"memory_checked@{device}", key,
+                   lambda: check_fits(method, volume.dims, n_lights, scale, settings,
+                                      (width, height), device, held_bytes=held))
 
 
 def method_function(method: str):
