@@ -1,8 +1,11 @@
-"""Milliseconds per frame of the foundation's rendering modes.
+"""Milliseconds per frame of every rendering method.
 
-Prints a table (volume size, image size, device, method, ms per frame) for the
-``emission``, ``single`` and ``path`` (per sample per pixel) modes on the built-in
-smoke plume. Absolute numbers mean something only on a GPU; on a CPU compare
+Prints a table (volume size, image size, device, method, ms per frame: the whole call
+and the device stages the method reports, :func:`_timing.kernel_seconds`; "–" where a
+method reports none) for any registered method (default ``emission``, ``single`` and
+``path`` per sample per pixel) on the built-in smoke plume. The frame timed is a
+repeat of the same render (cached light volumes are reused). ``refraction`` gets the
+plume's key light only (it takes one distant light). Absolute numbers mean something only on a GPU; on a CPU compare
 ratios within one run. ``--compare-skipping`` adds the time with empty-block skipping
 off (every block of the medium marked occupied), which gives the same pixels.
 
@@ -22,25 +25,17 @@ import functools
 import time
 
 import numpy as np
+from _timing import device_name, fmt_ms, kernel_seconds
 
 from vtkillum.core.device import resolve_device
 from vtkillum.core.render import render
 from vtkillum.data.procedural import default_scene, smoke_plume
 
 
-def device_name(device: str) -> str:
-    import warp as wp
-
-    d = wp.get_device(device)
-    return d.name if d.is_cuda else f"cpu ({d.name})"
-
-
 @contextlib.contextmanager
 def empty_skipping(enabled: bool):
     """Media made inside this block skip empty blocks (the default) or not."""
-    import vtkillum.core.light_transmittance as light_transmittance
-    import vtkillum.core.raycast as raycast
-    from vtkillum.core import warp_common
+    from vtkillum.core import light_transmittance, raycast, warp_common
 
     modules = (raycast, light_transmittance)
     saved = [m.make_medium for m in modules]
@@ -54,17 +49,17 @@ def empty_skipping(enabled: bool):
 
 
 def time_render(volume, scene, method, size, device, repeats, **options):
-    """Median milliseconds: (whole call incl. upload/download, kernel stage alone)."""
+    """Median seconds: (whole call incl. upload/download, device stages or None)."""
     render(volume, scene, method, size, size, device, **options)  # compile and warm up
     total, kernel = [], []
     for _ in range(repeats):
         t0 = time.perf_counter()
         result = render(volume, scene, method, size, size, device, **options)
         total.append(time.perf_counter() - t0)
-        info = result.info
-        kernel.append(info["render_s"] if "render_s" in info
-                      else info["ms_per_pass"] * info["passes"] / 1000.0)
-    return 1000.0 * float(np.median(total)), 1000.0 * float(np.median(kernel))
+        kernel.append(kernel_seconds(result.info))
+    if any(k is None for k in kernel):
+        return float(np.median(total)), None
+    return float(np.median(total)), float(np.median(kernel))
 
 
 def main(argv=None) -> None:
@@ -72,7 +67,8 @@ def main(argv=None) -> None:
     ap.add_argument("--device", default=None, help="cpu, cuda (default: cuda if present)")
     ap.add_argument("--volumes", type=int, nargs="+", default=[128, 256], help="cube edge sizes")
     ap.add_argument("--images", type=int, nargs="+", default=[256, 512], help="square image sizes")
-    ap.add_argument("--methods", nargs="+", default=["emission", "single", "path"])
+    ap.add_argument("--methods", nargs="+", default=["emission", "single", "path"],
+                    help="any of vtkillum.core.render.METHODS except 'illumination'")
     ap.add_argument("--path-spp", type=int, default=4, help="samples per pixel timed for path")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--compare-skipping", action="store_true",
@@ -85,18 +81,23 @@ def main(argv=None) -> None:
     print("|---|---|---|---|---|---|" + ("---|" if extra else ""))
     for n in args.volumes:
         volume = smoke_plume(shape=(n, n, n))
-        scene = default_scene("plume", volume)
+        plume = default_scene("plume", volume)
+        key_light = default_scene("plume", volume)
+        key_light.lights = key_light.lights[:1]
         for size in args.images:
             for method in args.methods:
+                scene = key_light if method == "refraction" else plume
                 if method == "path":
                     total, kernel = time_render(volume, scene, method, size, device,
                                                 args.repeats, spp=args.path_spp)
-                    total, kernel = total / args.path_spp, kernel / args.path_spp
+                    total = total / args.path_spp
+                    kernel = None if kernel is None else kernel / args.path_spp
                     label = "path (per spp)"
                 else:
                     total, kernel = time_render(volume, scene, method, size, device, args.repeats)
                     label = method
-                row = f"| {n}³ | {size}² | {name} | {label} | {total:.1f} | {kernel:.1f} |"
+                row = (f"| {n}³ | {size}² | {name} | {label} | {fmt_ms(total)} | "
+                       f"{fmt_ms(kernel)} |")
                 if args.compare_skipping:
                     with empty_skipping(False):
                         volume._derived.pop("light_transmittance", None)  # made again
@@ -106,7 +107,7 @@ def main(argv=None) -> None:
                     volume._derived.pop("light_transmittance", None)
                     if method == "path":
                         plain /= args.path_spp
-                    row += f" {plain:.1f} |"
+                    row += f" {fmt_ms(plain)} |"
                 print(row, flush=True)
 
 
