@@ -1,0 +1,94 @@
+"""Ambient extinction ``σ̃t`` across MPI ranks: ghost layers for the sphere, then the SAT.
+
+``σ̃t(x)`` is the mean extinction over the cube ``C_r(x)`` of the ambient sphere's volume
+(:mod:`vtkillum.core.ambient.sat`): it reads ``σt`` only within ``h = (π/6)^(1/3) r``
+(per axis, in voxels) of ``x``, and takes ``σt = 0`` outside the volume. So each rank
+
+1. evaluates ``σt`` on its piece's points (transfer-function tables over the *whole*
+   data range, agreed by one ``allgather`` of the pieces' ranges, as the one-rank
+   tables cover the whole volume's range),
+2. widens it by ``ceil(max h) + 1`` ghost points on every side from the pieces that own
+   them (:func:`vtkillum.core.parallel.halo_exchange`; clamped at the whole volume's
+   boundary, where the one-rank method's "0 outside" holds on both),
+3. runs the one-rank summed-area table and cube means on the widened block and keeps its
+   piece.
+
+The cube of every point of the piece lies inside the widened block, or outside the whole
+volume where both take 0, so the result is the one-rank result; the only difference is
+the float64 rounding of the (smaller) summed-area table: within 1e-6 relative of the
+largest ``σ̃t`` (``tests/distributed/test_ambient.py``). The data are never gathered:
+each rank receives ``ghost`` planes of ``σt`` from its neighbours, nothing else.
+
+The radiance cache (the tube march, eqs. 14-17) is not distributed here: its front is a
+product of table factors along chains of steps ``2r`` anchored at each light's entry
+into the whole box, a global sweep like ``transmittance``'s (what it needs:
+:mod:`vtkillum.core.parallel.transmittance`'s plane exchange carrying ``ln L̃f`` and the
+step phase). Filters run it on the whole volume (mode 1) and say so.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import warp as wp
+
+from vtkillum.core.ambient.sat import ambient_extinction, cube_half_width, sigma_t_grid
+from vtkillum.core.parallel.comm import Parallel
+from vtkillum.core.parallel.decomposition import Decomposition, extent_shape, sub_slices
+from vtkillum.core.parallel.halo import halo_exchange
+from vtkillum.core.parallel.transmittance import block_medium, global_value_range
+
+
+def ghost_levels_for(radius: float, spacing) -> int:
+    """Ghost points per side that hold every cube of ``radius`` (world units) around a
+    piece's points: ``ceil(max h) + 1`` with ``h`` the cube's half-width in voxels (the
+    cube overlaps the dual cells of the points within ``h + 1/2``)."""
+    return int(math.ceil(float(np.max(cube_half_width(radius, spacing))))) + 1
+
+
+def distributed_ambient_extinction(volume, piece_extent, whole_extent, transfer_function,
+                                   unit_distance: float, radius: float, comm=None,
+                                   device: str | None = None) -> np.ndarray:
+    """``σ̃t`` on this rank's piece, computed from ghost layers (collective over ``comm``).
+
+    Parameters
+    ----------
+    volume : vtkillum.core.volume.Volume
+        This rank's piece of the data (points ``piece_extent``).
+    piece_extent, whole_extent : tuple of 6 int
+        VTK extents; rank ``r`` must hold VTK's piece ``r`` of ``comm.Get_size()``.
+    transfer_function, unit_distance
+        The optical model.
+    radius : float
+        Ambient sphere radius in world units.
+    comm : mpi4py communicator or Parallel, optional
+        Default ``MPI_COMM_WORLD``.
+    device : str, optional
+        Warp device; default one per rank.
+
+    Returns
+    -------
+    ndarray (nx, ny, nz) float32
+        ``σ̃t`` (1/world units) on the piece's points.
+    """
+    par = Parallel.create(comm, device)
+    whole_extent = tuple(int(v) for v in whole_extent)
+    piece_extent = tuple(int(v) for v in piece_extent)
+    decomposition = Decomposition.of(whole_extent, par.size)
+    if decomposition.extents[par.rank] != piece_extent:
+        raise ValueError(f"rank {par.rank} of {par.size} holds extent {piece_extent}, but VTK's "
+                         f"piece {par.rank} of {whole_extent} is "
+                         f"{decomposition.extents[par.rank]}")
+    if tuple(volume.dims) != extent_shape(piece_extent):
+        raise ValueError(f"the piece's volume has {tuple(volume.dims)} points, its extent "
+                         f"{piece_extent} {extent_shape(piece_extent)}")
+    value_range = global_value_range(volume, par.comm)
+    medium = block_medium(volume, transfer_function, unit_distance, value_range, par.device)
+    sigma_t = sigma_t_grid(medium, par.device).numpy()
+    ghosts = ghost_levels_for(radius, volume.spacing)
+    widened = halo_exchange(sigma_t, decomposition, par.rank, ghosts, par.comm)
+    ghosted = decomposition.ghosted(par.rank, ghosts)
+    sigma_tilde = ambient_extinction(wp.array(widened, dtype=wp.float32, device=par.device),
+                                     volume.spacing, radius, device=par.device).numpy()
+    return np.ascontiguousarray(sigma_tilde[sub_slices(piece_extent, ghosted)])
