@@ -1,0 +1,176 @@
+"""The distributed convection–diffusion light volume gives every rank its block of the
+one-rank :class:`ConvectionDiffusionSolver` result (issue 36).
+
+Run on every rank of ``mpirun -np N python -m pytest tests/distributed`` (N = 1, 2, 4).
+Each rank computes the one-rank reference on the whole (small) volume itself and hands
+the distributed function only its data piece (the extent the function says it needs).
+
+Tolerances: the opacity, transmittance and composition are the one-rank values up to
+float32 round-off (1e-6 absolute; they are the same operations on the same numbers);
+the paper diffusion, solved to a relative residual of 1e-6 on both sides, within 2e-5
+relative to the field's maximum.
+"""
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mpi4py")
+
+from vtkillum.core.convection_diffusion import ConvectionDiffusionSolver
+from vtkillum.core.convection_diffusion.distributed import (
+    distributed_light_volume,
+    required_data_extent,
+)
+from vtkillum.core.convection_diffusion.distributed_layout import (
+    owner_blocks,
+    split_blocks,
+)
+from vtkillum.core.lights import DirectionalLight, PointLight
+from vtkillum.core.transfer_function import TransferFunction
+from vtkillum.core.volume import Volume
+
+from .conftest import all_ranks, max_abs
+
+DIMS = (22, 19, 17)
+SPACING = (0.5, 0.6, 0.7)
+ORIGIN = (1.0, -2.0, 0.5)
+TF = TransferFunction([0.0, 0.4, 1.0], [0.0, 0.5, 0.9],
+                      [[1.0, 1.0, 1.0], [1.0, 0.7, 0.4], [0.6, 0.8, 1.0]])
+SCATTERING = (0.4, 0.8, 1.5)
+
+
+def data() -> Volume:
+    rng = np.random.default_rng(7)
+    x, y, z = np.meshgrid(*[np.linspace(-1, 1, n) for n in DIMS], indexing="ij")
+    blob = np.exp(-3.0 * ((x - 0.2) ** 2 + (y + 0.1) ** 2 + 2.0 * (z - 0.1) ** 2))
+    wall = (np.abs(x + 0.3) < 0.08).astype(float) * (y > -0.5)
+    noise = rng.random(DIMS) * 0.2
+    return Volume(np.clip(blob + wall + noise, 0.0, 1.0).astype(np.float32), SPACING, ORIGIN)
+
+
+VOLUME = data()
+CENTRE = np.asarray(ORIGIN) + 0.5 * (np.asarray(DIMS) - 1) * np.asarray(SPACING)
+LIGHTS = {
+    "+x": [DirectionalLight((1.0, 0.0, 0.0), (1.0, 1.0, 1.0))],
+    "-y": [DirectionalLight((0.0, -1.0, 0.0), (0.5, 1.0, 2.0))],
+    "+z": [DirectionalLight((0.0, 0.0, 1.0), (1.0, 0.8, 0.6))],
+    "diagonal": [DirectionalLight((1.0, -0.7, 0.45), (2.0, 2.0, 2.0))],
+    "point-inside": [PointLight(CENTRE + np.array([2.9, 2.3, 1.9]), (30.0, 20.0, 10.0))],
+    "point-outside": [PointLight(CENTRE + np.array([-9.0, 1.0, 7.0]), (300.0, 300.0, 300.0))],
+    "several": [DirectionalLight((-1.0, 0.3, 0.2), (1.0, 1.0, 1.0)),
+                DirectionalLight((0.2, 1.0, -0.6), (0.3, 0.6, 0.9)),
+                PointLight(CENTRE - np.array([2.0, 1.5, 1.2]), (20.0, 20.0, 20.0))],
+}
+
+
+def reference(lights, scheme="characteristics", scale=0.5, model="paper"):
+    solver = ConvectionDiffusionSolver(light_volume_scale=scale, diffusion_model=model,
+                                       scattering=SCATTERING, tolerance=1e-6,
+                                       convection_scheme=scheme, device="cpu")
+    solver.stats = solver.update(VOLUME, TF, 0.8, lights)
+    return solver
+
+
+def run(par, lights, blocks=None, scheme="characteristics", scale=0.5, model="paper",
+        **kwargs):
+    shape = tuple(max(2, round(scale * n)) for n in DIMS)
+    if blocks is None:
+        blocks = owner_blocks(shape, par.size)
+    lo, hi = blocks[par.rank]
+    dlo, dhi = required_data_extent(lo, hi, DIMS, SPACING, shape)
+    piece = VOLUME.scalars[tuple(slice(a, b) for a, b in zip(dlo, dhi))]
+    return distributed_light_volume(
+        piece, dlo, DIMS, SPACING, TF, 0.8, lights, origin=ORIGIN, light_volume_scale=scale,
+        block=(lo, hi), diffusion_model=model, scattering=SCATTERING, tolerance=1e-6,
+        convection_scheme=scheme, comm=par.comm, device="cpu", **kwargs)
+
+
+def check(par, ref, got, diffusion=True):
+    sl = tuple(slice(a, b) for a, b in zip(got.lo, got.hi))
+    all_ranks(par, max_abs(got.sigma, ref.sigma[sl]) <= 1e-6 * max(ref.sigma.max(), 1.0),
+              f"sigma differs by {max_abs(got.sigma, ref.sigma[sl])}")
+    T = ref.transmittances()[(slice(None),) + sl]
+    all_ranks(par, max_abs(got.transmittance, T) <= 1e-6,
+              f"transmittance differs by {max_abs(got.transmittance, T)}")
+    composed = ref.composed[sl]
+    all_ranks(par, max_abs(got.composed, composed) <= 1e-6 * max(ref.composed.max(), 1e-30),
+              f"composed light differs by {max_abs(got.composed, composed)}")
+    if diffusion:
+        L = ref.scattered_fluence
+        err = max_abs(got.scattered_fluence, L[sl]) / L.max()
+        all_ranks(par, got.diffusion.converged and err <= 2e-5,
+                  f"diffused light differs by {err:.2e} of its maximum "
+                  f"(converged {got.diffusion.converged})")
+        # the same V-cycles: the residual after each is one rank's (up to the sums' order)
+        mine, theirs = got.diffusion.residuals, ref.stats.diffusion.residuals
+        n = min(len(mine), len(theirs))
+        same = abs(len(mine) - len(theirs)) <= 1 and np.allclose(mine[:n], theirs[:n],
+                                                                  rtol=1e-3, atol=1e-7)
+        all_ranks(par, same, f"residuals {mine} vs one rank's {theirs}")
+
+
+@pytest.mark.parametrize("name", list(LIGHTS))
+def test_vtk_pieces_equal_one_rank(par, name):
+    check(par, reference(LIGHTS[name]), run(par, LIGHTS[name]))
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+@pytest.mark.parametrize("name", ["diagonal", "point-inside"])
+def test_slabs_along_each_axis(par, axis, name):
+    shape = tuple(max(2, round(0.5 * n)) for n in DIMS)
+    check(par, reference(LIGHTS[name]), run(par, LIGHTS[name], split_blocks(shape, par.size, axis)))
+
+
+@pytest.mark.parametrize("scheme", ["upwind", "exponential"])
+def test_paper_schemes(par, scheme):
+    lights = LIGHTS["several"]
+    check(par, reference(lights, scheme), run(par, lights, scheme=scheme))
+
+
+def test_coarse_levels_distributed(par):
+    """Every multigrid level distributed down to the one-rank coarsest grid (blocks of a
+    point or none on coarse levels), at the data's resolution."""
+    lights = LIGHTS["several"]
+    got = run(par, lights, scale=1.0, gather_cells=1)
+    check(par, reference(lights, scale=1.0), got)
+
+
+def test_physical_model_convection(par):
+    """The physical model: transmittances and the composed light distributed, no phi_s."""
+    lights = LIGHTS["several"]
+    got = run(par, lights, model="physical")
+    all_ranks(par, got.scattered_fluence is None, "physical phi_s is not distributed")
+    check(par, reference(lights, model="physical"), got, diffusion=False)
+
+
+def test_piece_too_small_is_refused(par):
+    shape = tuple(max(2, round(0.5 * n)) for n in DIMS)
+    lo, hi = owner_blocks(shape, par.size)[par.rank]
+    dlo, dhi = required_data_extent(lo, hi, DIMS, SPACING, shape)
+    small = VOLUME.scalars[dlo[0]:dhi[0] - 1, dlo[1]:dhi[1], dlo[2]:dhi[2]]
+    refused = False
+    try:
+        distributed_light_volume(small, dlo, DIMS, SPACING, TF, 0.8, LIGHTS["+x"],
+                                 origin=ORIGIN, block=(lo, hi), value_range=(0.0, 1.0),
+                                 comm=par.comm, device="cpu")
+    except ValueError as e:
+        refused = "required_data_extent" in str(e)
+    # every rank's piece lacks a needed plane; every rank raises (none is left waiting)
+    all_ranks(par, refused, "a piece without the points its block needs is refused")
+
+
+def test_one_short_piece_stops_every_rank(par):
+    """Only rank 0's piece is short: every rank raises the same error."""
+    shape = tuple(max(2, round(0.5 * n)) for n in DIMS)
+    lo, hi = owner_blocks(shape, par.size)[par.rank]
+    dlo, dhi = required_data_extent(lo, hi, DIMS, SPACING, shape)
+    cut = 1 if par.rank == 0 else 0
+    piece = VOLUME.scalars[dlo[0] + cut:dhi[0], dlo[1]:dhi[1], dlo[2]:dhi[2]]
+    message = ""
+    try:
+        distributed_light_volume(piece, dlo + np.array([cut, 0, 0]), DIMS, SPACING, TF, 0.8,
+                                 LIGHTS["+x"], origin=ORIGIN, block=(lo, hi),
+                                 value_range=(0.0, 1.0), comm=par.comm, device="cpu")
+    except ValueError as e:
+        message = str(e)
+    all_ranks(par, message.startswith("rank 0:"), f"got {message!r}")
