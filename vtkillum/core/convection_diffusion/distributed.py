@@ -83,7 +83,9 @@ from vtkillum.core.convection_diffusion.distributed_layout import (
     intersect,
     mpi,
     owner_blocks,
+    read_region,
     region,
+    write_region,
 )
 from vtkillum.core.convection_diffusion.distributed_multigrid import DistributedMultigrid
 from vtkillum.core.convection_diffusion.opacity import MAX_SUBSAMPLES
@@ -444,11 +446,11 @@ def convect_pipelined(comm, layout: Layout, sigma: wp.array3d, spacing, lights, 
         todo.remove(job)
         out = T[job["n"]]
         for sl, buf in job["buffers"]:
-            out[sl].assign(buf)
+            write_region(out, sl, buf)
         if not layout.empty:
             _sweep_block(sigma, out, job, layout, h32, source_radius, scheme_id, glo, device)
         for q, sl in job["sends"]:
-            buf = np.ascontiguousarray(out[sl].numpy())
+            buf = read_region(out, sl)
             outgoing.append((comm.Isend(buf, dest=q, tag=CONVECTION_TAG + job["n"]), buf))
     MPI.Request.Waitall([r for r, _ in outgoing])
     return waited

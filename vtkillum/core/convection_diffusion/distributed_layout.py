@@ -186,12 +186,26 @@ def exchange_regions(comm, arr, sends, recvs, tag: int = 0) -> None:
         received.append((sl, buf))
     outgoing = []
     for q, sl in sends:
-        buf = np.ascontiguousarray(arr[sl].numpy(), dtype=np.float32)
+        buf = read_region(arr, sl)
         outgoing.append(buf)
         requests.append(comm.Isend(buf, dest=q, tag=tag))
     mpi().Request.Waitall(requests)
     for sl, buf in received:
-        arr[sl].assign(buf)
+        write_region(arr, sl, buf)
+
+
+def read_region(arr, sl) -> np.ndarray:
+    """``arr[sl]`` as a contiguous host array (on the CPU through a numpy view)."""
+    view = arr.numpy()[sl] if arr.device.is_cpu else arr[sl].numpy()
+    return np.ascontiguousarray(view, dtype=np.float32)
+
+
+def write_region(arr, sl, values) -> None:
+    """``arr[sl] = values`` (on the CPU through a numpy view of the array)."""
+    if arr.device.is_cpu:
+        arr.numpy()[sl] = values
+    else:
+        arr[sl].assign(values)
 
 
 def _components(arr) -> tuple:

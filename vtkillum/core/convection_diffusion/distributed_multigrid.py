@@ -33,7 +33,14 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.convection_diffusion.diffusion import DiffusionReport, residual_floor
-from vtkillum.core.convection_diffusion.distributed_layout import Halo, Layout, mpi, region
+from vtkillum.core.convection_diffusion.distributed_layout import (
+    Halo,
+    Layout,
+    mpi,
+    read_region,
+    region,
+    write_region,
+)
 from vtkillum.core.convection_diffusion.multigrid import (
     COARSEST_POINTS,
     POST_SMOOTH,
@@ -202,7 +209,7 @@ class DistributedMultigrid:
         """Gather ``b`` of ``level`` onto rank 0, one one-rank V-cycle from zero there,
         scatter the result back into the blocks of ``x``."""
         lay = self.layouts[level]
-        part = b[lay.block_region()].numpy().copy() if not lay.empty else None
+        part = read_region(b, lay.block_region()) if not lay.empty else None
         parts = self.comm.gather(part, root=0)
         pieces = None
         if self.comm.Get_rank() == 0:
@@ -218,7 +225,7 @@ class DistributedMultigrid:
                       for lo, hi in lay.blocks]
         mine = self.comm.scatter(pieces, root=0)
         if mine is not None:
-            x[lay.block_region()].assign(np.ascontiguousarray(mine))
+            write_region(x, lay.block_region(), mine)
 
     def _sum_squares(self, a) -> np.ndarray:
         lay = self.layouts[0]
