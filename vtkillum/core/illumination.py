@@ -59,21 +59,18 @@ colour lives only in ``E_l`` and ``phi_s`` and the Phong factor ``S`` is grey.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 #: Relative data change across one voxel below which a sample has no usable normal.
 GRADIENT_EPS = 1.0e-5
 
 
-@dataclass
 class IlluminationVolume:
     """Direct light per light and isotropic scattered fluence, covering ``[0, extent]``.
 
     Parameters
     ----------
-    scattered : ndarray (nx, ny, nz, 3), optional
+    scattered : ndarray (nx, ny, nz, 3) or warp array3d(vec3), optional
         Non-negative RGB fluence ``phi_s`` of the scattered light (irradiance units: for
         an isotropic radiance ``L`` it is ``4 pi L``), indexed ``[i, j, k, c]`` along the
         local x, y, z axes; at least 2 points per axis; converted to float32. ``None``:
@@ -82,45 +79,138 @@ class IlluminationVolume:
     extent : (3,) float
         Size of the box it covers in the local frame (world units); equal to the
         rendered volume's ``extent``.
-    transmittance : ndarray (n_lights, nx', ny', nz'), optional
+    transmittance : ndarray or warp array4d(float32) (n_lights, nx', ny', nz'), optional
         ``T_l`` in [0, 1] towards each light of the scene, in the scene's order; any
         resolution (at least 2 points per axis). ``None``: no direct light (the
         scattered fluence is all there is).
 
     At least one of ``scattered`` and ``transmittance`` must be given.
+
+    Notes
+    -----
+    Device residency: grids given as warp arrays (what the light methods compute) stay
+    where they are. They are checked there by one reduction each
+    (:func:`vtkillum.core.device_arrays.array_stats`), handed to a renderer on the same
+    device without a copy (:meth:`device_scattered`, :meth:`device_transmittance`), and
+    downloaded only when the numpy attributes :attr:`scattered` / :attr:`transmittance`
+    are read (once; kept). numpy grids are checked on the host once and uploaded once per
+    device, so a renderer that draws many frames from one IlluminationVolume (a camera
+    moving in a window) moves no volume-sized data after the first frame.
     """
 
-    scattered: np.ndarray | None = None
-    extent: np.ndarray | None = None
-    transmittance: np.ndarray | None = None
-
-    def __post_init__(self) -> None:
-        if self.scattered is None and self.transmittance is None:
+    def __init__(self, scattered=None, extent=None, transmittance=None) -> None:
+        if scattered is None and transmittance is None:
             raise ValueError("an illumination volume needs scattered fluence, per-light "
                              "transmittance, or both")
-        if self.scattered is not None:
-            self.scattered = _checked_grid(self.scattered, "scattered fluence")
-        if self.transmittance is not None:
-            self.transmittance = _checked_transmittance(self.transmittance)
-        e = np.asarray(self.extent if self.extent is not None else [], dtype=np.float64)
-        e = e.reshape(-1)
+        e = np.asarray(extent if extent is not None else [], dtype=np.float64).reshape(-1)
         if e.shape != (3,) or not np.all(np.isfinite(e)) or np.any(e <= 0):
-            raise ValueError(
-                f"illumination extent must be three positive numbers, got {self.extent!r}"
-            )
+            raise ValueError(f"illumination extent must be three positive numbers, got {extent!r}")
         self.extent = e
+        self._host: dict[str, np.ndarray | None] = {"scattered": None, "transmittance": None}
+        self._device: dict[tuple[str, str], object] = {}  # (part, device) -> warp array
+        self._shapes: dict[str, tuple | None] = {"scattered": None, "transmittance": None}
+        self.transmittance_range: tuple[float, float] | None = None
+        if scattered is not None:
+            self._set("scattered", scattered)
+        if transmittance is not None:
+            self._set("transmittance", transmittance)
 
+    # --- construction ---------------------------------------------------------------------------
+    def _set(self, part: str, data) -> None:
+        if _is_warp_array(data):
+            data, value_range = _checked_device(data, part)
+            self._device[(part, str(data.device))] = data
+            self._shapes[part] = _logical_shape(data, part)
+            if part == "transmittance":
+                self.transmittance_range = value_range
+            return
+        host = _checked_grid(data, "scattered fluence") if part == "scattered" \
+            else _checked_transmittance(data)
+        self._host[part] = host
+        self._shapes[part] = tuple(int(n) for n in host.shape)
+        if part == "transmittance":
+            self.transmittance_range = (float(host.min()), float(host.max()))
+
+    def with_extent(self, extent) -> "IlluminationVolume":
+        """The same grids (shared, not copied or checked again) covering another ``extent``."""
+        out = object.__new__(IlluminationVolume)
+        out.__dict__.update(self.__dict__)
+        e = np.asarray(extent, dtype=np.float64).reshape(-1)
+        if e.shape != (3,) or not np.all(np.isfinite(e)) or np.any(e <= 0):
+            raise ValueError(f"illumination extent must be three positive numbers, got {extent!r}")
+        out.extent = e
+        return out
+
+    # --- numpy views (downloaded once when the grids live on a device) ------------------------
+    @property
+    def scattered(self) -> np.ndarray | None:
+        """Scattered fluence ``(nx, ny, nz, 3)`` float32 on the host, or None."""
+        return self._host_part("scattered")
+
+    @property
+    def transmittance(self) -> np.ndarray | None:
+        """Per-light transmittance ``(n_lights, nx, ny, nz)`` float32 on the host, or None."""
+        return self._host_part("transmittance")
+
+    def has(self, part: str) -> bool:
+        """Whether ``part`` (``"scattered"`` or ``"transmittance"``) is present."""
+        return self._shapes[part] is not None
+
+    def _host_part(self, part: str):
+        if self._shapes[part] is None:
+            return None
+        if self._host[part] is None:
+            from vtkillum.core.device_arrays import download
+
+            source = next(a for (p, _d), a in self._device.items() if p == part)
+            self._host[part] = np.ascontiguousarray(
+                download(source).reshape(self._shapes[part]).astype(np.float32, copy=False))
+        return self._host[part]
+
+    # --- device views (uploaded once per device when the grids came from numpy) ---------------
+    def device_scattered(self, device: str):
+        """The scattered fluence as a warp ``array3d(vec3)`` on ``device`` (None if absent)."""
+        return self._device_part("scattered", device)
+
+    def device_transmittance(self, device: str):
+        """The transmittance as a warp ``array4d(float32)`` on ``device`` (None if absent)."""
+        return self._device_part("transmittance", device)
+
+    def _device_part(self, part: str, device: str):
+        if self._shapes[part] is None:
+            return None
+        key = (part, str(device))
+        if key not in self._device:
+            import warp as wp
+
+            from vtkillum.core.device_arrays import upload
+
+            host = self._host_part(part)
+            if part == "scattered":
+                self._device[key] = upload(host.reshape(*host.shape[:3], 3), wp.vec3, device)
+            else:
+                self._device[key] = upload(host, wp.float32, device)
+        return self._device[key]
+
+    # --- geometry -------------------------------------------------------------------------------
     @property
     def n_lights(self) -> int:
         """Lights with a direct-light channel (0 without transmittance)."""
-        return 0 if self.transmittance is None else int(self.transmittance.shape[0])
+        shape = self._shapes["transmittance"]
+        return 0 if shape is None else int(shape[0])
 
     @property
     def shape(self) -> tuple[int, int, int]:
         """Grid size ``(nx, ny, nz)`` of the scattered fluence, else of the transmittance."""
-        if self.scattered is not None:
-            return tuple(int(n) for n in self.scattered.shape[:3])
-        return tuple(int(n) for n in self.transmittance.shape[1:])
+        if self._shapes["scattered"] is not None:
+            return tuple(self._shapes["scattered"][:3])
+        return tuple(self._shapes["transmittance"][1:])
+
+    @property
+    def transmittance_shape(self) -> tuple[int, int, int] | None:
+        """Grid size ``(nx, ny, nz)`` of the transmittance, or None."""
+        shape = self._shapes["transmittance"]
+        return None if shape is None else tuple(shape[1:])
 
     @classmethod
     def for_volume(cls, volume, scattered=None, transmittance=None) -> "IlluminationVolume":
@@ -129,8 +219,8 @@ class IlluminationVolume:
         Parameters
         ----------
         volume : vtkillum.core.volume.Volume
-        scattered : ndarray (nx, ny, nz, 3), optional
-        transmittance : ndarray (n_lights, nx, ny, nz), optional
+        scattered : ndarray (nx, ny, nz, 3) or warp array3d(vec3), optional
+        transmittance : ndarray or warp array4d (n_lights, nx, ny, nz), optional
             See the class docstring.
         """
         return cls(scattered, volume.extent, transmittance)
@@ -150,7 +240,7 @@ class IlluminationVolume:
                 f"{volume.extent.tolist()}; build it with IlluminationVolume.for_volume(volume, "
                 "...)"
             )
-        if lights is not None and self.transmittance is not None and \
+        if lights is not None and self.has("transmittance") and \
                 self.n_lights != len(lights):
             raise ValueError(
                 f"the illumination volume has transmittance for {self.n_lights} light(s) but the "
@@ -189,6 +279,45 @@ class IlluminationVolume:
                     t = resample_points(t, shape)
                 total += t[..., None] * irradiance_on_grid(light, volume, shape)
         return total
+
+
+def _is_warp_array(data) -> bool:
+    return type(data).__module__.startswith("warp") and hasattr(data, "ptr")
+
+
+def _logical_shape(data, part: str) -> tuple:
+    """``(nx, ny, nz, 3)`` / ``(n_lights, nx, ny, nz)`` of a device grid."""
+    shape = tuple(int(n) for n in data.shape)
+    return shape + (3,) if part == "scattered" else shape
+
+
+def _checked_device(data, part: str):
+    """Shape and value checks of a device grid, as one reduction on its device; returns the
+    grid to use (transmittance round-off above 1 clamped in a device copy) and its
+    ``(min, max)``."""
+    import warp as wp
+
+    from vtkillum.core.device_arrays import array_stats, clamp_max
+
+    if part == "scattered":
+        if data.dtype != wp.vec3 or data.ndim != 3 or min(data.shape) < 2:
+            raise ValueError(f"a device scattered fluence must be a warp array3d of vec3 with at "
+                             f"least 2 points per axis, got {data.ndim}-d {data.dtype} {data.shape}")
+    elif data.dtype != wp.float32 or data.ndim != 4 or data.shape[0] < 1 or min(data.shape[1:]) < 2:
+        raise ValueError(f"a device transmittance must be a warp array4d of float32 (n_lights, nx, "
+                         f"ny, nz), got {data.ndim}-d {data.dtype} {data.shape}")
+    bad, lo, hi = array_stats(data)
+    if part == "scattered":
+        if bad:
+            raise ValueError("illumination scattered fluence contains NaN or Inf values; fix the "
+                             "solver output")
+        if lo < 0:
+            raise ValueError(f"illumination scattered fluence must be non-negative (minimum "
+                             f"{lo:g}); clamp it at 0 if these are round-off")
+        return data, (lo, hi)
+    if bad or lo < 0 or hi > 1 + 1e-5:
+        raise ValueError("illumination transmittance must lie in [0, 1] (no NaN or Inf)")
+    return (clamp_max(data, 1.0) if hi > 1.0 else data), (lo, min(hi, 1.0))
 
 
 def _checked_grid(fluence, what: str) -> np.ndarray:

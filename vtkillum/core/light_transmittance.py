@@ -38,6 +38,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import resolve_device
+from vtkillum.core.device_arrays import download
 from vtkillum.core.raymarch import MAX_STEPS_PER_RAY
 from vtkillum.core.warp_common import (
     Lights,
@@ -57,7 +58,7 @@ CHUNK_SAMPLES = {"cpu": 1 << 25, "cuda": 1 << 32}
 
 def light_transmittance(volume, transfer_function, unit_distance: float, lights, shape=None,
                         step_size: float | None = None, device: str | None = None,
-                        progress=None):
+                        progress=None, on_device: bool = False):
     """Transmittance towards each light and the unscattered RGB fluence on a light grid.
 
     Parameters
@@ -81,6 +82,9 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
         Warp device; see :func:`vtkillum.core.device.resolve_device`.
     progress : callable, optional
         Called as ``progress(fraction_done)`` after each launch (see :data:`CHUNK_SAMPLES`).
+    on_device : bool
+        Return the warp arrays on ``device`` instead of numpy copies (for a renderer on the
+        same device: no download, no upload).
 
     Returns
     -------
@@ -130,7 +134,9 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
     fluence = wp.zeros(shape, dtype=wp.vec3, device=device)
     wp.launch(fluence_kernel, dim=shape, inputs=[packed, transmittance, grid_spacing, fluence],
               device=device)
-    return transmittance.numpy(), fluence.numpy().reshape(*shape, 3)
+    if on_device:
+        return transmittance, fluence
+    return download(transmittance), download(fluence).reshape(*shape, 3)
 
 
 def max_steps_per_ray(volume, step_size: float) -> int:

@@ -253,11 +253,12 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
     cam = make_camera(scene.resolved_camera(volume), volume, width, height)
     lights = make_lights(scene.lights, volume, device)
     # The kernel always takes both grids; absent parts are a zero grid / an empty light grid.
-    scattered = None if illumination is None else illumination.scattered
-    if scattered is None:
-        scattered = np.zeros((2, 2, 2, 3), np.float32)
+    # Grids already on the device (or uploaded once per IlluminationVolume) are used as they
+    # are: a camera move moves no volume-sized data.
+    scattered = None if illumination is None else illumination.device_scattered(device)
     illum = make_rgb_grid(scattered, volume.extent, device)
-    direct = make_light_grid(None if illumination is None else illumination.transmittance,
+    direct = make_light_grid(None if illumination is None else
+                             illumination.device_transmittance(device),
                              volume.extent, device, opts["near_cells"])
     grad_eps = gradient_threshold(volume)
     # Shadow rays per sample: to every light for single scattering, the exact near march

@@ -129,13 +129,16 @@ def check_memory(volume, scene, method: str, width: int, height: int, device: st
                                        "view_samples") if k in merged}
     n_lights = len(scene.lights)
     key = (method, n_lights, scale, tuple(sorted(settings.items())), width, height)
-    if getattr(volume, "_derived", None) is None:
-        check_fits(method, volume.dims, n_lights, scale, settings, (width, height), device)
-        return
-    held = 4 * int(np.prod(volume.dims)) if f"scalars@{device}" in volume._derived else 0
-    volume.derived(f"memory_checked@{device}", key,
-                   lambda: check_fits(method, volume.dims, n_lights, scale, settings,
-                                      (width, height), device, held_bytes=held))
+    try:
+        if getattr(volume, "_derived", None) is None:
+            check_fits(method, volume.dims, n_lights, scale, settings, (width, height), device)
+            return
+        held = 4 * int(np.prod(volume.dims)) if f"scalars@{device}" in volume._derived else 0
+        volume.derived(f"memory_checked@{device}", key,
+                       lambda: check_fits(method, volume.dims, n_lights, scale, settings,
+                                          (width, height), device, held_bytes=held))
+    except (ValueError, TypeError):
+        return  # a bad setting: the method's own check names it in its words
 
 
 def method_function(method: str):

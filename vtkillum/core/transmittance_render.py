@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import time
 
-import numpy as np
-
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.light_transmittance import light_transmittance
 from vtkillum.core.raycast import render_illuminated
@@ -42,15 +40,16 @@ def render_transmittance(volume, scene, width, height, device=None, progress=Non
     # it depends on changes.
     key = (device, shape, tf.scalars.tobytes(), tf.opacity.tobytes(), float(u),
            repr([light.to_dict() for light in scene.lights]))
+    # It stays on the device, checked there once: a camera move moves no volume-sized data.
     t0 = time.perf_counter()
-    transmittance = volume.derived(
+    illumination = volume.derived(
         "light_transmittance", key,
-        lambda: light_transmittance(volume, tf, u, scene.lights, shape=shape, device=device)[0])
+        lambda: IlluminationVolume.for_volume(volume, transmittance=light_transmittance(
+            volume, tf, u, scene.lights, shape=shape, device=device, on_device=True)[0]))
     t1 = time.perf_counter()
-    illumination = IlluminationVolume.for_volume(volume, transmittance=transmittance)
     result = render_illuminated(volume, scene, width, height, device, progress,
                                 illumination=illumination, **options)
     result.info.update(method="transmittance", light_volume_s=t1 - t0,
                        light_volume_shape=shape,
-                       transmittance_min=float(np.min(transmittance)))
+                       transmittance_min=illumination.transmittance_range[0])
     return result

@@ -237,8 +237,8 @@ class WorldUnits:
 
         if not isinstance(illumination, IlluminationVolume) or self.is_identity:
             return illumination  # a bare fluence array has no geometry; fluence has no unit
-        return dataclasses.replace(illumination, extent=np.asarray(illumination.extent)
-                                   / self.length)
+        # The same grids (on the device, if they are there): no copy, no second check.
+        return illumination.with_extent(np.asarray(illumination.extent) / self.length)
 
     def scene(self, scene, volume=None):
         """``scene`` in canonical units (a new Scene; the given one is not changed)."""

@@ -15,6 +15,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp, resolve_device
+from vtkillum.core.device_arrays import upload
 from vtkillum.core.lights import pack_lights, resolved_radius
 from vtkillum.core.transfer_function import MAX_ALPHA, TABLE_SIZE, check_unit_distance
 
@@ -621,21 +622,39 @@ def make_medium(volume, transfer_function, unit_distance: float, albedo: float =
         exactly transparent ones; False marks every block occupied (for comparisons).
     """
     device = resolve_device(device)
-    sig, col, lo, hi = transfer_function.lookup_tables(unit_distance, volume.value_range)
-    m = Medium()
     if scalars is None:
         scalars = device_scalars(volume, device)
     elif tuple(scalars.shape) != tuple(volume.dims):
         raise ValueError(f"uploaded scalars of shape {tuple(scalars.shape)} do not belong to a "
                          f"volume of {tuple(volume.dims)} points; upload the volume's own scalars")
+    # The tables and the block occupancy depend only on the optical model and the data: kept
+    # with the volume, so a camera move rebuilds and uploads none of them. Shared: nobody
+    # may write into a medium's arrays (MediumTables clones the tables it rewrites).
+    key = (transfer_function.scalars.tobytes(), transfer_function.opacity.tobytes(),
+           transfer_function.colors.tobytes(), float(unit_distance), scalars.ptr,
+           bool(skip_empty))
+    m = volume.derived(f"medium@{device}", key, lambda: _new_medium(
+        volume, transfer_function, unit_distance, device, scalars, skip_empty))
+    out = Medium()
+    for name in ("scalars", "extent", "inv_spacing", "sigma_table", "color_table", "table_lo",
+                 "table_scale", "majorant", "occupied", "block", "inv_block"):
+        setattr(out, name, getattr(m, name))
+    out.albedo = float(albedo)
+    out.g = float(anisotropy)
+    return out
+
+
+def _new_medium(volume, transfer_function, unit_distance: float, device: str, scalars,
+                skip_empty: bool) -> Medium:
+    """A :class:`Medium` with new tables and occupancy (see :func:`make_medium`)."""
+    sig, col, lo, hi = transfer_function.lookup_tables(unit_distance, volume.value_range)
+    m = Medium()
     m.scalars = scalars
     m.extent = wp.vec3(*volume.extent.astype(np.float32))
     m.inv_spacing = wp.vec3(*(1.0 / volume.spacing).astype(np.float32))
     m.sigma_table = wp.array(sig, dtype=wp.float32, device=device)
     m.color_table = wp.array(col, dtype=wp.vec3, device=device)
     set_table_range(m, lo, hi, len(sig))
-    m.albedo = float(albedo)
-    m.g = float(anisotropy)
     # Trilinear interpolation stays within the data range, so the table's maximum over it bounds σt.
     vlo, vhi = volume.value_range
     x = np.linspace(lo, hi, len(sig))
@@ -685,6 +704,10 @@ class MediumTables:
         if key != self._key:
             self._medium = make_medium(volume, tf, unit_distance, device=self.device,
                                        scalars=scalars, skip_empty=False)
+            # Tables of its own: they are rewritten in place below, and make_medium's are
+            # shared with every other medium of this volume and transfer function.
+            self._medium.sigma_table = wp.clone(self._medium.sigma_table)
+            self._medium.color_table = wp.clone(self._medium.color_table)
             self._key = key
             self._pack = None  # the recorded launch writes the new medium's tables
             return self._medium
@@ -784,17 +807,34 @@ def attach_occupancy(m: Medium, volume, sigma_table: np.ndarray, device: str,
     m.inv_block = wp.vec3(*(1.0 / block).astype(np.float32))
 
 
-def make_rgb_grid(data: np.ndarray, extent, device: str | None = None) -> RGBGrid:
-    """Upload an RGB volume ``(nx, ny, nz, 3)`` covering ``[0, extent]`` in the local frame."""
+def make_rgb_grid(data, extent, device: str | None = None) -> RGBGrid:
+    """An RGB volume covering ``[0, extent]`` in the local frame, as the kernels read it.
+
+    ``data``: a numpy ``(nx, ny, nz, 3)`` array (uploaded), a warp ``array3d(vec3)`` on
+    ``device`` (used as it is, no copy), or None (a zero 2³ grid for kernels that take the
+    struct but have no scattered light).
+    """
     device = resolve_device(device)
-    data = np.asarray(data, dtype=np.float32)
-    if data.ndim != 4 or data.shape[-1] != 3 or min(data.shape[:3]) < 2:
-        raise ValueError(f"an RGB volume must have shape (nx, ny, nz, 3) with n >= 2, got {data.shape}")
+    if data is None:
+        data = wp.zeros((2, 2, 2), dtype=wp.vec3, device=device)
+    if isinstance(data, wp.array):
+        if str(data.device) != str(wp.get_device(device)) or data.dtype != wp.vec3 or \
+                data.ndim != 3 or min(data.shape) < 2:
+            raise ValueError(f"a device RGB volume must be an array3d of vec3 on {device} with "
+                             f"n >= 2, got {data.dtype} {data.shape} on {data.device}")
+        shape = tuple(data.shape)
+    else:
+        host = np.asarray(data, dtype=np.float32)
+        if host.ndim != 4 or host.shape[-1] != 3 or min(host.shape[:3]) < 2:
+            raise ValueError(f"an RGB volume must have shape (nx, ny, nz, 3) with n >= 2, got "
+                             f"{host.shape}")
+        shape = host.shape[:3]
+        data = upload(host, wp.vec3, device)
     extent = np.asarray(extent, dtype=np.float64)
     g = RGBGrid()
-    g.data = wp.array(np.ascontiguousarray(data), dtype=wp.vec3, device=device)
+    g.data = data
     g.extent = wp.vec3(*extent.astype(np.float32))
-    g.inv_spacing = wp.vec3(*((np.asarray(data.shape[:3]) - 1) / extent).astype(np.float32))
+    g.inv_spacing = wp.vec3(*((np.asarray(shape) - 1) / extent).astype(np.float32))
     return g
 
 
@@ -814,12 +854,17 @@ def make_light_grid(data: np.ndarray | None, extent, device: str | None = None,
         g.count = 0
         g.near = 0.0
         return g
-    data = np.asarray(data, dtype=np.float32)
+    if isinstance(data, wp.array):  # already on the device: used as it is
+        if str(data.device) != str(wp.get_device(device)) or data.dtype != wp.float32:
+            raise ValueError(f"device per-light grids must be float32 on {device}, got "
+                             f"{data.dtype} on {data.device}")
+    else:
+        data = np.asarray(data, dtype=np.float32)
     if data.ndim != 4 or min(data.shape[1:]) < 2:
         raise ValueError(f"per-light grids must have shape (n_lights, nx, ny, nz) with n >= 2, "
-                         f"got {data.shape}")
+                         f"got {tuple(data.shape)}")
     extent = np.asarray(extent, dtype=np.float64)
-    g.data = wp.array(np.ascontiguousarray(data), dtype=wp.float32, device=device)
+    g.data = data if isinstance(data, wp.array) else upload(data, wp.float32, device)
     spacing = extent / (np.asarray(data.shape[1:]) - 1)
     g.inv_spacing = wp.vec3(*(1.0 / spacing).astype(np.float32))
     g.count = int(data.shape[0])
@@ -905,12 +950,6 @@ def stream_seed(seed: int, index: int, salt: int) -> int:
 
 
 def to_device(array: np.ndarray, dtype, device: str):
-    """Copy a numpy array to ``device`` with a clear error when the device runs out of memory."""
-    try:
-        return wp.array(np.ascontiguousarray(array), dtype=dtype, device=device)
-    except Exception as err:  # warp raises RuntimeError on allocation failure
-        nbytes = np.asarray(array).nbytes
-        raise MemoryError(
-            f"could not allocate {nbytes / 2**20:.0f} MiB on {device} ({err}); downsample the "
-            "volume (e.g. vtkImageResample) or render on device='cpu'"
-        ) from err
+    """Copy a numpy array to ``device`` with a clear error when the device runs out of memory
+    (:func:`vtkillum.core.device_arrays.upload`: counted as host-to-device traffic)."""
+    return upload(array, dtype, device)

@@ -86,6 +86,7 @@ from vtkillum.core.convection_diffusion.radiative import (
 )
 from vtkillum.core.convection_diffusion.reconstruction import filter_along_surfaces
 from vtkillum.core.device import resolve_device
+from vtkillum.core.device_arrays import scaled_nonnegative
 from vtkillum.core.graphs import LaunchGraphs
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.lights import DIRECTIONAL, pack_lights
@@ -270,6 +271,7 @@ class ConvectionDiffusionSolver:
         self._x_model = None  # the model that _x belongs to
         self._x_version = 0  # counts diffusion updates of _x
         self._rendered = None  # (key, phi_s filtered along surfaces)
+        self._illumination = None  # (key, IlluminationVolume on the device)
         self._diffusion_key = None
         self._diffusion = None
         self._radiative = None  # (limiter, RadiativeDiffusion)
@@ -532,10 +534,30 @@ class ConvectionDiffusionSolver:
         the ray caster) and the scattered fluence ``phi_s``. ``"paper"``: the diffused
         ``L`` as one isotropic fluence, as the paper shades it (eq. 24).
         """
-        if self.model == "paper":
-            return IlluminationVolume.for_volume(volume, self.scattered_fluence)
-        return IlluminationVolume.for_volume(volume, self.rendered_scattered_fluence,
-                                             transmittance=self.transmittances())
+        # Made on the device (scaled, clamped and checked there) once per update of the
+        # light volume and kept: renders with a moved camera move no volume-sized data.
+        self._check_updated()
+        key = (self._model, self._diffusion_key, self._opacity_version, self._x_version,
+               self._compose_version, tuple(self._geometry), self._light_scale,
+               tuple(np.round(volume.extent, 9)))
+        if self._illumination is not None and self._illumination[0] == key:
+            return self._illumination[1]
+        source = self._x if self.model == "paper" else self._rendered_device()
+        scattered = scaled_nonnegative(source, self._light_scale)
+        transmittance = None
+        if self.model != "paper":
+            transmittance = wp.clone(self._T_stack[0:len(self._geometry)])
+        illumination = IlluminationVolume.for_volume(volume, scattered, transmittance)
+        self._illumination = (key, illumination)
+        return illumination
+
+    def _rendered_device(self):
+        """Physical model: the device array of ``phi_s`` filtered along thick surfaces."""
+        key = (self._diffusion_key, self._opacity_version, self._x_version)
+        if self._rendered is None or self._rendered[0] != key:
+            out = self._rendered[1] if self._rendered is not None else None
+            self._rendered = (key, filter_along_surfaces(self._x, self._sigma, self.spacing, out))
+        return self._rendered[1]
 
     @property
     def rendered_scattered_fluence(self) -> np.ndarray:
@@ -544,11 +566,7 @@ class ConvectionDiffusionSolver:
         self._check_updated()
         if self.model != "physical":
             return self.scattered_fluence
-        key = (self._diffusion_key, self._opacity_version, self._x_version)
-        if self._rendered is None or self._rendered[0] != key:
-            out = self._rendered[1] if self._rendered is not None else None
-            self._rendered = (key, filter_along_surfaces(self._x, self._sigma, self.spacing, out))
-        return np.maximum(self._rendered[1].numpy(), 0.0) * np.float32(self._light_scale)
+        return np.maximum(self._rendered_device().numpy(), 0.0) * np.float32(self._light_scale)
 
     # --- internals -------------------------------------------------------------------------
     def _update_sigma_star(self, f: float, albedo: float) -> None:
