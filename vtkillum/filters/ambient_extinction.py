@@ -103,6 +103,42 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
         """The core cache kept between executions (its ``stats`` count recomputations)."""
         return self._ambient
 
+    def distributed_unsupported(self) -> str | None:
+        if self._compute_radiance:
+            return ("the radiance cache's tube march is not distributed yet (it needs a sweep "
+                    "across ranks carrying each light's front and step phase, like "
+                    "transmittance's); ComputeRadiance off runs the ambient extinction "
+                    "distributed")
+        return None
+
+    def _world_radius(self, spacing) -> float:
+        return self._radius * float(np.mean(spacing)) if self._radius_units == "voxels" \
+            else self._radius
+
+    def distributed_ghost_levels(self, in_info=None) -> int:
+        """Ghost points holding the cube of the ambient sphere around the piece."""
+        from vtkmodules.vtkCommonDataModel import vtkDataObject
+
+        from vtkillum.core.ambient.distributed import ghost_levels_for
+
+        spacing = (1.0, 1.0, 1.0)
+        if in_info is not None and in_info.Has(vtkDataObject.SPACING()):
+            spacing = in_info.Get(vtkDataObject.SPACING())
+        return ghost_levels_for(self._world_radius(spacing), spacing)
+
+    def compute_piece(self, volume, params, piece):
+        """Distributed under MPI (``ComputeRadiance`` off): ``σ̃t`` of this rank's piece from
+        the ghost layers the input delivered (or exchanged with the neighbouring ranks),
+        :func:`vtkillum.core.ambient.distributed.distributed_ambient_extinction`."""
+        from vtkillum.core.ambient.distributed import distributed_ambient_extinction
+
+        radius = params.units.to_length(self._radius) if self._radius_units == "world" \
+            else self._radius * float(np.mean(volume.spacing))
+        sigma_tilde = distributed_ambient_extinction(
+            volume, piece.extent, piece.whole, params.transfer_function, params.unit_distance,
+            radius, device=params.device, data_extent=piece.data_extent)
+        return {"ambient_extinction": params.units.per_world_length(sigma_tilde)}
+
     def compute(self, volume, params):
         if self._ambient is None or self._ambient.device != params.device:
             # the filter outputs grids; no gather here, so no gather textures

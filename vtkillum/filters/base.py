@@ -84,10 +84,24 @@ request put in the input.
 Pieces (ParaView's MPI engine)
 ------------------------------
 Asked for piece *p* of *n* (each rank of ``mpirun -np n pvbatch`` asks for its own),
-a filter requests the whole input as one piece, computes the whole volume's
-illumination (shadows and scattered light cross pieces) and outputs piece *p* of it
-(with the ghost levels asked for, marked in ``vtkGhostType``), so every rank holds its
-piece of the one-process result; one line per layout says so.
+a filter runs in one of two modes, and one line per rank and layout says which:
+
+*distributed* (filters that implement :meth:`IlluminationFilterBase.compute_piece`:
+    light transmittance, ambient extinction without the radiance cache)
+    ``RequestUpdateExtent`` asks the input for piece *p* of *n* (VTK's split) plus the
+    ghost levels the method needs (:meth:`~IlluminationFilterBase.distributed_ghost_levels`);
+    ``RequestData`` calls the distributed core (:mod:`vtkillum.core.parallel`, mpi4py on
+    ``MPI_COMM_WORLD``, one warp device per rank), which exchanges planes or ghost layers
+    with the other ranks and never gathers the volume. Needs mpi4py, as many MPI ranks as
+    pieces, the output grid equal to the input grid (``OutputScale`` 1) and the
+    ``Distributed`` property on (default); otherwise mode 1, with the reason in the line.
+*whole volume on every rank* (mode 1, every other filter)
+    the filter requests the whole input as one piece, computes the whole volume's
+    illumination (shadows and scattered light cross pieces) and outputs piece *p* of it.
+
+Either way the output is piece *p* with the ghost levels asked for downstream, marked in
+``vtkGhostType``, so every rank holds its piece of the one-process result and IceT's
+compositing joins them without a seam. The time cache is not used in distributed mode.
 """
 
 from __future__ import annotations
@@ -621,6 +635,21 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
     def RequestUpdateExtent(self, request, inInfo, outInfo):
         in_info = inInfo[0].GetInformationObject(0)
         out_info = outInfo.GetInformationObject(0)
+        self._piece_mode = self._choose_piece_mode(in_info, out_info)
+        if self._piece_mode[0] == "distributed":
+            _, piece, pieces, _reason = self._piece_mode
+            from vtkillum.core.parallel.decomposition import split_extent
+
+            ghosts = int(self.distributed_ghost_levels(in_info))
+            whole = in_info.Get(SDDP.WHOLE_EXTENT())
+            # The piece plus its ghost levels, asked for as an extent (VTK's structured
+            # request: with a piece number as well, a source splits the extent again).
+            in_info.Set(SDDP.UPDATE_EXTENT(), split_extent(whole, piece, pieces, ghosts), 6)
+            in_info.Set(SDDP.UPDATE_PIECE_NUMBER(), 0)
+            in_info.Set(SDDP.UPDATE_NUMBER_OF_PIECES(), 1)
+            in_info.Set(SDDP.UPDATE_NUMBER_OF_GHOST_LEVELS(), 0)
+            self._pending = None  # pieces are not cached (see the module docstring)
+            return 1
         if in_info.Has(SDDP.WHOLE_EXTENT()):
             in_info.Set(SDDP.UPDATE_EXTENT(), in_info.Get(SDDP.WHOLE_EXTENT()), 6)
         # Light crosses pieces: the whole volume as one piece, whatever piece the output is
@@ -646,6 +675,15 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         self._pending = None
         try:
             self._last_error = None
+            mode = getattr(self, "_piece_mode", ("whole",))
+            if mode[0] == "distributed" and cached is None:
+                in_info = inInfo[0].GetInformationObject(0)
+                image = in_info.Get(vtkDataObject.DATA_OBJECT())
+                self._checked_time(image, in_info, out_info)
+                piece_output = self._execute_piece(image, in_info, out_info, mode[1], mode[2])
+                self._deliver_piece(output, piece_output, out_info, mode[1], mode[2])
+                self.UpdateProgress(1.0)
+                return 1
             if cached is None:
                 in_info = inInfo[0].GetInformationObject(0)
                 image = in_info.Get(vtkDataObject.DATA_OBJECT())
@@ -697,9 +735,179 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         output.Crop(extent)
         if ghosts and extent != owned:
             output.GenerateGhostArray(list(owned))
+        mode = getattr(self, "_piece_mode", ("whole", piece, pieces, None))
+        reason = mode[3] if len(mode) > 3 else None
         message = (f"{self._label()}: piece {piece + 1} of {pieces}: illumination computed on "
-                   "the whole volume on this rank and cut to its piece")
+                   "the whole volume on this rank and cut to its piece (mode: whole volume on "
+                   "every rank" + (f"; not distributed: {reason}" if reason else "") + ")")
         if message not in self._notes_given:  # once per piece layout, not per update
+            self._notes_given.add(message)
+            vtkOutputWindow.GetInstance().DisplayText(message + "\n")
+
+    # --- distributed mode (issue 36) -----------------------------------------------------------
+    def compute_piece(self, volume, params, piece):
+        """This rank's piece of the illumination, computed across MPI ranks.
+
+        Implemented by filters with a distributed core; the base class has none (mode 1).
+        ``volume`` holds the input points ``piece.data_extent`` (the piece plus the ghost
+        levels the input delivered), in canonical units like :meth:`compute`'s; ``piece``
+        is a :class:`PieceRequest`. Returns the output arrays on ``piece.extent``'s points.
+        """
+        raise NotImplementedError
+
+    def distributed_ghost_levels(self, in_info=None) -> int:
+        """Ghost levels of the input the distributed method needs around its piece."""
+        return 0
+
+    def distributed_unsupported(self) -> str | None:
+        """Why this filter runs mode 1 under MPI (None: it can run distributed).
+
+        The default: filters without :meth:`compute_piece` say what a distributed version
+        would need (:attr:`distributed_needs`).
+        """
+        if type(self).compute_piece is IlluminationFilterBase.compute_piece:
+            return self.distributed_needs
+        return None
+
+    #: What a distributed version of the method would need (said in mode 1's log line).
+    distributed_needs = "this method has no distributed version"
+
+    def SetDistributed(self, on: bool) -> None:
+        """Use the distributed core under MPI when the filter has one (default on)."""
+        self.set_parameter("_distributed", bool(on))
+
+    def GetDistributed(self) -> bool:
+        return getattr(self, "_distributed", True)
+
+    def _choose_piece_mode(self, in_info, out_info) -> tuple:
+        """``(mode, piece, pieces, reason)``: ``"distributed"`` or ``"whole"`` (mode 1)."""
+        pieces = out_info.Get(SDDP.UPDATE_NUMBER_OF_PIECES()) \
+            if out_info.Has(SDDP.UPDATE_NUMBER_OF_PIECES()) else 1
+        piece = out_info.Get(SDDP.UPDATE_PIECE_NUMBER()) \
+            if out_info.Has(SDDP.UPDATE_PIECE_NUMBER()) else 0
+        if pieces <= 1:
+            return ("whole", piece, pieces, None)
+        reason = self.distributed_unsupported()
+        if reason is None and not self.GetDistributed():
+            reason = "the Distributed property is off"
+        if reason is None and in_info.Has(SDDP.WHOLE_EXTENT()):
+            whole = in_info.Get(SDDP.WHOLE_EXTENT())
+            dims = tuple(int(whole[2 * a + 1] - whole[2 * a] + 1) for a in range(3))
+            if tuple(self.output_shape(dims)) != dims:
+                reason = ("the output grid differs from the input grid (OutputScale / "
+                          "OutputDimensions); the distributed methods compute on the data grid")
+        if reason is None:
+            from vtkillum.core.parallel.comm import mpi
+
+            MPI = mpi()
+            if MPI is None:
+                reason = "mpi4py is not installed (pip install 'vtkillum[mpi]')"
+            elif MPI.COMM_WORLD.Get_size() != pieces:
+                reason = (f"{pieces} pieces on {MPI.COMM_WORLD.Get_size()} MPI ranks; the "
+                          "distributed core needs one piece per rank")
+        return ("whole" if reason else "distributed", piece, pieces, reason)
+
+    def _execute_piece(self, image, in_info, out_info, piece: int, pieces: int):
+        """Compute this rank's piece with the distributed core (a new vtkImageData on the
+        piece's extent, without ghosts)."""
+        from vtkillum.core.parallel.comm import rank_device
+        from vtkillum.core.parallel.decomposition import split_extent
+
+        check_image_data(image)
+        self.UpdateProgress(0.0)
+        whole = tuple(in_info.Get(SDDP.WHOLE_EXTENT()))
+        extent = split_extent(whole, piece, pieces)
+        data_extent = tuple(image.GetExtent())
+        if any(data_extent[2 * a] > extent[2 * a] or data_extent[2 * a + 1] < extent[2 * a + 1]
+               for a in range(3)):
+            raise ValueError(f"piece {piece + 1} of {pieces}: the input delivered extent "
+                             f"{data_extent}, which does not hold the piece {extent}")
+        ghosted = split_extent(whole, piece, pieces, self.distributed_ghost_levels(in_info))
+        keep = tuple(max(data_extent[i], ghosted[i]) if i % 2 == 0
+                     else min(data_extent[i], ghosted[i]) for i in range(6))
+        if keep != data_extent:
+            cropped = vtkImageData()
+            cropped.DeepCopy(image)
+            cropped.Crop(keep)
+            image = cropped
+        name, association = self._selected_array(image)
+        component = "magnitude" if self._input_component == -1 else self._input_component
+        volume = volume_from_image_data(image, name, component, self._nan_policy, association)
+        if self.requires_lights and not self._lights:
+            raise ValueError(f"{type(self).__name__} has no lights; add one with "
+                             "AddDirectionalLight(direction, irradiance) or AddPointLight(...)")
+        dims = tuple(int(extent[2 * a + 1] - extent[2 * a] + 1) for a in range(3))
+        device = rank_device(None, self._device if self.uses_device else "cpu")
+        params = IlluminationParameters(
+            transfer_function=self._transfer_function(volume),
+            unit_distance=self._unit_distance or volume.mean_spacing(),
+            albedo=self._albedo, anisotropy=self._anisotropy, lights=list(self._lights),
+            device=device, output_shape=dims,
+            progress=lambda fraction: self.UpdateProgress(float(np.clip(fraction, 0.0, 1.0))),
+        )
+        request = PieceRequest(piece, pieces, extent, whole, keep)
+        units = WorldUnits.for_volume(volume)
+        inside = dataclasses.replace(params, unit_distance=units.to_length(params.unit_distance),
+                                     lights=units.lights(params.lights, volume), units=units)
+        with units.explained():
+            arrays = self.compute_piece(units.volume(volume), inside, request)
+        piece_image = vtkImageData()
+        piece_image.ShallowCopy(image)
+        if keep != extent:
+            piece_image.Crop(extent)
+        output = image_like(piece_image)
+        if self._pass_input_arrays:
+            for source, target in ((piece_image.GetPointData(), output.GetPointData()),
+                                   (piece_image.GetCellData(), output.GetCellData())):
+                for i in range(source.GetNumberOfArrays()):
+                    target.AddArray(source.GetAbstractArray(i))
+        for index, (array_name, values) in enumerate(arrays.items()):
+            values = np.asarray(values)
+            if values.dtype.kind == "f":
+                values = values.astype(np.float32, copy=False)
+            if values.shape[:3] != dims:
+                raise ValueError(f"{type(self).__name__}.compute_piece returned {array_name!r} "
+                                 f"with shape {values.shape}; expected {dims} (+ components)")
+            add_point_array(output, array_name, values, set_active=index == 0)
+        if self.requires_lights:
+            add_lights_field(output, params.lights)
+        time = self._input_time(image, out_info)
+        if time is not None:
+            output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), time)
+        return output
+
+    def _deliver_piece(self, output, piece_output, out_info, piece: int, pieces: int) -> None:
+        """Output the piece computed by :meth:`_execute_piece`, widened by the ghost levels
+        asked for downstream (filled from the neighbouring ranks, marked as ghosts)."""
+        from vtkillum.core.parallel.decomposition import Decomposition
+        from vtkillum.core.parallel.halo import halo_exchange
+        from vtkillum.io.convert import point_array
+
+        ghosts = out_info.Get(SDDP.UPDATE_NUMBER_OF_GHOST_LEVELS()) \
+            if out_info.Has(SDDP.UPDATE_NUMBER_OF_GHOST_LEVELS()) else 0
+        whole = tuple(out_info.Get(SDDP.WHOLE_EXTENT()))
+        decomposition = Decomposition.of(whole, pieces)
+        owned = decomposition.extents[piece]
+        extent = decomposition.ghosted(piece, ghosts) if ghosts else owned
+        if extent == owned:
+            output.ShallowCopy(piece_output)
+        else:
+            wide = image_like(piece_output)
+            wide.SetExtent(*extent)
+            pd = piece_output.GetPointData()
+            active = pd.GetScalars().GetName() if pd.GetScalars() is not None else None
+            for i in range(pd.GetNumberOfArrays()):
+                name = pd.GetArrayName(i)
+                values = halo_exchange(point_array(piece_output, name), decomposition,
+                                       piece, ghosts)
+                add_point_array(wide, name, values, set_active=name == active)
+            wide.GetFieldData().ShallowCopy(piece_output.GetFieldData())
+            wide.GetInformation().Copy(piece_output.GetInformation())
+            output.ShallowCopy(wide)
+            output.GenerateGhostArray(list(owned))
+        message = (f"{self._label()}: piece {piece + 1} of {pieces}: illumination computed "
+                   "distributed across the MPI ranks on this rank's piece (mode: distributed)")
+        if message not in self._notes_given:
             self._notes_given.add(message)
             vtkOutputWindow.GetInstance().DisplayText(message + "\n")
 
@@ -1035,6 +1243,22 @@ def _signature(function) -> tuple | None:
     if width == 6:
         extra = (function.GetColorSpace(), function.GetScale(), function.GetClamping())
     return (tuple(nodes), extra, function.GetClamping() if width == 4 else None)
+
+
+@dataclass(frozen=True)
+class PieceRequest:
+    """What a distributed :meth:`IlluminationFilterBase.compute_piece` is asked for.
+
+    ``piece`` of ``pieces`` (this rank's, one per MPI rank), its ``extent`` (VTK's split,
+    no ghosts; the arrays returned cover it), the input's ``whole`` extent and the
+    ``data_extent`` the volume holds (the piece plus the ghost levels delivered).
+    """
+
+    piece: int
+    pieces: int
+    extent: tuple
+    whole: tuple
+    data_extent: tuple
 
 
 def piece_extents(whole, piece: int, pieces: int, ghost_levels: int = 0) -> tuple:

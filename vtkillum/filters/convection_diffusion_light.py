@@ -94,6 +94,9 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
     residuals, and milliseconds per stage.
     """
 
+    #: Why this filter runs on the whole volume on every rank under MPI (mode 1).
+    distributed_needs = ('the distributed convection-diffusion core (vtkillum.core.convection_diffusion.distributed: the convection as a sweep across ranks, the diffusion as multigrid with halo exchange) is not wired into this filter yet')
+
     def __init__(self) -> None:
         super().__init__()
         self._output_scale = DEFAULT_LIGHT_VOLUME_SCALE

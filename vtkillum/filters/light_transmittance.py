@@ -68,6 +68,19 @@ class LightTransmittanceFilter(IlluminationFilterBase):
     def GetStepSize(self) -> float:
         return self._step_size
 
+    def compute_piece(self, volume, params, piece):
+        """Distributed under MPI: the pipelined sweep of
+        :func:`vtkillum.core.parallel.transmittance.distributed_light_transmittance` on this
+        rank's piece (no ghost levels needed: neighbouring pieces share their planes)."""
+        from vtkillum.core.parallel.transmittance import distributed_light_transmittance
+
+        transmittance, _fluence = distributed_light_transmittance(
+            volume, piece.extent, piece.whole, params.transfer_function, params.unit_distance,
+            params.lights, step_size=params.units.to_length(self._step_size) or None,
+            device=params.device, progress=params.progress)
+        illumination = IlluminationVolume.for_volume(volume, transmittance=transmittance)
+        return illumination_arrays(illumination, volume, params.lights, params.output_shape)
+
     def compute(self, volume, params):
         transmittance, _fluence = light_transmittance(
             volume, params.transfer_function, params.unit_distance, params.lights,

@@ -110,6 +110,9 @@ class ManyLightsFilter(IlluminationFilterBase):
     (``docs/many_lights.md``). :meth:`ClearCache` forgets the VLs.
     """
 
+    #: Why this filter runs on the whole volume on every rank under MPI (mode 1).
+    distributed_needs = ("a distributed version needs the random walks handed between ranks like photons, every virtual light's shadow map over the whole volume (a sweep per light or an all-gather of the coarse transmittance), and the gather of all lights on every rank; not built yet")
+
     def __init__(self) -> None:
         super().__init__()
         self.SetNumberOfOutputPorts(2)

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from vtkillum.filters.base import IlluminationFilterBase
 from vtkillum.core.resample import resample_points
+from vtkillum.filters.base import IlluminationFilterBase
 
 
 class OpticalPropertiesFilter(IlluminationFilterBase):
@@ -37,6 +37,9 @@ class OpticalPropertiesFilter(IlluminationFilterBase):
     ``sigma_t``, ``sigma_s`` and ``sigma_a`` are in 1/world units (the input's
     spacing units); ``scattering_color`` is unitless in [0, 1].
     """
+
+    #: Why this filter runs on the whole volume on every rank under MPI (mode 1).
+    distributed_needs = ('per-voxel optical properties need only the whole data range; cheap on the whole volume, not distributed')
 
     requires_lights = False
     uses_device = False

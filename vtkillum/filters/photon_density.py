@@ -74,6 +74,9 @@ class PhotonDensityFilter(IlluminationFilterBase):
     plus one 27-cell gather per output point.
     """
 
+    #: Why this filter runs on the whole volume on every rank under MPI (mode 1).
+    distributed_needs = ('a distributed version hands each photon to the rank that owns the cell it enters and gathers the density with a ghost radius; not built yet')
+
     def __init__(self) -> None:
         super().__init__()
         self._photons = 0

@@ -126,6 +126,9 @@ class RefractionRenderFilter(IlluminationFilterBase):
     property (e.g. ``RefractiveIndex: eta must be > 0 at every control point``).
     """
 
+    #: Why this filter runs on the whole volume on every rank under MPI (mode 1).
+    distributed_needs = ("a distributed version needs the plane sweep's light and viewing planes passed from rank to rank in sweep order (the rays bend across pieces), and the image composited; not built yet")
+
     def __init__(self) -> None:
         super().__init__()
         self._lights = [DirectionalLight(DEFAULT_LIGHT_DIRECTION, (1.0, 1.0, 1.0))]

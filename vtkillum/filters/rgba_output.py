@@ -62,12 +62,11 @@ import dataclasses
 import math
 
 import numpy as np
-
 from vtkmodules.vtkCommonCore import vtkDataArray, vtkInformationVector
 from vtkmodules.vtkCommonDataModel import vtkImageData
 
-from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.core.resample import resample_points
+from vtkillum.core.transfer_function import TransferFunction
 
 #: Name of the RGBA array added to the output.
 RGBA_ARRAY = "illuminated_rgba"

@@ -40,16 +40,21 @@ from vtkillum.core.parallel.halo import halo_exchange
 from vtkillum.core.parallel.transmittance import block_medium, global_value_range
 
 
+def _contains(outer, inner) -> bool:
+    return all(outer[2 * a] <= inner[2 * a] and inner[2 * a + 1] <= outer[2 * a + 1]
+               for a in range(3))
+
+
 def ghost_levels_for(radius: float, spacing) -> int:
     """Ghost points per side that hold every cube of ``radius`` (world units) around a
     piece's points: ``ceil(max h) + 1`` with ``h`` the cube's half-width in voxels (the
     cube overlaps the dual cells of the points within ``h + 1/2``)."""
-    return int(math.ceil(float(np.max(cube_half_width(radius, spacing))))) + 1
+    return math.ceil(float(np.max(cube_half_width(radius, spacing)))) + 1
 
 
 def distributed_ambient_extinction(volume, piece_extent, whole_extent, transfer_function,
                                    unit_distance: float, radius: float, comm=None,
-                                   device: str | None = None) -> np.ndarray:
+                                   device: str | None = None, data_extent=None) -> np.ndarray:
     """``σ̃t`` on this rank's piece, computed from ghost layers (collective over ``comm``).
 
     Parameters
@@ -66,6 +71,10 @@ def distributed_ambient_extinction(volume, piece_extent, whole_extent, transfer_
         Default ``MPI_COMM_WORLD``.
     device : str, optional
         Warp device; default one per rank.
+    data_extent : tuple of 6 int, optional
+        The points ``volume`` holds, when it is more than the piece (ghost levels a VTK
+        pipeline delivered). When they hold every ghost point needed, no message is
+        exchanged; otherwise the piece is cut out and the ghosts come from the neighbours.
 
     Returns
     -------
@@ -80,15 +89,25 @@ def distributed_ambient_extinction(volume, piece_extent, whole_extent, transfer_
         raise ValueError(f"rank {par.rank} of {par.size} holds extent {piece_extent}, but VTK's "
                          f"piece {par.rank} of {whole_extent} is "
                          f"{decomposition.extents[par.rank]}")
-    if tuple(volume.dims) != extent_shape(piece_extent):
+    data_extent = piece_extent if data_extent is None else tuple(int(v) for v in data_extent)
+    if tuple(volume.dims) != extent_shape(data_extent):
         raise ValueError(f"the piece's volume has {tuple(volume.dims)} points, its extent "
-                         f"{piece_extent} {extent_shape(piece_extent)}")
+                         f"{data_extent} {extent_shape(data_extent)}")
+    if not _contains(data_extent, piece_extent):
+        raise ValueError(f"the data extent {data_extent} does not hold the piece {piece_extent}")
+    ghosts = ghost_levels_for(radius, volume.spacing)
+    ghosted = decomposition.ghosted(par.rank, ghosts)
+    # The tables span the whole data range: ghost points included, every rank's range.
     value_range = global_value_range(volume, par.comm)
     medium = block_medium(volume, transfer_function, unit_distance, value_range, par.device)
     sigma_t = sigma_t_grid(medium, par.device).numpy()
-    ghosts = ghost_levels_for(radius, volume.spacing)
-    widened = halo_exchange(sigma_t, decomposition, par.rank, ghosts, par.comm)
-    ghosted = decomposition.ghosted(par.rank, ghosts)
+    # Where every rank's pipeline delivered its ghosts, no messages; else all exchange (a
+    # collective decision: a rank that skipped would leave its neighbours waiting).
+    if all(par.comm.allgather(_contains(data_extent, ghosted))):
+        widened = sigma_t[sub_slices(ghosted, data_extent)]
+    else:
+        own = np.ascontiguousarray(sigma_t[sub_slices(piece_extent, data_extent)])
+        widened = halo_exchange(own, decomposition, par.rank, ghosts, par.comm)
     sigma_tilde = ambient_extinction(wp.array(widened, dtype=wp.float32, device=par.device),
                                      volume.spacing, radius, device=par.device).numpy()
     return np.ascontiguousarray(sigma_tilde[sub_slices(piece_extent, ghosted)])

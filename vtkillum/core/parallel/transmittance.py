@@ -331,12 +331,12 @@ def face_lookup(face: wp.array2d(dtype=wp.float32), u: float, v: float):
     j = wp.clamp(int(wp.floor(vc)), 0, wp.max(nv - 2, 0))
     wu = _cubic_weights(wp.clamp(uc - float(i), 0.0, 1.0))
     wv = _cubic_weights(wp.clamp(vc - float(j), 0.0, 1.0))
-    acc = 0.0
-    lo = 1.0e30
-    hi = -1.0e30
+    acc = float(0.0)  # noqa: UP018 (a dynamic warp variable)
+    lo = float(1.0e30)  # noqa: UP018
+    hi = float(-1.0e30)  # noqa: UP018
     for a in range(4):
         ia = wp.clamp(i - 1 + a, 0, nu - 1)
-        row = 0.0
+        row = float(0.0)  # noqa: UP018
         for b in range(4):
             jb = wp.clamp(j - 1 + b, 0, nv - 1)
             value = face[ia, jb]
@@ -371,7 +371,7 @@ def block_tau_kernel(m: Medium, lights: Lights, li: int, off: wp.vec3, whole_ext
     n = int(wp.ceil(length / step))
     h = length / float(n)
     tb = ray_box(pl, w, m.extent)[1]
-    tau = 0.0
+    tau = float(0.0)  # noqa: UP018
     if tb >= length:
         for s in range(n):
             tau += block_sigma(m, pl + ((float(s) + 0.5) * h) * w)
@@ -379,8 +379,8 @@ def block_tau_kernel(m: Medium, lights: Lights, li: int, off: wp.vec3, whole_ext
         return
     tb = wp.max(tb, 0.0)
     # The plane the ray leaves by: the axis whose bounding plane it meets first.
-    axis = -1
-    best = 1.0e30
+    axis = wp.int32(-1)
+    best = float(1.0e30)  # noqa: UP018
     for a in range(3):
         if wp.abs(w[a]) >= 1.0e-12:
             bound = wp.where(w[a] > 0.0, m.extent[a], 0.0)
