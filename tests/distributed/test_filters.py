@@ -56,9 +56,10 @@ def _arrays(image):
             for i in range(pd.GetNumberOfArrays()) if pd.GetArrayName(i) != "vtkGhostType"}
 
 
-# transmittance: the sweep's plane interpolation (measured 4.1e-2 in T next to the point
-# light 4 voxels from the cut, see tests/distributed/test_transmittance.py); ambient: exact.
-@pytest.mark.parametrize("kind,tol", [("transmittance", 5e-2), ("ambient", 1e-5)])
+# transmittance: the sweep's plane interpolation (measured in T, worst next to the point
+# light 4 voxels from the cuts: 4.1e-2 on 2 ranks, 5.8e-2 on 4 where its rays cross two
+# cuts; see vtkillum.core.parallel.transmittance); ambient: exact but for rounding.
+@pytest.mark.parametrize("kind,tol", [("transmittance", 7.5e-2), ("ambient", 1e-5)])
 @pytest.mark.parametrize("ghosts", [0, 1])
 def test_distributed_filter_gives_its_piece_of_the_one_rank_output(par, capfd, kind, tol,
                                                                     ghosts):
