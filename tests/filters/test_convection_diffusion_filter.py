@@ -5,6 +5,7 @@ import pytest
 from helpers import constant_opacity_filter, offscreen_window, read_window_rgb
 from vtkmodules.vtkCommonDataModel import vtkDataObject
 
+from vtkillum.core.convection_diffusion.solver import DEFAULT_TOLERANCE
 from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.filters.convection_diffusion_light import ConvectionDiffusionLightFilter
 from vtkillum.io.convert import point_array
@@ -50,11 +51,11 @@ def test_half_resolution_light_volume_in_world_space(make_image):
 def test_properties(make_image):
     f = make_filter()
     assert f.GetLightVolumeScale() == 0.5 and f.GetScattering() == (0.0, 0.0, 0.0)
-    assert f.GetDiffusionModel() == "physical" and f.GetTolerance() == 1e-4
+    assert f.GetDiffusionModel() == "physical" and f.GetTolerance() == DEFAULT_TOLERANCE
     before = f.GetMTime()
     f.SetScattering(0.0)
     f.SetIterations(0)
-    f.SetTolerance(1e-4)
+    f.SetTolerance(DEFAULT_TOLERANCE)
     f.SetSolver("multigrid")
     f.SetDiffusionModel("physical")
     assert f.GetMTime() == before  # unchanged values do not re-execute

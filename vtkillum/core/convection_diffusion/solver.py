@@ -98,6 +98,12 @@ MODELS = ("physical", "paper")
 #: Solvers of the physical model (its operator changes every outer iteration).
 PHYSICAL_SOLVERS = ("multigrid", "gauss-seidel")
 
+#: Relative residual at which the diffusion stops by default: the loosest tolerance at
+#: which more iterations would change the image by less than a tenth of the method's
+#: measured error against ``path``, on a first image and after a transfer-function edit
+#: (docs/convection_diffusion_tolerance.md, ``benchmarks/cd_tolerance.py``).
+DEFAULT_TOLERANCE = 3e-4
+
 #: Options of the method (scene section ``convection_diffusion``) and their defaults.
 OPTIONS = {
     "light_volume_scale": 0.5,
@@ -105,7 +111,7 @@ OPTIONS = {
     "scattering": [0.0, 0.0, 0.0],
     "iterations": 0,
     "solver": "multigrid",
-    "tolerance": 1e-4,
+    "tolerance": DEFAULT_TOLERANCE,
     "source_radius": 0.0,
 }
 
@@ -188,7 +194,8 @@ class ConvectionDiffusionSolver:
         :data:`~vtkillum.core.convection_diffusion.diffusion.SOLVERS` (``"physical"``:
         ``"multigrid"`` or ``"gauss-seidel"``).
     tolerance : float
-        Relative residual at which the diffusion is converged.
+        Relative residual at which the diffusion is converged (default
+        :data:`DEFAULT_TOLERANCE`, chosen by accuracy).
     iterations : int
         Diffusion iteration budget per update (0: until ``tolerance``, up to
         :data:`MAX_ITERATIONS`). A budget-limited update leaves ``converged`` False and the
@@ -222,7 +229,8 @@ class ConvectionDiffusionSolver:
 
     def __init__(self, light_volume_scale: float = 0.5, light_volume_shape=None,
                  diffusion_model: str = "physical", scattering=(0.0, 0.0, 0.0),
-                 solver: str = "multigrid", tolerance: float = 1e-4, iterations: int = 0,
+                 solver: str = "multigrid", tolerance: float = DEFAULT_TOLERANCE,
+                 iterations: int = 0,
                  source_radius: float = 0.0, warm_start: bool = True,
                  convection_scheme: str = "characteristics",
                  flux_limiter: str = "levermore-pomraning", first_moment: bool = True,
