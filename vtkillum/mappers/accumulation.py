@@ -33,7 +33,9 @@ frames (each within half a level of its radiance; the varying offsets dither the
 written back rounded to 8 bits.
 
 Volumes take part through duck typing: every prop of the renderer that has
-``content_mtime()``, ``set_frame(index, hold)``, ``jitter`` and ``accumulate``
+``content_mtime()``, ``set_frame(index, hold, moving)`` (``moving``: frame 0 in a window
+with an initialised interactor, where a volume may sample more coarsely: the timer's
+frames refine it), ``jitter`` and ``accumulate``
 (:class:`~vtkillum.mappers.IlluminatedVolume`). A renderer accumulates when at least one
 visible such prop has ``jitter`` on and ``accumulate > 0``; it sums up to the largest
 ``accumulate``. Renderers are attached by the volumes themselves (at their first render),
@@ -212,8 +214,11 @@ class FrameAccumulator:
         if self._sum is not None and self.count >= self.limit:
             self.converged = True
         self._hold = self.converged
+        window = renderer.GetRenderWindow()
+        interactor = window.GetInteractor() if window is not None else None
+        moving = self.frame == 0 and interactor is not None and bool(interactor.GetInitialized())
         for prop in ours:
-            prop.set_frame(self.frame, self._hold)
+            prop.set_frame(self.frame, self._hold, moving)
         self._key = self._view_key(renderer, ours, others)
 
     def _on_end(self, renderer, event) -> None:

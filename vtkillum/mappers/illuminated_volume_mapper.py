@@ -228,6 +228,9 @@ NEAR_CELLS = 2.0
 #: Default frames an :class:`IlluminatedVolume` averages while the view rests.
 ACCUMULATE = 16
 
+#: Default sample-distance factor while the view moves in an interactive window.
+INTERACTIVE_STEP = 2.0
+
 #: Ports of the mapper (= indices of ``in_volume[]`` in the shader).
 OPTICS_PORT, DATA_PORT, DIRECT_PORT_A, DIRECT_PORT_B, SCATTERED_PORT = range(5)
 
@@ -264,6 +267,16 @@ UNIFORMS = {
     "il_frame": "int: frame of the accumulation (0: a frame after a change; "
                 "vtkillum.mappers.accumulation)",
     "il_hold": "int: 1 draws nothing (the accumulator shows its stored mean)",
+    "il_stepScale": "float: sample distance factor of this frame (1; interactive_step while "
+                    "the view moves in an interactive window)",
+    "il_skip": "int: 1 leaps over blocks whose samples are all empty (occupancy rows of "
+               "the optics image)",
+    "il_blockSize": "vec3: size of an occupancy block (world units)",
+    "il_blockCount": "vec3: occupancy blocks along each axis",
+    "il_taQ": "vec4: factor from the stored to the physical value of the T_0..T_3 texture "
+              "(1/65535 for 16-bit, 1 for float)",
+    "il_tbQ": "vec4: likewise for T_4..T_7",
+    "il_scQ": "vec4: likewise for the scattered fluence",
 }
 
 # --- GLSL ----------------------------------------------------------------------------------------
@@ -276,6 +289,7 @@ GLSL_LAYOUT_DEC = """//VTK::Shading::Dec
 #define IL_OPTICS_ROW %(row)d
 #define IL_OPTICS_SHIFT %(shift)d
 #define IL_PHONG %(phong)d
+#define IL_OCC_ROW %(occ_row)d
 
 mat4 il_texToLocal;  // VTK's texture coordinates of the box -> local frame (set per ray)
 
@@ -421,17 +435,29 @@ float il_gridTransmittance(int l, vec3 p)
   vec3 q = clamp(p, vec3(0.0), il_extent);
   if (l < 4)
   {
-    return texture3D(in_volume[%(ta)d], q * il_taScale + il_taBias)[l] * il_taA[l] + il_taB[l];
+    return (texture3D(in_volume[%(ta)d], q * il_taScale + il_taBias)[l] * il_taA[l] + il_taB[l])
+      * il_taQ[l];
   }
   int c = l - 4;
-  return texture3D(in_volume[%(tb)d], q * il_tbScale + il_tbBias)[c] * il_tbA[c] + il_tbB[c];
+  return (texture3D(in_volume[%(tb)d], q * il_tbScale + il_tbBias)[c] * il_tbA[c] + il_tbB[c])
+    * il_tbQ[c];
 }
 
 // Scattered fluence phi_s (RGB) at local position p, trilinear.
 vec3 il_scatteredFluence(vec3 p)
 {
   vec3 tex = clamp(p, vec3(0.0), il_extent) * il_scScale + il_scBias;
-  return texture3D(in_volume[%(sc)d], tex).xyz * il_scA.xyz + il_scB.xyz;
+  return (texture3D(in_volume[%(sc)d], tex).xyz * il_scA.xyz + il_scB.xyz) * il_scQ.xyz;
+}
+
+// Occupancy: 1 where block b (of il_blockCount, il_blockSize each, covering the points of
+// its cells) holds a data value whose sigma_t may be > 0, 0 where every sample in it is
+// empty; stored after the optics table, entry i at x = i %% 256, y = IL_OCC_ROW + i / 256.
+bool il_blockEmpty(vec3 b)
+{
+  int i = int(b.x) + int(il_blockCount.x) * (int(b.y) + int(il_blockCount.y) * int(b.z));
+  return texelFetch(in_volume[%(opt)d], ivec3(i & 255, IL_OCC_ROW + (i >> 8), 0), 0).r
+    * il_optA + il_optB < 0.5;
 }
 """
 
@@ -653,6 +679,13 @@ GLSL_RAY_INIT = """//VTK::Shading::Init
                                 vec4(-dot(il_origin, il_axis0), -dot(il_origin, il_axis1),
                                      -dot(il_origin, il_axis2), 1.0));
     il_texToLocal = il_worldToLocal * il_texToWorld;
+    g_dataPos -= g_rayJitter;
+    if (il_stepScale != 1.0)
+    {
+      g_dirStep *= il_stepScale;
+      g_lengthStep *= il_stepScale;
+      g_terminatePointMax /= il_stepScale;
+    }
     vec3 il_stepWorld = (il_texToWorld * vec4(g_dirStep, 0.0)).xyz;
     il_step = length(il_stepWorld);
     il_dir = il_dirToLocal(il_stepWorld / il_step);
@@ -664,7 +697,7 @@ GLSL_RAY_INIT = """//VTK::Shading::Init
                                                   vec2(0.06711056, 0.00583715))));
       il_xi = fract(il_ign + fract(float(il_frame) * 0.6180339887));
     }
-    g_dataPos += il_xi * g_dirStep - g_rayJitter;
+    g_dataPos += il_xi * g_dirStep;
   }
 """
 
@@ -677,6 +710,25 @@ GLSL_SAMPLE = """
       vec3 il_tol = 1.0e-5 * il_extent;
       bool il_inside = all(greaterThanEqual(il_p, -il_tol)) &&
         all(lessThanEqual(il_p, il_extent + il_tol));
+      if (il_inside && il_skip != 0)
+      {
+        vec3 il_b = clamp(floor(il_p / il_blockSize), vec3(0.0), il_blockCount - 1.0);
+        if (il_blockEmpty(il_b))
+        {
+          // every sample up to the block's exit is empty: leap over whole steps
+          vec3 il_lo = il_b * il_blockSize;
+          vec3 il_hi = min(il_lo + il_blockSize, il_extent);
+          vec3 il_d = mix(vec3(1.0e-20), il_dir, greaterThan(abs(il_dir), vec3(1.0e-20)));
+          vec3 il_t = max((il_lo - il_p) / il_d, (il_hi - il_p) / il_d);
+          float il_k = floor(min(il_t.x, min(il_t.y, il_t.z)) / il_step);
+          if (il_k >= 1.0)
+          {
+            g_dataPos += il_k * g_dirStep;
+            g_currentT += il_k;
+          }
+          il_inside = false;
+        }
+      }
       float il_s = il_inside ? il_scalar(il_p) : 0.0;
       float il_sigma = il_inside ? il_sigmaT(il_s) : 0.0;
       if (il_sigma > 0.0)
@@ -704,6 +756,7 @@ def glsl_layout_dec(max_lights: int = MAX_LIGHTS, phong: bool = True) -> str:
     values = {"max_lights": int(max_lights), "row": OPTICS_ROW, "shift": shift,
               "phong": int(bool(phong)), **ports}
     values.update({f"{k}4": 4 * v for k, v in ports.items()})
+    values["occ_row"] = -(-TABLE_SIZE // OPTICS_ROW)
     return GLSL_LAYOUT_DEC % values
 
 
@@ -759,7 +812,8 @@ class IlluminatedVolume(vtkMultiVolume):
     def __init__(self, data, scene: Scene | None = None, illumination=None,
                  array_name: str | None = None, exposure: float = 1.0,
                  near_cells: float = NEAR_CELLS, jitter: bool = True,
-                 accumulate: int = ACCUMULATE) -> None:
+                 accumulate: int = ACCUMULATE,
+                 interactive_step: float = INTERACTIVE_STEP) -> None:
         super().__init__()
         self.inputs = IlluminationInputs()
         self.inputs.SetArrayName(array_name)
@@ -801,6 +855,8 @@ class IlluminatedVolume(vtkMultiVolume):
         self.jitter = jitter
         self._accumulate = 0
         self.accumulate = accumulate
+        self._interactive_step = 1.0
+        self.interactive_step = interactive_step
         self.set_frame(0, False)
         # Attach the renderers that show this volume to their accumulator at each render
         # (a weak reference: the mapper must not keep its volume alive).
@@ -922,8 +978,29 @@ class IlluminatedVolume(vtkMultiVolume):
                              "plotter.add_actor) first")
         return acc.refine(frames)
 
-    def set_frame(self, index: int, hold: bool) -> None:
-        """Sample with the offsets of accumulation frame ``index``; ``hold``: draw nothing.
+    @property
+    def interactive_step(self) -> float:
+        """Sample-distance factor of the frames drawn while the view moves (default
+        :data:`INTERACTIVE_STEP`; 1: every frame at the scene's step).
+
+        Applies only to frame 0 of an accumulation in a window with an initialised
+        interactor (a drag, or the still frame that ends it); the interactor's timer then
+        adds frames at the scene's step, so the picture at rest is the full-quality mean.
+        Off-screen windows and scripts (no interactor) always sample at the scene's step.
+        """
+        return self._interactive_step
+
+    @interactive_step.setter
+    def interactive_step(self, value: float) -> None:
+        value = float(value)
+        if not (math.isfinite(value) and value >= 1.0):
+            raise ValueError(f"interactive_step must be a number >= 1, got {value}")
+        self._interactive_step = value
+
+    def set_frame(self, index: int, hold: bool, moving: bool = False) -> None:
+        """Sample with the offsets of accumulation frame ``index``; ``hold``: draw nothing;
+        ``moving``: the view moves in an interactive window (sample distance times
+        :attr:`interactive_step`).
 
         Called by the renderer's :class:`~vtkillum.mappers.accumulation.FrameAccumulator`
         before each render; changes no modification time.
@@ -931,6 +1008,33 @@ class IlluminatedVolume(vtkMultiVolume):
         uniforms = self.GetShaderProperty().GetFragmentCustomUniforms()
         uniforms.SetUniformi("il_frame", int(index))
         uniforms.SetUniformi("il_hold", int(bool(hold)))
+        uniforms.SetUniformf("il_stepScale",
+                             float(self._interactive_step) if moving and self._jitter else 1.0)
+
+    @property
+    def skip_empty(self) -> bool:
+        """Leap over blocks of the data whose samples are all empty (default True; the
+        picture is the same, see the module docstring)."""
+        return self.inputs.skip_empty
+
+    @skip_empty.setter
+    def skip_empty(self, value: bool) -> None:
+        self.inputs.skip_empty = bool(value)
+        self.inputs.Modified()
+        self.Modified()
+
+    @property
+    def illumination_16bit(self) -> bool:
+        """Keep illumination grids as 16-bit fixed point (default True) or float32."""
+        return self.inputs.illumination_16bit
+
+    @illumination_16bit.setter
+    def illumination_16bit(self, value: bool) -> None:
+        if bool(value) != self.inputs.illumination_16bit:
+            self.inputs.illumination_16bit = bool(value)
+            self.inputs._light_key = None  # re-pack the grids
+            self.inputs.Modified()
+            self.Modified()
 
     def content_mtime(self) -> int:
         """Latest modification of anything that changes this volume's picture.
@@ -1072,9 +1176,15 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
         self._scene = Scene()
         self._illumination = None
         self._illumination_version = 0
+        #: Leap over blocks whose samples are all empty (the image is the same).
+        self.skip_empty = True
+        #: Store illumination grids as 16-bit fixed point (True) or float32 (False).
+        self.illumination_16bit = True
         self._data_key = None
         self._light_key = None
         self._volume = None
+        self._blocks = None
+        self._quantisation = {"il_taQ": [1.0] * 4, "il_tbQ": [1.0] * 4, "il_scQ": [1.0] * 4}
 
     def FillInputPortInformation(self, port, info):
         info.Set(vtkAlgorithm.INPUT_REQUIRED_DATA_TYPE(), "vtkImageData")
@@ -1187,16 +1297,22 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
         self.illumination = illumination
         self.lights = lights
 
-        # Optical model: re-made on every execution (it is small).
+        # Optical model and occupancy: re-made on every execution (small: the data's
+        # per-block ranges are kept while the data do not change).
         tf = scene.resolved_transfer_function(volume)
         unit = scene.resolved_unit_distance(volume)
         sigma, color, lo, hi = tf.lookup_tables(unit, volume.value_range)
-        optics = optics_rows(color, sigma)
+        if refresh_data or self._blocks is None:
+            self._blocks = BlockRanges(volume)
+        occupied = self._blocks.occupied(sigma, lo, hi)
+        optics = optics_rows(color, sigma, occupied)
         out.ShallowCopy(image_like(volume, shape=optics.shape))
         add_point_array(out, "optics", optics, set_active=True)
         if self.uniforms is not None:
             values = shading_uniforms(volume, scene, lights, illumination, self.near_cells,
                                       (lo, hi, len(sigma)))
+            values.update(self._blocks.uniforms(self.skip_empty))
+            values.update(self._quantisation)
             set_uniforms(self.uniforms, values)
 
     def _set_light_images(self, volume, illumination, n_lights: int) -> None:
@@ -1208,23 +1324,25 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
         # Placeholders cover the data's box too: the ray caster marches the union of all
         # inputs' boxes.
         placeholder = np.zeros((2, 2, 2, 4), np.float32)
-        for half, target in enumerate(self.direct_images):
+        quant = {"il_taQ": [1.0] * 4, "il_tbQ": [1.0] * 4, "il_scQ": [1.0] * 4}
+        for half, (target, key) in enumerate(zip(self.direct_images, ("il_taQ", "il_tbQ"))):
             channels = None if transmittance is None else transmittance[4 * half: 4 * half + 4]
             if channels is None or len(channels) == 0:
                 _set_image(target, image_like(volume, shape=(2, 2, 2)), "unused", placeholder)
                 continue
-            packed = np.zeros(channels.shape[1:] + (4,), np.float32)
-            packed[..., : len(channels)] = np.moveaxis(channels, 0, -1)
+            packed, quant[key] = pack_channels(np.moveaxis(np.asarray(channels), 0, -1),
+                                               self.illumination_16bit, unit_range=True)
             _set_image(target, image_like(volume, shape=packed.shape[:3]), "transmittance",
                        packed)
         if scattered is None:
             _set_image(self.scattered_image, image_like(volume, shape=(2, 2, 2)), "unused",
                        placeholder)
         else:
-            packed = np.zeros(scattered.shape[:3] + (4,), np.float32)
-            packed[..., :3] = scattered
+            packed, quant["il_scQ"] = pack_channels(np.asarray(scattered),
+                                                    self.illumination_16bit)
             _set_image(self.scattered_image, image_like(volume, shape=packed.shape[:3]),
                        "scattered_fluence", packed)
+        self._quantisation = quant
 
 
 # --- uniforms --------------------------------------------------------------------------------------
@@ -1305,20 +1423,23 @@ def set_uniforms(uniforms, values: dict) -> None:
             uniforms.SetUniformf(name, value)
         elif len(value) == 3 and name not in ("il_lights", "il_lightRGB", "il_lightRadius"):
             uniforms.SetUniform3f(name, value)
-        elif name == "il_shading":
+        elif name == "il_shading" or name.endswith("Q"):
             uniforms.SetUniform4f(name, value)
         else:
             uniforms.SetUniform1fv(name, len(value), value)
 
 
 # --- host helpers ----------------------------------------------------------------------------------
-def optics_rows(color: np.ndarray, sigma_t: np.ndarray) -> np.ndarray:
-    """The colour and σt tables as a one-component ``(4 OPTICS_ROW, rows, 2)`` float32 image.
+def optics_rows(color: np.ndarray, sigma_t: np.ndarray,
+                occupied: np.ndarray | None = None) -> np.ndarray:
+    """The colour and σt tables (and the occupancy) as a one-component float32 image.
 
     Component ``c`` (0–2 colour, 3 σt) of entry ``i`` sits at
-    ``(4 (i % OPTICS_ROW) + c, i // OPTICS_ROW)`` in both z slices. (One component:
-    VTK's multi-volume normalises the textures of all inputs only when input 0 has
-    independent components, i.e. one component here.)
+    ``(4 (i % OPTICS_ROW) + c, i // OPTICS_ROW)`` in both z slices; the shape is
+    ``(4 OPTICS_ROW, rows, 2)``. With ``occupied`` (one flag per block, x fastest:
+    :meth:`BlockRanges.occupied`), its entry ``j`` follows at ``(j % 256, rows + j // 256)``
+    (1 or 0). (One component: VTK's multi-volume normalises the textures of all inputs
+    only when input 0 has independent components, i.e. one component here.)
     """
     n = int(sigma_t.shape[0])
     rows = -(-n // OPTICS_ROW)
@@ -1326,14 +1447,122 @@ def optics_rows(color: np.ndarray, sigma_t: np.ndarray) -> np.ndarray:
     flat[:n, :3] = color
     flat[:n, 3] = sigma_t
     grid = flat.reshape(rows, OPTICS_ROW * 4).T  # [4 * (i % row) + c, i // row]
+    if occupied is not None:
+        width = 4 * OPTICS_ROW
+        flags = np.asarray(occupied, bool).reshape(-1, order="F")
+        occ = np.zeros(-(-flags.size // width) * width, np.float32)
+        occ[: flags.size] = flags
+        grid = np.concatenate([grid, occ.reshape(-1, width).T], axis=1)
     return np.ascontiguousarray(np.repeat(grid[:, :, None], 2, axis=2))
 
 
+#: Most occupancy blocks (256 per image row; llvmpipe takes 3D textures up to 2048 rows).
+MAX_BLOCKS = 256 * 1024
+
+
+class BlockRanges:
+    """Per-block data ranges, for leaping over blocks whose samples are all empty.
+
+    Block ``b`` covers the cells ``[b B, (b + 1) B]`` of each axis (``B`` points: 8, or
+    more so that there are at most :data:`MAX_BLOCKS`), i.e. every point a trilinear
+    sample inside it interpolates. One pass over the data when they change (kept while
+    they do not); a transfer-function edit only re-reads the small ranges.
+    """
+
+    def __init__(self, volume: Volume) -> None:
+        dims = np.asarray(volume.dims)
+        size = 8
+        while np.prod(-(-(dims - 1) // size)) > MAX_BLOCKS:
+            size *= 2
+        self.size = size
+        self.count = -(-(dims - 1) // size)
+        self.block_extent = np.asarray(volume.spacing, np.float64) * size
+        a = np.asarray(volume.scalars, np.float32)
+        lo, hi = a, a
+        for axis in range(3):
+            lo = _block_reduce(lo, size, axis, np.minimum)
+            hi = _block_reduce(hi, size, axis, np.maximum)
+        self.lo, self.hi = lo, hi
+        self.nan = ~(np.isfinite(lo) & np.isfinite(hi))
+
+    def occupied(self, sigma_t: np.ndarray, lo: float, hi: float) -> np.ndarray:
+        """True where a sample in the block may have σt > 0 (table of ``len(sigma_t)``
+        entries over ``[lo, hi]``, interpolated linearly as the shader does); a margin of
+        one entry on each side keeps it conservative."""
+        n = int(sigma_t.shape[0])
+        scale = (n - 1) / (hi - lo) if hi > lo else 0.0
+        nonzero = np.concatenate([[0], np.cumsum(np.asarray(sigma_t) > 0)])
+
+        def index(v):
+            return np.clip(np.floor((np.nan_to_num(v).astype(np.float64) - lo) * scale),
+                           0, n - 1).astype(np.int64)
+
+        i0 = np.clip(index(self.lo) - 1, 0, n - 1)
+        i1 = np.clip(index(self.hi) + 2, 0, n - 1)
+        return (nonzero[i1 + 1] - nonzero[i0] > 0) | self.nan
+
+    def uniforms(self, enabled: bool) -> dict:
+        return {"il_skip": int(bool(enabled)),
+                "il_blockSize": [float(v) for v in self.block_extent],
+                "il_blockCount": [float(v) for v in self.count]}
+
+
+def _block_reduce(a: np.ndarray, size: int, axis: int, fn) -> np.ndarray:
+    """``fn`` over the points ``[b size, min((b + 1) size, n - 1)]`` of each block along
+    ``axis`` (neighbouring blocks share their border points)."""
+    n = a.shape[axis]
+    blocks = max(1, -(-(n - 1) // size))
+    starts = np.arange(blocks) * size
+    out = fn.reduceat(a, starts, axis=axis)
+    if blocks > 1:
+        border = np.take(a, starts[1:], axis=axis)
+        head = [slice(None)] * a.ndim
+        head[axis] = slice(0, blocks - 1)
+        out[tuple(head)] = fn(out[tuple(head)], border)
+    return out
+
+
+def pack_channels(values: np.ndarray, sixteen_bit: bool, unit_range: bool = False):
+    """Up to 4 channels (last axis) as a 4-component texture image and its factors.
+
+    Returns ``(image, q)``: ``image`` float32, or uint16 with ``sixteen_bit`` (half the
+    bytes of float32: texture uploads and the texture unit's reads); ``q`` (4 floats) turns
+    a stored value back into the physical one. 16 bit: ``round(v / q)`` with
+    ``q = 1 / 65535`` for transmittances (``unit_range``, clipped to [0, 1]) and
+    ``q = max / 65535`` per channel otherwise (non-negative values): an absolute error of
+    at most ``q / 2``.
+    """
+    values = np.asarray(values, np.float32)
+    c = values.shape[-1]
+    q = [1.0] * 4
+    if not sixteen_bit:
+        packed = np.zeros(values.shape[:3] + (4,), np.float32)
+        packed[..., :c] = values
+        return packed, q
+    packed = np.zeros(values.shape[:3] + (4,), np.uint16)
+    for k in range(c):
+        channel = values[..., k]
+        if unit_range:
+            top = 1.0
+            channel = np.clip(channel, 0.0, 1.0)
+        else:
+            top = float(np.max(channel)) if channel.size else 0.0
+            channel = np.maximum(channel, 0.0)
+        if top > 0:
+            q[k] = top / 65535.0
+            packed[..., k] = np.rint(channel * np.float32(65535.0 / top))
+    return packed, q
+
+
 def _set_image(target: vtkImageData, geometry: vtkImageData, name: str, values) -> None:
-    """Give ``target`` the geometry of ``geometry`` and ``values`` as its active scalars."""
+    """Give ``target`` the geometry of ``geometry`` and ``values`` as its active scalars
+    (float32, or uint16 kept as is)."""
     target.Initialize()
     target.CopyStructure(geometry)
-    add_point_array(target, name, np.asarray(values, dtype=np.float32), set_active=True)
+    values = np.asarray(values)
+    if values.dtype != np.uint16:
+        values = values.astype(np.float32, copy=False)
+    add_point_array(target, name, values, set_active=True)
     target.Modified()
 
 
@@ -1354,11 +1583,12 @@ def _as_fluence_array(array: np.ndarray) -> np.ndarray:
 
 
 __all__ = [
+    "ACCUMULATE",
     "GLSL_LAYOUT_DEC",
     "GLSL_RAY_INIT",
     "GLSL_SAMPLE",
     "GLSL_SHADING_DEC",
-    "ACCUMULATE",
+    "INTERACTIVE_STEP",
     "MAX_LIGHTS",
     "NEAR_CELLS",
     "UNIFORMS",
