@@ -127,3 +127,23 @@ def test_no_lights_is_an_error():
     volume = Volume(np.ones((4, 4, 4)))
     with pytest.raises(ValueError, match="at least one light"):
         light_transmittance(volume, TransferFunction([0.0], [0.5]), 1.0, [], device="cpu")
+
+
+def test_deep_in_opaque_data_the_shadow_stays_dark(device):
+    """Optical depths 0 to 40 across a homogeneous cube: where T > 1e-4 it is Beer-Lambert
+    to 1e-3 (relative), and deeper the march may stop early but never reports more than
+    SHADOW_STOP_T (a stop at the primary ray's 1e-2 once left such points 100x too bright)."""
+    from vtkillum.core.warp_common import SHADOW_STOP_T
+
+    n = 41
+    volume = Volume(np.ones((n, 4, 4)), spacing=(1.0, 1.0, 1.0))
+    sigma = 1.0  # optical depth 1 per voxel
+    tf = TransferFunction([0.0, 2.0], [1 - np.exp(-sigma), 1 - np.exp(-sigma)])
+    T, _ = light_transmittance(volume, tf, 1.0, [DirectionalLight((1.0, 0.0, 0.0))],
+                               device=device)
+    depth = np.arange(n, dtype=np.float64)  # light enters at x = 0
+    exact = np.exp(-sigma * depth)
+    t = T[0, :, 2, 2].astype(np.float64)
+    visible = exact > 1e-4
+    np.testing.assert_allclose(t[visible], exact[visible], rtol=1e-3)
+    assert np.all(t[~visible] <= np.maximum(exact[~visible], SHADOW_STOP_T) * 1.0001)

@@ -56,6 +56,7 @@ from vtkillum.core.raymarch import (
 )
 from vtkillum.core.render import RenderResult
 from vtkillum.core.warp_common import (
+    SHADOW_STOP_T,
     CameraParams,
     LightGrid,
     Lights,
@@ -430,8 +431,8 @@ def raycast_kernel(
                     shadow_xi = float(0.5)
                     if jitter != 0:
                         shadow_xi = wp.randf(state)
-                    src = m.albedo * wp.cw_mul(
-                        col, single_scatter_light(m, lights, p, d, step, shadow_xi, stop_t))
+                    src = m.albedo * wp.cw_mul(col, single_scatter_light(
+                        m, lights, p, d, step, shadow_xi, SHADOW_STOP_T))
                 else:
                     shadow_xi = float(0.5)
                     if jitter != 0:
