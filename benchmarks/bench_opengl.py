@@ -37,11 +37,37 @@ taking turns frame by frame:
   rounds of their ratio), a still frame that adds to the mean (read back, summed,
   written back) and a frame once the mean converged.
 
+``--interactive`` (issue 35) times, per illumination kind (the textures each method hands
+``IlluminatedVolume``: transmittance; transmittance + scattered fluence for
+convection-diffusion; scattered fluence alone for photon density and many-lights
+fluence) and volume size, a camera move (after, and before: float32 grids without
+empty-block leaps), the same move in an interactive window (``interactive_step`` 2),
+and a TF edit to the new frame from host arrays (16-bit and float32 grids; the method's
+own compute is not included), and counts 3D uploads per camera move. Measured on an
+NVIDIA H200 (EGL, VTK 9.7.2), 1024², CT phantom, 2 lights, grids at half the points:
+
+=====  ====================  ==========  ======  ==========  ===============
+data   illumination          before ms   after   moving      TF edit 16/32 b
+=====  ====================  ==========  ======  ==========  ===============
+256³   transmittance         221         163     61          266 / 360
+256³   convection-diffusion  239         166     62          404 / 559
+256³   photon density        78          33      20          121 / 166
+512³   transmittance         462         350     129         1039 / 1363
+512³   convection-diffusion  498         359     134         2015 / 2662
+512³   photon density        161         64      37          963 / 1062
+=====  ====================  ==========  ======  ==========  ===============
+
+``--interop`` (same run): a 256³ RGBA16 grid (134 MB) from a warp array through a
+registered pixel buffer into a 3D texture took 3.6 ms, through the host 137 ms (128³:
+0.9 / 17.6 ms).
+
 Examples
 --------
 VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow python benchmarks/bench_opengl.py
 python benchmarks/bench_opengl.py --size 128 --image 512 --frames 5 --reach 0.25 1.0
 python benchmarks/bench_opengl.py --quality --image 256 --datasets head mni mni-half
+VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow python benchmarks/bench_opengl.py --interactive \
+    --sizes 256 512 --image 1024 --interop
 """
 
 from __future__ import annotations
@@ -379,6 +405,237 @@ def _quality_times(window, renderer, volumes, frames: int) -> dict:
             "converged": statistics.median(converged)}
 
 
+# --- --interactive: camera move and TF edit per illumination kind, sizes, GPU named -----------
+#: What each illumination-volume method hands IlluminatedVolume (the frame's cost depends on
+#: the textures bound and the data's sigma_t, not on the illumination's values):
+#: transmittance channels, scattered fluence.
+KINDS = {
+    "transmittance": (True, False),
+    "convection-diffusion": (True, True),
+    "photon density": (False, True),
+    "many-lights fluence": (False, True),
+}
+
+
+def gl_renderer(window) -> str:
+    """The OpenGL renderer string (the GPU's name) of a window that has rendered."""
+    import ctypes
+
+    from vtkillum.mappers.gl_trace import _glad_library
+
+    lib = _glad_library()
+    slot = ctypes.c_void_p.in_dll(lib, "vtk_glad_glGetString")
+    get = ctypes.CFUNCTYPE(ctypes.c_char_p, ctypes.c_uint)(slot.value)
+    window.MakeCurrent()
+    return (get(0x1F01) or b"?").decode()  # GL_RENDERER
+
+
+def upsampled_ct(size: int):
+    """A CT phantom of ``size``³ points: the phantom at ``min(size, 256)`` points, upsampled
+    trilinearly (torch on the GPU where there is one; the procedural phantom takes minutes
+    at 512³ in numpy)."""
+    base = procedural.ct_phantom(min(size, 256))
+    if size <= 256:
+        return base
+    import dataclasses
+
+    try:
+        import torch
+
+        dev = "cuda" if torch.cuda.is_available() else "cpu"
+        t = torch.from_numpy(np.ascontiguousarray(base.scalars))[None, None].to(dev)
+        up = torch.nn.functional.interpolate(t, size=(size,) * 3, mode="trilinear",
+                                             align_corners=True)[0, 0].cpu().numpy()
+    except ImportError:
+        from scipy.ndimage import zoom
+
+        up = zoom(base.scalars, size / base.dims[0], order=1)
+    spacing = base.spacing * (base.dims[0] - 1) / (size - 1)
+    return dataclasses.replace(base, scalars=np.ascontiguousarray(up, np.float32),
+                               spacing=spacing)
+
+
+def synthetic_illumination(volume, kind: str, lights: int = 1, scale: float = 0.5,
+                           seed: int = 0):
+    """An IlluminationVolume of the shape ``kind`` produces (light grid ``scale`` times the
+    data's points; ``lights`` transmittance channels), with smooth positive values."""
+    from vtkillum.core.illumination import IlluminationVolume
+
+    has_t, has_s = KINDS[kind]
+    shape = tuple(max(2, round(n * scale)) for n in volume.dims)
+    rng = np.random.default_rng(seed)
+    x = np.linspace(0.05, 1.0, shape[0], dtype=np.float32)[:, None, None]
+    base = np.broadcast_to(x, shape) * np.float32(0.9 + 0.1 * rng.random())
+    t = np.repeat(np.ascontiguousarray(base)[None], lights, axis=0) if has_t else None
+    phi = np.stack([base * 0.3, base * 0.2, base * 0.1], -1) if has_s else None
+    return IlluminationVolume.for_volume(volume, transmittance=t, scattered=phi)
+
+
+def interactive(opts) -> int:
+    """The ``--interactive`` table (see the module docstring)."""
+    from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
+
+    from vtkillum.mappers.gl_trace import GLCallCounter
+
+    rows = []
+    gpu = None
+    for size in opts.sizes:
+        volume = upsampled_ct(size)
+        scene = procedural.default_scene("ct", volume)
+        for kind in opts.kinds:
+            window, renderer = window_for(opts.image)
+            actor = IlluminatedVolume(image_data_from_volume(volume), scene,
+                                      illumination=synthetic_illumination(volume, kind,
+                                                                         len(scene.lights)),
+                                      exposure=4 * np.pi / 3)
+            renderer.AddVolume(actor)
+            apply_camera_to_vtk(scene.camera, renderer.GetActiveCamera())
+            frames = Frames(window, renderer)
+            gpu = gpu or gl_renderer(window)
+
+            def timed(n, frames=frames):
+                frames.times = []
+                for _ in range(n):
+                    frames.frame()
+                return statistics.median(frames.times)
+
+            with GLCallCounter() as gl:
+                full = timed(opts.frames)
+            uploads = gl.volume_uploads / opts.frames
+            actor.skip_empty = False  # before issue 35: float32 grids, no leaps
+            actor.illumination_16bit = False
+            frames.frame(record=False)
+            no_skip = timed(opts.frames)
+            actor.skip_empty = True
+            actor.illumination_16bit = True
+            frames.frame(record=False)
+            # the same camera moves in an interactive window: interactive_step
+            interactor = vtkGenericRenderWindowInteractor()
+            interactor.SetRenderWindow(window)
+            interactor.Initialize()
+            frames.frame(record=False)
+            moving = timed(opts.frames)
+            window.SetInteractor(None)
+            frames.frame(record=False)
+            # TF edit to new frame: a new light volume (as a method hands it over, host
+            # arrays) and a new transfer function, then the frame
+            tf_ms = {}
+            for bits in (True, False):
+                actor.illumination_16bit = bits
+                frames.frame(record=False)
+                edits = []
+                for k in range(3):
+                    light = synthetic_illumination(volume, kind, len(scene.lights),
+                                                   seed=k + 1)
+                    edited = scene.copy() if hasattr(scene, "copy") else scene
+                    t0 = time.perf_counter()
+                    actor.set_illumination(light)
+                    actor.set_scene(edited)
+                    window.Render()
+                    window.WaitForCompletion()
+                    edits.append(1000.0 * (time.perf_counter() - t0))
+                tf_ms[bits] = statistics.median(edits)
+            actor.illumination_16bit = True
+            row = (size, kind, full, no_skip, moving, tf_ms[True], tf_ms[False], uploads)
+            rows.append(row)
+            print(f"| {size}^3 | {kind} | {full:.1f} | {no_skip:.1f} | {moving:.1f} | "
+                  f"{tf_ms[True]:.0f} | {tf_ms[False]:.0f} | {uploads:g} |", flush=True)
+            window.Finalize()
+    return rows, gpu
+
+
+def interactive_main(opts) -> int:
+    print(f"window {vtkRenderWindow().GetClassName()}, image {opts.image}^2, CT phantom "
+          f"(upsampled from 256^3 above 256), default CT scene, median of {opts.frames} "
+          "camera moves of 1 degree; illumination grids at half the data's points, the "
+          "scene's 2 lights")
+    print("| data | illumination | camera move ms | before (float32 grids, no leaps) | "
+          "moving in an interactive window (step x2) | TF edit to new frame ms (16 bit) | "
+          "(float32) | 3D uploads per camera move |")
+    print("|---|---|---|---|---|---|---|---|")
+    _, gpu = interactive(opts)
+    print(f"GPU (GL_RENDERER): {gpu}")
+    if opts.interop:
+        try:
+            interop_probe(opts)
+        except Exception as err:  # noqa: BLE001  (report why, keep the table)
+            print(f"interop probe failed: {type(err).__name__}: {err}")
+    return 0
+
+
+def interop_probe(opts) -> None:
+    """CUDA -> OpenGL without the host: warp array -> registered pixel buffer -> 3D texture,
+    against the host path (array to numpy, glTexSubImage3D from host memory)."""
+    import ctypes
+
+    import warp as wp
+
+    from vtkillum.mappers.gl_trace import _glad_library
+
+    wp.init()
+    window, _renderer = window_for(64)
+    window.Render()
+    window.MakeCurrent()
+    lib = _glad_library()
+
+    def fn(name, restype, *args):
+        return ctypes.CFUNCTYPE(restype, *args)(ctypes.c_void_p.in_dll(lib, f"vtk_glad_{name}").value)
+
+    u, i, p, sz = ctypes.c_uint, ctypes.c_int, ctypes.c_void_p, ctypes.c_ssize_t
+    gen_buffers = fn("glGenBuffers", None, i, p)
+    bind_buffer = fn("glBindBuffer", None, u, u)
+    buffer_data = fn("glBufferData", None, u, sz, p, u)
+    gen_textures = fn("glGenTextures", None, i, p)
+    bind_texture = fn("glBindTexture", None, u, u)
+    tex_image = fn("glTexImage3D", None, u, i, i, i, i, i, i, u, u, p)
+    tex_sub = fn("glTexSubImage3D", None, u, i, i, i, i, i, i, i, u, u, p)
+    finish = fn("glFinish", None)
+    get_error = fn("glGetError", u)
+    for n in opts.interop_sizes:
+        m = n // 2  # a light grid at half the points of an n^3 volume
+        voxels = m ** 3
+        nbytes = voxels * 4 * 2  # RGBA16
+        src = wp.array(np.zeros((voxels, 4), np.uint16).view(np.uint16), dtype=wp.uint16,
+                       device="cuda:0") if False else wp.zeros(voxels * 4, dtype=wp.uint16,
+                                                                 device="cuda:0")
+        pbo = ctypes.c_uint()
+        gen_buffers(1, ctypes.byref(pbo))
+        bind_buffer(0x88EC, pbo.value)  # GL_PIXEL_UNPACK_BUFFER
+        buffer_data(0x88EC, nbytes, None, 0x88E0)  # GL_STREAM_DRAW
+        bind_buffer(0x88EC, 0)
+        tex = ctypes.c_uint()
+        gen_textures(1, ctypes.byref(tex))
+        bind_texture(0x806F, tex.value)  # GL_TEXTURE_3D
+        tex_image(0x806F, 0, 0x805B, m, m, m, 0, 0x1908, 0x1403, None)  # RGBA16, RGBA, ushort
+        finish()
+        try:
+            reg = wp.RegisteredGLBuffer(pbo.value, "cuda:0",
+                                        flags=wp.RegisteredGLBuffer.WRITE_DISCARD)
+        except Exception as err:  # noqa: BLE001
+            print(f"interop {n}^3: RegisteredGLBuffer failed: {err}")
+            return
+        times_gpu, times_host = [], []
+        for _ in range(4):
+            t0 = time.perf_counter()
+            mapped = reg.map(dtype=wp.uint16, shape=(voxels * 4,))
+            wp.copy(mapped, src)
+            reg.unmap()
+            bind_buffer(0x88EC, pbo.value)
+            tex_sub(0x806F, 0, 0, 0, 0, m, m, m, 0x1908, 0x1403, None)
+            bind_buffer(0x88EC, 0)
+            finish()
+            times_gpu.append(1000 * (time.perf_counter() - t0))
+            t0 = time.perf_counter()
+            host = src.numpy()
+            tex_sub(0x806F, 0, 0, 0, 0, m, m, m, 0x1908, 0x1403,
+                    host.ctypes.data_as(ctypes.c_void_p))
+            finish()
+            times_host.append(1000 * (time.perf_counter() - t0))
+        print(f"interop: light grid {m}^3 RGBA16 ({nbytes / 1e6:.0f} MB): CUDA->PBO->texture "
+              f"{statistics.median(times_gpu[1:]):.1f} ms, device->host->texture "
+              f"{statistics.median(times_host[1:]):.1f} ms, GL error {get_error()}", flush=True)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--size", type=int, default=128, help="volume points per axis")
@@ -397,7 +654,20 @@ def main(argv=None) -> int:
     parser.add_argument("--blending", type=float, default=1.0,
                         help="VTK's VolumetricScatteringBlending (0 surface, 1 volumetric)")
     parser.add_argument("--save", help="folder for the last frame of each renderer (PNG)")
+    parser.add_argument("--interactive", action="store_true",
+                        help="camera move and TF edit per illumination kind and size, GPU "
+                             "named (see the module docstring)")
+    parser.add_argument("--sizes", type=int, nargs="+", default=[256, 512],
+                        help="--interactive: volume points per axis")
+    parser.add_argument("--kinds", nargs="+", default=list(KINDS),
+                        help=f"--interactive: illumination kinds, of {list(KINDS)}")
+    parser.add_argument("--interop", action="store_true",
+                        help="--interactive: also time CUDA->OpenGL through a registered "
+                             "pixel buffer against the host path (warp on CUDA)")
+    parser.add_argument("--interop-sizes", type=int, nargs="+", default=[256, 512])
     opts = parser.parse_args(argv)
+    if opts.interactive:
+        return interactive_main(opts)
     if opts.quality:
         opts.datasets = opts.datasets or ["head", "mni", "mni-half"]
         return quality(opts)
