@@ -38,6 +38,7 @@ def _filter(kind):
     source = _source()
     f.SetInputConnection(source.GetOutputPort())
     f.test_source = source  # the pipeline does not keep a Python source alive
+    f.SetDistributed(True)
     f.SetInputArrayToProcess(0, 0, 0, 0, "RTData")
     if kind == "transmittance":
         for light, vec, rgb in LIGHTS:

@@ -17,6 +17,14 @@ import pytest
 
 RANKS = (2, 4)
 
+#: Filters that run distributed under MPI (issue 36; needs mpi4py in pvbatch's Python):
+#: label -> absolute tolerance of their transmittance against one rank. The sweep
+#: interpolates each upstream plane's optical depth where a ray crosses into another piece
+#: (vtkillum.core.parallel.transmittance); every other array and filter: 1e-5 relative.
+#: Empty while the filters' Distributed property is off by default (the sweep's cut error
+#: reached 0.2 in T on this Wavelet; see docs/parallel.md).
+DISTRIBUTED: dict = {}
+
 
 @pytest.fixture(scope="module")
 def runs(pvbatch_summary):
@@ -64,7 +72,11 @@ def test_every_filter_gives_the_one_rank_result(runs, ranks):
         assert set(arrays) == set(reference), label
         for array, values in reference.items():
             scale = max(np.abs(values).max(), 1e-30)
-            assert np.abs(arrays[array] - values).max() <= 1e-5 * scale, (label, array)
+            tol = 1e-5 * scale
+            if label in DISTRIBUTED and array != "RTData":
+                # transmittance absolute; fluence sums T * irradiance over the lights
+                tol = DISTRIBUTED[label] * (1.0 if array == "transmittance" else 2 * scale)
+            assert np.abs(arrays[array] - values).max() <= tol, (label, array)
 
 
 @pytest.mark.parametrize("ranks", RANKS)
@@ -76,8 +88,14 @@ def test_pieces_are_split_and_the_mode_is_logged(runs, ranks):
     assert len(set(extents)) == ranks  # each rank wrote its own piece, not the whole
     for label in many["outputs"]:
         for piece in range(1, ranks + 1):
-            assert f"{label}: piece {piece} of {ranks}: illumination computed on the whole " \
-                   "volume" in log
+            if label in DISTRIBUTED:
+                assert f"{label}: piece {piece} of {ranks}: illumination computed " \
+                       "distributed across the MPI ranks on this rank's piece (mode: " \
+                       "distributed)" in log, log[-3000:]
+            else:
+                assert f"{label}: piece {piece} of {ranks}: illumination computed on the " \
+                       "whole volume on this rank and cut to its piece (mode: whole volume on " \
+                       "every rank; not distributed: " in log
 
 
 @pytest.mark.parametrize("ranks", RANKS)

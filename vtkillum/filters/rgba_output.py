@@ -233,6 +233,35 @@ class IlluminatedRGBAOutput:
             return tuple(int(n) for n in dims)
         return super().output_shape(dims)
 
+    def distributed_unsupported(self) -> str | None:
+        reason = super().distributed_unsupported()
+        if reason is None and self._output_rgba and (
+                self._output_scale != 1.0 or tuple(self._output_dimensions) != (0, 0, 0)):
+            reason = ("the light grid differs from the data grid (OutputScale / "
+                      "OutputDimensions); the distributed methods compute on the data grid")
+        return reason
+
+    def compute_piece(self, volume, params, piece):
+        """The illumination filter's distributed piece, plus the RGBA of the piece."""
+        arrays = super().compute_piece(volume, params, piece)
+        if not self._output_rgba:
+            return arrays
+        light = next((name for name in LIGHT_ARRAYS if name in arrays), None)
+        if light is None:
+            raise ValueError(
+                f"{type(self).__name__}: the illumination filter returned none of "
+                f"{LIGHT_ARRAYS} (got {sorted(arrays)}), so there is nothing to build the RGBA "
+                "output from; switch OutputRGBA off (or ComputeRadiance on)"
+            )
+        cut = tuple(slice(piece.extent[2 * a] - piece.data_extent[2 * a],
+                          piece.extent[2 * a + 1] - piece.data_extent[2 * a] + 1)
+                    for a in range(3))
+        rgba = illuminated_rgba(volume.scalars[cut], params.transfer_function, params.albedo,
+                                arrays[light], self._exposure, self._gamma, self._rgba_type)
+        return {RGBA_ARRAY: rgba, **arrays}
+
+    compute_piece.wraps_compute_piece = True
+
     def compute(self, volume, params):
         if not self._output_rgba:
             return super().compute(volume, params)
