@@ -280,8 +280,8 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
         None if progress is None else pixel_work(cam, volume.extent, width, height, device))
     t_render = time.perf_counter()
 
-    rad = radiance.numpy().astype(np.float32).reshape(height, width, 3)
-    alp = alpha.numpy().astype(np.float32)
+    rad = radiance.numpy().reshape(height, width, 3)  # float32 host copies already
+    alp = alpha.numpy()
     mean_samples = float(samples.numpy().mean())
     t_end = time.perf_counter()
     if progress is not None:

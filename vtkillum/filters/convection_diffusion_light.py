@@ -8,6 +8,7 @@ from vtkmodules.vtkCommonDataModel import vtkDataObject
 from vtkillum.core.convection_diffusion.convection import SCHEMES
 from vtkillum.core.convection_diffusion.diffusion import SOLVERS
 from vtkillum.core.convection_diffusion.solver import (
+    DEFAULT_TOLERANCE,
     MODELS,
     PHYSICAL_SOLVERS,
     ConvectionDiffusionSolver,
@@ -69,7 +70,9 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         Diffusion iteration budget per execution; 0 (default) iterates until
         ``Tolerance``. With a budget, call :meth:`Refine` and update again to continue.
     Tolerance : float
-        Relative residual at which the diffusion has converged; default 1e-4.
+        Relative residual at which the diffusion has converged; default 3e-4
+        (:data:`~vtkillum.core.convection_diffusion.solver.DEFAULT_TOLERANCE`, chosen by
+        accuracy).
     Solver : str
         ``"multigrid"`` (default), ``"gauss-seidel"``, and for the paper model ``"cg"`` or
         ``"dct"`` (host).
@@ -103,7 +106,7 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         self._model = "physical"
         self._scattering = (0.0, 0.0, 0.0)
         self._iterations = 0
-        self._tolerance = 1e-4
+        self._tolerance = DEFAULT_TOLERANCE
         self._solver_name = "multigrid"
         self._source_radius = 0.0
         self._scheme = "characteristics"
