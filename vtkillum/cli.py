@@ -776,7 +776,9 @@ time series:
   NAME_0000.EXT, NAME_0001.EXT, ... (the step's index), or as an animation:
   --output movie.gif (Pillow) or movie.mp4 (pip install 'vtkillum[animation]'),
   --fps frames per second. --time-step N renders step N alone (negative: from
-  the end) under the output name as given.
+  the end) under the output name as given. While a step renders the next one is
+  read and uploaded to the device (--prefetch N: N steps ahead, default 1; 0 reads
+  each step in its turn); the pictures are the same either way.
 """
 
 
