@@ -102,7 +102,7 @@ LONG_RENDER_SECONDS = 10.0
 DEFAULT_PREFETCH = 1
 
 #: Methods whose render hashes the volume's data (:attr:`Volume.content_key`): the
-#: prefetch thread computes the hash with the read (:func:`render_preparation`).
+#: prefetch thread computes the hash after the read (:func:`render_preparation`).
 CONTENT_KEYED_METHODS = ("convection-diffusion", "refraction")
 
 #: Output formats of ``export``.
@@ -221,8 +221,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "NAME_0000.EXT ...), or an animation of a time series: .gif, .mp4")
     render.add_argument("--fps", help="frames per second of a .gif/.mp4 animation (default 10)")
     render.add_argument("--prefetch", type=_integer, default=DEFAULT_PREFETCH, metavar="N",
-                        help="time series: steps read (and uploaded to the device) ahead of "
-                             f"the one rendering, on a background thread (default "
+                        help="time series: steps read (and prepared for the render) ahead "
+                             f"of the one rendering, on a background thread (default "
                              f"{DEFAULT_PREFETCH}; 0: read each step when its turn comes)")
     render.add_argument("--scene", "-s", help="scene JSON file (see 'vtkillum scene')")
     render.add_argument("--denoise", action=RequireDenoiser,
@@ -483,11 +483,12 @@ def run_render_series(args, series) -> int:
     Steps are read ahead (``--prefetch N``, default :data:`DEFAULT_PREFETCH`): while step
     ``t`` renders, a background thread (:class:`~vtkillum.io.time_series.StepPrefetcher`)
     reads step ``t + 1`` and prepares it for the render (:func:`render_preparation`: its
-    value range, its canonical-unit volume, its scalars on the render device), so that a
-    series renders at the rate of the slower of reading and rendering. The pictures are
+    value range, content hash and canonical-unit volume; the upload to the device stays
+    in the render), so that a series renders at the rate of the slower of reading and
+    rendering. The pictures are
     those of ``--prefetch 0``; a step that cannot be read stops the run at that step with
     that step's error, after the steps before it are written, as without prefetching.
-    Each step read ahead holds its volume (host and device) until its turn.
+    Each step read ahead holds its volume in host memory until its turn.
 
     The CLI renders whole images with the core methods (:func:`vtkillum.core.render.render`),
     not through the illumination filters: ``emission``, ``single``, ``path`` and
@@ -566,7 +567,7 @@ def run_render_series(args, series) -> int:
     turn = {k: m for m, k in enumerate(unread)}
     start = time.perf_counter()
     with StepPrefetcher(series.read, ahead,
-                        prepare=render_preparation(args.method, device)) as prefetcher:
+                        prepare=render_preparation(args.method)) as prefetcher:
         for n, k in enumerate(steps):
             key = keys[n]
             result = cache.lookup(key)
@@ -594,7 +595,7 @@ def run_render_series(args, series) -> int:
                 if args.scene is None or str(err).startswith(str(args.scene)):
                     raise
                 raise ValueError(f"{err} (scene file {args.scene})") from err
-            volume = None  # its device copy goes with it (the next step's is uploaded)
+            volume = None  # its device copy goes with it
             done += 1
             if keep:
                 results.append(result)
@@ -633,29 +634,32 @@ def run_render_series(args, series) -> int:
     return 0
 
 
-def render_preparation(method: str, device: str):
-    """What the prefetch thread does to each step read ahead for a ``method`` render on
-    ``device`` (``prepare`` of :class:`~vtkillum.io.time_series.StepPrefetcher`): the
-    work a render would do first on a new volume, so that it is done while the step
-    before renders.
+def render_preparation(method: str):
+    """What the prefetch thread does to each step read ahead for a ``method`` render
+    (``prepare`` of :class:`~vtkillum.io.time_series.StepPrefetcher`): the host-side work
+    a render would do first on a new volume, so that it is done while the step before
+    renders.
 
-    It computes the volume's value range (and its content hash for
-    :data:`CONTENT_KEYED_METHODS`), makes its canonical-unit twin
-    (:func:`vtkillum.core.units.canonical`, kept with the volume) and uploads that twin's
-    scalars to ``device`` (:func:`vtkillum.core.warp_common.device_scalars`, kept with
-    it): the render finds all three in the volume's caches and reads nothing from the
-    host. On CUDA the copy is queued on the device's stream, after the kernels of the
-    step rendering: it cannot overtake them (the results do not change), and what
-    overlaps the render is the read, the host passes and the staging of the copy.
+    It computes the volume's value range (a pass over the data; and its content hash,
+    another, for :data:`CONTENT_KEYED_METHODS`) and makes its canonical-unit twin
+    (:func:`vtkillum.core.units.canonical`, kept with the volume and given both): the
+    render finds them in the volume's caches.
+
+    The upload to the device stays in the render, on the main thread. Warp's graph
+    capture is per device, not per thread: the CUDA stream that a render captures
+    launch graphs on (:mod:`vtkillum.core.graphs`) records whatever any thread queues on
+    it, an allocation or a copy included, and the CPU's capture recording is global. An
+    upload from this thread while a render captures would be recorded into the render's
+    graph. An upload that overlaps the kernels needs a stream and a buffer of its own,
+    allocated before the render starts; it is not done here.
     """
     def prepare(volume) -> None:
         from vtkillum.core.units import WorldUnits
-        from vtkillum.core.warp_common import device_scalars
 
         volume.value_range  # noqa: B018 - cached with the volume, copied to its twin
         if method in CONTENT_KEYED_METHODS:
             volume.content_key  # noqa: B018
-        device_scalars(WorldUnits.for_volume(volume).volume(volume), device)
+        WorldUnits.for_volume(volume).volume(volume)
 
     return prepare
 
@@ -777,8 +781,8 @@ time series:
   --output movie.gif (Pillow) or movie.mp4 (pip install 'vtkillum[animation]'),
   --fps frames per second. --time-step N renders step N alone (negative: from
   the end) under the output name as given. While a step renders the next one is
-  read and uploaded to the device (--prefetch N: N steps ahead, default 1; 0 reads
-  each step in its turn); the pictures are the same either way.
+  read (--prefetch N: N steps ahead, default 1; 0 reads each step in its turn); the
+  pictures are the same either way.
 """
 
 

@@ -33,8 +33,8 @@ as VTK's readers and the ParaView plugin's reader do.
 
 :class:`StepPrefetcher` reads steps ahead of their use on one background thread, so that
 a series plays at the rate of the slower of reading and computing rather than of their
-sum: the command line's series renders read step ``t + 1`` (and upload it to the render
-device) while step ``t`` renders, and :class:`TimeSeriesSource` (``prefetch=1``) reads
+sum: the command line's series renders read step ``t + 1`` (and prepare it for the
+render) while step ``t`` renders, and :class:`TimeSeriesSource` (``prefetch=1``) reads
 the step after the one a pipeline asked for while the pipeline works on it.
 """
 
@@ -403,9 +403,10 @@ class StepPrefetcher:
     prepare : callable, optional
         ``prepare(value)``, called on the thread after each read, before the value is
         handed over: work the consumer would otherwise do first on each step (the command
-        line converts the volume to the render's units and uploads its scalars to the
-        render device, :func:`vtkillum.cli.render_preparation`). Its return value is not
-        used. An exception in it is dropped: it may only move work earlier, never change
+        line computes the volume's value range and content hash and converts it to the
+        render's units, :func:`vtkillum.cli.render_preparation`). Its return value is not
+        used. It must not use warp: warp's graph capture is per device, not per thread,
+        so device work queued here could be recorded into a graph the consumer captures. An exception in it is dropped: it may only move work earlier, never change
         what the consumer gets, so the consumer repeats the work and meets the error
         itself.
 
