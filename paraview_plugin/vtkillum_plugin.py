@@ -322,7 +322,7 @@ class LightTransmittance(IlluminatedRGBAOutput, ParaViewGlue, LightTransmittance
         _number("int", "Iterations", "SetIterations", 0,
                 "Diffusion iterations per update; 0 iterates until Tolerance.", lo=0,
                 hi=10000, advanced=True),
-        _number("double", "Tolerance", "SetTolerance", 1e-4,
+        _number("double", "Tolerance", "SetTolerance", 3e-4,
                 "Relative residual at which the diffusion stops.", lo=1e-8, hi=0.5,
                 advanced=True),
         _string_list("Solver", "SetSolver", SOLVERS, SOLVERS[0],

@@ -582,7 +582,7 @@ def transmittance(grid, lights=None, scalars=None, *, cmap=None, opacity="linear
 def convection_diffusion(grid, lights=None, scalars=None, *, cmap=None, opacity="linear",
                          clim=None, n_colors=256, flip_scalars=False, transfer_function=None,
                          opacity_unit_distance=None, albedo=0.9, scattering=(0.0, 0.0, 0.0),
-                         light_volume_scale=0.5, iterations=0, tolerance=1e-4,
+                         light_volume_scale=0.5, iterations=0, tolerance=3e-4,
                          solver="multigrid", device=None, rgba=False,
                          exposure=DEFAULT_EXPOSURE, diffusion_model="physical", anisotropy=0.0,
                          component=None, nan_policy="raise"):
