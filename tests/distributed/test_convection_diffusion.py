@@ -8,7 +8,9 @@ the distributed function only its data piece (the extent the function says it ne
 Tolerances: the opacity, transmittance and composition are the one-rank values up to
 float32 round-off (1e-6 absolute; they are the same operations on the same numbers);
 the paper diffusion, solved to a relative residual of 1e-6 on both sides, within 2e-5
-relative to the field's maximum.
+relative to the field's maximum; the physical model (its flux-limited solve runs on rank 0
+on the gathered light grid) within 1e-6 of each field's maximum and the same outer
+iterations (measured: equal bit for bit).
 """
 
 import numpy as np
@@ -135,12 +137,71 @@ def test_coarse_levels_distributed(par):
     check(par, reference(lights, scale=1.0), got)
 
 
-def test_physical_model_convection(par):
-    """The physical model: transmittances and the composed light distributed, no phi_s."""
-    lights = LIGHTS["several"]
-    got = run(par, lights, model="physical")
-    all_ranks(par, got.scattered_fluence is None, "physical phi_s is not distributed")
-    check(par, reference(lights, model="physical"), got, diffusion=False)
+def reference_physical(lights, g, **options):
+    solver = ConvectionDiffusionSolver(light_volume_scale=0.5, diffusion_model="physical",
+                                       tolerance=1e-6, device="cpu", **options)
+    solver.stats = solver.update(VOLUME, TF, 0.8, lights, albedo=0.9, anisotropy=g)
+    return solver
+
+
+def check_physical(par, ref, got):
+    """The physical model: the convection and composition as :func:`check`; ``Q``, ``phi_s``
+    and the surface-filtered ``phi_s`` within 1e-6 of their maxima (the solve is the one-rank
+    code on the same inputs, so in practice they are equal bit for bit), and the same
+    outer iterations."""
+    check(par, ref, got, diffusion=False)
+    sl = tuple(slice(a, b) for a, b in zip(got.lo, got.hi))
+    for name, mine, theirs in (("Q", got.source, ref.source),
+                               ("phi_s", got.scattered_fluence, ref.scattered_fluence),
+                               ("filtered phi_s", got.rendered_scattered_fluence,
+                                ref.rendered_scattered_fluence),
+                               ("fluence", got.fluence, ref.fluence)):
+        err = max_abs(mine, theirs[sl]) / max(float(np.abs(theirs).max()), 1e-30)
+        all_ranks(par, err <= 1e-6, f"{name} differs by {err:.2e} of its maximum")
+    all_ranks(par, got.diffusion.iterations == ref.stats.diffusion.iterations
+              and got.diffusion.converged == ref.stats.diffusion.converged,
+              f"outer iterations {got.diffusion.iterations} vs one rank's "
+              f"{ref.stats.diffusion.iterations}")
+
+
+def run_physical(par, lights, g, blocks=None, **options):
+    shape = tuple(max(2, round(0.5 * n)) for n in DIMS)
+    if blocks is None:
+        blocks = owner_blocks(shape, par.size)
+    lo, hi = blocks[par.rank]
+    dlo, dhi = required_data_extent(lo, hi, DIMS, SPACING, shape)
+    piece = VOLUME.scalars[tuple(slice(a, b) for a, b in zip(dlo, dhi))]
+    return distributed_light_volume(
+        piece, dlo, DIMS, SPACING, TF, 0.8, lights, origin=ORIGIN, block=(lo, hi),
+        diffusion_model="physical", tolerance=1e-6, albedo=0.9, anisotropy=g,
+        comm=par.comm, device="cpu", **options)
+
+
+@pytest.mark.parametrize("g", [0.0, 0.5])  # 0.5: δ-Eddington beams and forward moments
+@pytest.mark.parametrize("name", ["+x", "diagonal", "point-inside", "several"])
+def test_physical_model_equals_one_rank(par, name, g):
+    lights = LIGHTS[name]
+    check_physical(par, reference_physical(lights, g), run_physical(par, lights, g))
+
+
+@pytest.mark.parametrize("axis", [0, 1, 2])
+def test_physical_model_slabs_along_each_axis(par, axis):
+    """Slabs across every axis, a point light inside the volume (in another rank's block
+    for most ranks) and a diagonal light, g = 0.3."""
+    shape = tuple(max(2, round(0.5 * n)) for n in DIMS)
+    lights = LIGHTS["diagonal"] + LIGHTS["point-inside"]
+    check_physical(par, reference_physical(lights, 0.3),
+                   run_physical(par, lights, 0.3, split_blocks(shape, par.size, axis)))
+
+
+def test_physical_model_options(par):
+    """Without the first moments, δ-Eddington scaling and Anderson acceleration, with
+    Wilson's limiter: still the one-rank result."""
+    options = {"first_moment": False, "delta_scaling": False, "anderson": False,
+               "flux_limiter": "wilson"}
+    lights = LIGHTS["-y"]
+    check_physical(par, reference_physical(lights, 0.6, **options),
+                   run_physical(par, lights, 0.6, **options))
 
 
 def test_piece_too_small_is_refused(par):

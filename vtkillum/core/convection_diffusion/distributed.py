@@ -33,19 +33,41 @@ Stages across ranks
    corners, different ranks start at once. Result: the one-rank transmittance exactly
    (same operations in a different order of independent points).
 3. **Composition** (eq. 22): pointwise, no communication.
-4. **Diffusion** (the ``"paper"`` model, eq. 23): the multigrid of
-   :mod:`~vtkillum.core.convection_diffusion.distributed_multigrid`: the one-rank V-cycle's
-   hierarchy and operators, red–black Gauss–Seidel with a halo exchange before each colour
-   (the same iterates as one rank), coarse levels gathered onto rank 0 once they are small.
+4. **Diffusion**, by model:
+
+   ``"paper"`` (eq. 23)
+       the multigrid of :mod:`~vtkillum.core.convection_diffusion.distributed_multigrid`:
+       the one-rank V-cycle's hierarchy and operators, red–black Gauss–Seidel with a halo
+       exchange before each colour (the same iterates as one rank), coarse levels gathered
+       onto rank 0 once they are small.
+   ``"physical"`` (default of the one-rank solver)
+       * the δ-Eddington beams (``g > 0``): ``sigma_t*`` pointwise on the ghosted block
+         (the one-rank ``delta_sigma_kernel``), then one more pipelined sweep per light
+         through it (stage 2's sweep, exact);
+       * the first-scattered source ``Q`` and its first moments (dipole per axis):
+         pointwise, the one-rank ``first_scattered_kernel`` at global indices
+         (:func:`block_first_scattered_kernel`), exact;
+       * the flux-limited diffusion: the light-grid fields it needs (``Q``, the three
+         moments, ``sigma_t``, ``color sigma_t``, light-grid sized, not the data) are
+         gathered onto rank 0, which runs the one-rank
+         :class:`~vtkillum.core.convection_diffusion.radiative.RadiativeDiffusion`
+         (lagged limiter, nonlinear multigrid, nested start, Anderson) and scatters
+         ``phi_s`` back by blocks: the one-rank solve bit for bit;
+       * the reconstruction filter along thick surfaces
+         (:func:`~vtkillum.core.convection_diffusion.reconstruction.filter_along_surfaces`,
+         radius one cell): on each rank's ghosted block after a halo exchange of
+         ``phi_s`` (``sigma_t`` is already ghosted); its bounds tests use the array's
+         shape, and the ghosted box is the block grown by one point and clipped to the
+         grid, so every owned point sees exactly its one-rank neighbourhood.
 
 What is simplified
 ------------------
-* The ``"physical"`` diffusion model (flux-limited, nonlinear multigrid with Anderson
-  acceleration, :mod:`~vtkillum.core.convection_diffusion.radiative`) is not distributed
-  here: with ``diffusion_model="physical"`` the result has the transmittances, the composed
-  direct light and the first-scattered source's inputs but no ``phi_s``
-  (:attr:`LocalLightVolume.scattered_fluence` is None); the filter runs it in mode 1.
-  The δ-Eddington beams of that model are therefore not swept either.
+* The physical model's flux-limited solve is not distributed: it runs on rank 0 on the
+  whole *light* grid (by default an eighth of the data's points; the data itself is never
+  gathered). Its memory and time are one rank's (plus a gather and a scatter of the light
+  grid); a distributed version (the face, leakage and homogenization kernels at global
+  indices on ghosted blocks, the halo of ``phi`` before each coefficient update and
+  colour, float64 allreduce of the residual norms and of Anderson's Gram matrix) remains.
 * No partial recomputation (Algorithm 1) and no warm start across calls: every call
   recomputes its block.
 * Ghost transfers go through host buffers (``numpy``), also on CUDA devices (no
@@ -60,7 +82,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from vtkillum.core.convection_diffusion.composition import light_at
+from vtkillum.core.convection_diffusion.composition import MAX_MOVED, cell_exposure, light_at
 from vtkillum.core.convection_diffusion.convection import (
     CHARACTERISTICS,
     EXPONENTIAL,
@@ -78,6 +100,7 @@ from vtkillum.core.convection_diffusion.convection import (
 )
 from vtkillum.core.convection_diffusion.diffusion import SOLVERS, DiffusionReport
 from vtkillum.core.convection_diffusion.distributed_layout import (
+    Halo,
     Layout,
     extent_block,
     intersect,
@@ -89,6 +112,7 @@ from vtkillum.core.convection_diffusion.distributed_layout import (
 )
 from vtkillum.core.convection_diffusion.distributed_multigrid import DistributedMultigrid
 from vtkillum.core.convection_diffusion.opacity import MAX_SUBSAMPLES
+from vtkillum.core.convection_diffusion.reconstruction import filter_along_surfaces
 from vtkillum.core.lights import DIRECTIONAL, pack_lights
 from vtkillum.core.warp_common import (
     Medium,
@@ -100,8 +124,14 @@ from vtkillum.core.warp_common import (
     trilinear_index,
 )
 
-#: MPI tags of the convection's face messages: ``CONVECTION_TAG + light``.
+#: MPI tags of the convection's face messages: ``CONVECTION_TAG + light``; the
+#: δ-Eddington beams' sweep uses ``BEAM_TAG + light``.
 CONVECTION_TAG = 1000
+BEAM_TAG = 5000
+#: MPI tag of the halo exchange of ``phi_s`` before the surface filter.
+PHI_HALO_TAG = 6000
+#: Diffusion solvers of the distributed physical model (on rank 0).
+PHYSICAL_SOLVERS = ("multigrid", "gauss-seidel")
 
 
 @dataclass
@@ -122,11 +152,19 @@ class LocalLightVolume:
         ``T_l`` of every light.
     composed : ndarray (bx, by, bz, 3)
         ``phi_d = sum_l T_l E_l`` (eq. 22).
-    scattered_fluence : ndarray (bx, by, bz, 3) or None
-        ``"paper"``: the diffused light volume ``L`` (clamped at 0, as the one-rank
-        ``scattered_fluence``); None for ``"physical"`` (not distributed).
+    scattered_fluence : ndarray (bx, by, bz, 3)
+        ``"paper"``: the diffused light volume ``L``; ``"physical"``: the scattered
+        fluence ``phi_s``; clamped at 0 (as the one-rank ``scattered_fluence``).
+    rendered_scattered_fluence : ndarray (bx, by, bz, 3) or None
+        ``"physical"``: ``phi_s`` filtered along thick surfaces, >= 0 (the one-rank
+        ``rendered_scattered_fluence``, what the ray caster reads); None for ``"paper"``.
+    source : ndarray (bx, by, bz, 3) or None
+        ``"physical"``: the first-scattered source ``Q`` (the one-rank ``source``).
+    model : str
+        The diffusion model.
     diffusion : DiffusionReport
-        V-cycles and relative residuals of the distributed diffusion.
+        Iterations and relative residuals of the diffusion (``"physical"``: rank 0's
+        solve, broadcast).
     ms : dict
         Milliseconds per stage on this rank (``opacity``, ``convection``, ``composition``,
         ``diffusion``), ``convection_wait``: of the convection, the time spent waiting for
@@ -143,14 +181,20 @@ class LocalLightVolume:
     transmittance: np.ndarray
     composed: np.ndarray
     scattered_fluence: np.ndarray | None
+    rendered_scattered_fluence: np.ndarray | None = None
+    source: np.ndarray | None = None
+    model: str = "paper"
     diffusion: DiffusionReport = field(default_factory=DiffusionReport)
     ms: dict = field(default_factory=dict)
     mode: str = ""
 
     @property
     def fluence(self) -> np.ndarray | None:
-        """All light as an isotropic fluence (``"paper"``: ``L``), as the one-rank solver's."""
-        return self.scattered_fluence
+        """All light as an isotropic fluence, as the one-rank solver's: ``L`` (paper) or
+        ``phi_d + phi_s`` (physical)."""
+        if self.model == "paper" or self.scattered_fluence is None:
+            return self.scattered_fluence
+        return self.composed + self.scattered_fluence
 
 
 def light_shape(dims, scale: float = 0.5, shape=None) -> tuple:
@@ -187,10 +231,14 @@ def distributed_light_volume(scalars, piece_start, dims, spacing, transfer_funct
                              unit_distance: float, lights, *, origin=(0.0, 0.0, 0.0),
                              direction=None, value_range=None, light_volume_scale: float = 0.5,
                              light_volume_shape=None, block=None,
-                             diffusion_model: str = "paper", scattering=(0.0, 0.0, 0.0),
-                             solver: str = "multigrid", tolerance: float = 1e-4,
+                             diffusion_model: str = "physical", scattering=(0.0, 0.0, 0.0),
+                             solver: str = "multigrid", tolerance: float | None = None,
                              iterations: int = 0, source_radius: float = 0.0,
                              convection_scheme: str = "characteristics",
+                             albedo: float = 0.9, anisotropy: float = 0.0,
+                             flux_limiter: str = "levermore-pomraning",
+                             first_moment: bool = True, delta_scaling: bool = True,
+                             anderson: bool = True,
                              gather_cells: int | None = None, comm=None,
                              device: str | None = None) -> LocalLightVolume:
     """This rank's block of the convection–diffusion light volume; collective over ``comm``.
@@ -217,10 +265,19 @@ def distributed_light_volume(scalars, piece_start, dims, spacing, transfer_funct
         (inclusive, e.g. ``Decomposition.owner_extent`` of its output piece; the blocks
         must not overlap). Default: :func:`owner_blocks` (VTK's pieces of the light grid).
     diffusion_model : str
-        ``"paper"`` (distributed) or ``"physical"`` (no diffusion here, see the module
-        docstring).
+        ``"physical"`` (default, as the one-rank solver) or ``"paper"``; see the module
+        docstring for what runs where.
     solver : str
-        ``"multigrid"`` only (distributed).
+        ``"multigrid"`` (paper: distributed); the physical model also takes
+        ``"gauss-seidel"`` (rank 0's solve).
+    tolerance : float, optional
+        Relative residual of the diffusion; default the one-rank
+        :data:`~vtkillum.core.convection_diffusion.solver.DEFAULT_TOLERANCE`.
+    albedo, anisotropy : float
+        The physical model's single-scattering albedo and Henyey–Greenstein ``g`` (as
+        :meth:`ConvectionDiffusionSolver.update`).
+    flux_limiter, first_moment, delta_scaling, anderson
+        The physical model's options, as :class:`ConvectionDiffusionSolver`.
     gather_cells : int, optional
         Multigrid levels of at most this many cells are gathered onto rank 0 (default
         :data:`~vtkillum.core.convection_diffusion.distributed_multigrid.GATHER_CELLS`).
@@ -236,9 +293,13 @@ def distributed_light_volume(scalars, piece_start, dims, spacing, transfer_funct
     MPI, comm, device = mpi(), par.comm, par.device
     if diffusion_model not in ("paper", "physical"):
         raise ValueError(f"diffusion_model must be 'paper' or 'physical', got {diffusion_model!r}")
-    if solver != "multigrid":
-        raise ValueError(f"the distributed diffusion solves with 'multigrid' only (one of "
-                         f"{SOLVERS} one-rank), got {solver!r}")
+    allowed = PHYSICAL_SOLVERS if diffusion_model == "physical" else ("multigrid",)
+    if solver not in allowed:
+        raise ValueError(f"the distributed {diffusion_model} diffusion solves with one of "
+                         f"{allowed} (one-rank: {SOLVERS}), got {solver!r}")
+    from vtkillum.core.convection_diffusion.solver import DEFAULT_TOLERANCE
+
+    tolerance = DEFAULT_TOLERANCE if tolerance is None else float(tolerance)
     if convection_scheme not in SCHEMES:
         raise ValueError(f"convection_scheme must be one of {sorted(SCHEMES)}")
     ms = {}
@@ -334,13 +395,132 @@ def distributed_light_volume(scalars, piece_start, dims, spacing, transfer_funct
         ms["diffusion"] = _ms(t, device)
         mode += (f" + distributed multigrid ({mg.distributed_levels} levels on "
                  f"{comm.Get_size()} ranks, coarse levels from {mg.gathered_shape} on rank 0)")
+    rendered = source = None
+    if diffusion_model == "physical":
+        physical = _physical(comm, layout, device, sigma, color_sigma, T, h, kinds, vecs, dirs,
+                             rgbs_n, r_s, convection_scheme, float(albedo), float(anisotropy),
+                             flux_limiter, bool(first_moment), bool(delta_scaling),
+                             bool(anderson), solver, int(iterations), tolerance, ms)
+        phi, rendered_dev, q, report, solve_mode = physical
+        sl = layout.block_region()
+        fluence = np.maximum(phi[sl].numpy(), 0.0) * np.float32(scale)
+        rendered = np.maximum(rendered_dev[sl].numpy(), 0.0) * np.float32(scale)
+        source = q[sl].numpy() * np.float32(scale)
+        mode += solve_mode
     sl = layout.block_region()
     return LocalLightVolume(
         shape=shape, spacing=h, lo=layout.lo.copy(), hi=layout.hi.copy(),
         sigma=sigma[sl].numpy().copy(),
         transmittance=np.stack([T[i][sl].numpy() for i in range(len(kinds))]),
         composed=b[sl].numpy() * np.float32(scale), scattered_fluence=fluence,
+        rendered_scattered_fluence=rendered, source=source, model=diffusion_model,
         diffusion=report, ms=ms, mode=mode)
+
+
+def _physical(comm, layout, device, sigma, color_sigma, T, h, kinds, vecs, dirs, rgbs_n, r_s,
+              scheme, albedo, anisotropy, limiter, first_moment, delta_scaling, anderson,
+              solver, iterations, tolerance, ms):
+    """The physical model after the convection: δ-Eddington beams, the first-scattered
+    source and its moments on the block, the flux-limited solve on rank 0, ``phi_s``
+    scattered back and filtered along surfaces with a halo (the one-rank
+    ``ConvectionDiffusionSolver.update`` and ``_diffuse_physical`` of a cold start).
+    Returns ``(phi_s, filtered phi_s, Q, report, mode text)``, ghosted device arrays in
+    units of the brightest light."""
+    from vtkillum.core.convection_diffusion.solver import (
+        MAX_ITERATIONS,
+        delta_fraction,
+        delta_sigma_kernel,
+    )
+
+    local = layout.local_shape
+    t = time.perf_counter()
+    f = delta_fraction(anisotropy) if delta_scaling else 0.0
+    beams, beam_sigma, a_src, g_src = None, sigma, albedo, anisotropy
+    if f > 0:  # δ-Eddington: the forward peak stays in the beam (the solver's _delta_beams)
+        beam_sigma = wp.zeros(local, dtype=wp.float32, device=device)
+        if not layout.empty:
+            wp.launch(delta_sigma_kernel, dim=local, device=device,
+                      inputs=[sigma, color_sigma, float(f * albedo), beam_sigma])
+        beams = wp.zeros((len(kinds),) + local, dtype=wp.float32, device=device)
+        convect_pipelined(comm, layout, beam_sigma, h, [(int(k), v) for k, v in zip(kinds, vecs)],
+                          beams, r_s, scheme, tag=BEAM_TAG)
+        a_src, g_src = albedo * (1.0 - f), anisotropy / (1.0 + anisotropy)
+    ms["beams"] = _ms(t, device)
+    t = time.perf_counter()
+    q = wp.zeros(local, dtype=wp.vec3, device=device)
+    moment = tuple(wp.zeros(local, dtype=wp.vec3, device=device) for _ in range(3))
+    glo, _ = layout.ghost()
+    if not layout.empty:
+        from vtkillum.core.convection_diffusion.composition import light_tables
+
+        wp.launch(block_first_scattered_kernel, dim=layout.block_shape, device=device,
+                  inputs=[beams if beams is not None else T, len(kinds),
+                          *light_tables(kinds, np.asarray(dirs, np.float32), rgbs_n, device),
+                          beam_sigma, color_sigma, q, wp.vec3(*h.astype(np.float32)),
+                          float(r_s), float(a_src), float(g_src), int(first_moment),
+                          *moment, wp.vec3i(*glo), wp.vec3i(*layout.lo),
+                          wp.vec3i(*layout.shape)])
+    ms["source"] = _ms(t, device)
+
+    # the flux-limited diffusion: rank 0, on the gathered light grid
+    t = time.perf_counter()
+    fields = [q, *moment] if first_moment else [q]
+    whole = _gather_blocks(comm, layout, fields + [sigma, color_sigma])
+    pieces, result = None, None
+    if comm.Get_rank() == 0:
+        from vtkillum.core.convection_diffusion.radiative import RadiativeDiffusion
+
+        gshape = tuple(int(v) for v in layout.shape)
+        arrays = [wp.array(a, dtype=wp.vec3 if a.ndim == 4 else wp.float32, device=device)
+                  for a in whole]
+        wq, wm = arrays[0], (tuple(arrays[1:4]) if first_moment else None)
+        wsig, wcol = arrays[-2], arrays[-1]
+        rd = RadiativeDiffusion(gshape, h, limiter, device)
+        rd.anderson = anderson
+        rd.set_medium(wsig, wcol, albedo, anisotropy)
+        x = wp.zeros(gshape, dtype=wp.vec3, device=device)
+        budget = iterations or MAX_ITERATIONS[solver]
+        result = rd.solve(wq, x, budget, tolerance, method=solver, displacement=wm, cold=True,
+                          nested_above=None)
+        xs = x.numpy()
+        pieces = [xs[region(lo, hi, (0, 0, 0))] if np.all(hi > lo) else None
+                  for lo, hi in layout.blocks]
+    mine = comm.scatter(pieces, root=0)
+    result = comm.bcast(result, root=0)
+    phi = wp.zeros(local, dtype=wp.vec3, device=device)
+    if mine is not None:
+        write_region(phi, layout.block_region(), mine)
+    ms["diffusion"] = _ms(t, device)
+
+    # the reconstruction filter: local, with a one-layer halo of phi_s
+    t = time.perf_counter()
+    Halo(comm, layout).exchange(phi, PHI_HALO_TAG)
+    rendered = filter_along_surfaces(phi, sigma, h) if not layout.empty else wp.zeros_like(phi)
+    ms["reconstruction"] = _ms(t, device)
+    text = (" + physical model: first-scattered source on the blocks"
+            + (" with δ-Eddington beams swept across ranks" if f > 0 else "")
+            + f", flux-limited diffusion ({solver}) on rank 0's gathered light grid "
+            f"{tuple(int(v) for v in layout.shape)}, surface filter with halo")
+    return phi, rendered, q, result, text
+
+
+def _gather_blocks(comm, layout, arrays) -> list | None:
+    """Rank 0: the whole grid of each ghosted array of ``arrays`` (numpy), from every rank's
+    block; other ranks: None."""
+    parts = [read_region(a, layout.block_region()) if not layout.empty else None
+             for a in arrays]
+    gathered = comm.gather(parts, root=0)
+    if comm.Get_rank() != 0:
+        return None
+    out = []
+    for n, a in enumerate(arrays):
+        comps = (3,) if a.dtype == wp.vec3 else ()
+        whole = np.zeros(tuple(int(v) for v in layout.shape) + comps, dtype=np.float32)
+        for (lo, hi), rank_parts in zip(layout.blocks, gathered):
+            if rank_parts[n] is not None:
+                whole[region(lo, hi, (0, 0, 0))] = rank_parts[n]
+        out.append(whole)
+    return out
 
 
 def _ms(t0: float, device: str) -> float:
@@ -400,10 +580,11 @@ def _wavefront_range(plan, lo, hi):
 
 
 def convect_pipelined(comm, layout: Layout, sigma: wp.array3d, spacing, lights, T: wp.array4d,
-                      source_radius: float, scheme: str = "characteristics") -> float:
+                      source_radius: float, scheme: str = "characteristics",
+                      tag: int = CONVECTION_TAG) -> float:
     """Transmittance of every light on this rank's block (``T[l]``, ghosted arrays),
     pipelined over the ranks (see the module docstring); returns the seconds spent waiting
-    for upstream faces."""
+    for upstream faces. ``tag + light`` tags the messages."""
     MPI = mpi()
     me = layout.rank
     shape = tuple(int(v) for v in layout.shape)
@@ -429,7 +610,7 @@ def convect_pipelined(comm, layout: Layout, sigma: wp.array3d, spacing, lights, 
         buffers, requests = [], []
         for q, sl in recvs:
             buf = np.empty(tuple(s.stop - s.start for s in sl), dtype=np.float32)
-            requests.append(comm.Irecv(buf, source=q, tag=CONVECTION_TAG + n))
+            requests.append(comm.Irecv(buf, source=q, tag=tag + n))
             buffers.append((sl, buf))
         jobs.append({"n": n, "kind": kind, "vec": vec.astype(np.float32), "plan": plan,
                      "sends": sends, "buffers": buffers, "requests": requests})
@@ -451,7 +632,7 @@ def convect_pipelined(comm, layout: Layout, sigma: wp.array3d, spacing, lights, 
             _sweep_block(sigma, out, job, layout, h32, source_radius, scheme_id, glo, device)
         for q, sl in job["sends"]:
             buf = read_region(out, sl)
-            outgoing.append((comm.Isend(buf, dest=q, tag=CONVECTION_TAG + job["n"]), buf))
+            outgoing.append((comm.Isend(buf, dest=q, tag=tag + job["n"]), buf))
     MPI.Request.Waitall([r for r, _ in outgoing])
     return waited
 
@@ -613,3 +794,61 @@ def block_compose_kernel(T: wp.array4d(dtype=wp.float32), count: int,
         e, _u = light_at(kinds[n], vecs[n], rgbs[n], x, source_radius)
         acc = acc + T[n, i, j, k] * e
     out[i, j, k] = acc
+
+
+@wp.kernel
+def block_first_scattered_kernel(T: wp.array4d(dtype=wp.float32), count: int,
+                                 kinds: wp.array(dtype=wp.int32), vecs: wp.array(dtype=wp.vec3),
+                                 rgbs: wp.array(dtype=wp.vec3),
+                                 sigma: wp.array3d(dtype=wp.float32),
+                                 color_sigma: wp.array3d(dtype=wp.vec3),
+                                 out: wp.array3d(dtype=wp.vec3), h: wp.vec3,
+                                 source_radius: float, albedo: float, g: float,
+                                 with_displacement: int, px: wp.array3d(dtype=wp.vec3),
+                                 py: wp.array3d(dtype=wp.vec3), pz: wp.array3d(dtype=wp.vec3),
+                                 off: wp.vec3i, blo: wp.vec3i, shape: wp.vec3i):
+    """``composition.first_scattered_kernel`` at global light-grid point ``wp.tid() + blo``
+    of a grid of ``shape`` points, stored at ``- off`` in the ghosted arrays (same
+    operations: the cell's box faces are the global ones)."""
+    ti, tj, tk = wp.tid()
+    gi = ti + blo[0]
+    gj = tj + blo[1]
+    gk = tk + blo[2]
+    i = gi - off[0]
+    j = gj - off[1]
+    k = gk - off[2]
+    x = grid_point(gi, gj, gk, h)
+    st = sigma[i, j, k]
+    cs = color_sigma[i, j, k]
+    acc = wp.vec3(0.0)
+    mx = wp.vec3(0.0)
+    my = wp.vec3(0.0)
+    mz = wp.vec3(0.0)
+    for n in range(count):
+        e, u = light_at(kinds[n], vecs[n], rgbs[n], x, source_radius)
+        tm, cell = cell_exposure(T[n, i, j, k], st, u, h, wp.vec3i(gi, gj, gk), shape)
+        q = (albedo * tm) * wp.cw_mul(cs, e)
+        acc = acc + q
+        if with_displacement != 0:
+            dx = wp.vec3(0.0)
+            dy = wp.vec3(0.0)
+            dz = wp.vec3(0.0)
+            for c in range(3):
+                sigma_tr = st - g * albedo * cs[c]
+                d = cell
+                if sigma_tr > 0.0:
+                    d = d + (g / sigma_tr) * u
+                moved = wp.abs(d[0]) / h[0] + wp.abs(d[1]) / h[1] + wp.abs(d[2]) / h[2]
+                if moved > MAX_MOVED:
+                    d = d * (MAX_MOVED / moved)
+                dx[c] = d[0] * q[c]
+                dy[c] = d[1] * q[c]
+                dz[c] = d[2] * q[c]
+            mx = mx + dx
+            my = my + dy
+            mz = mz + dz
+    out[i, j, k] = acc
+    if with_displacement != 0:
+        px[i, j, k] = mx
+        py[i, j, k] = my
+        pz[i, j, k] = mz
