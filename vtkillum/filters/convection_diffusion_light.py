@@ -2,11 +2,19 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
+from vtkmodules.vtkCommonCore import vtkOutputWindow
 from vtkmodules.vtkCommonDataModel import vtkDataObject
+from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
 
 from vtkillum.core.convection_diffusion.convection import SCHEMES
 from vtkillum.core.convection_diffusion.diffusion import SOLVERS
+from vtkillum.core.convection_diffusion.distributed import (
+    distributed_light_volume,
+    required_data_extent,
+)
 from vtkillum.core.convection_diffusion.solver import (
     DEFAULT_TOLERANCE,
     MODELS,
@@ -14,6 +22,8 @@ from vtkillum.core.convection_diffusion.solver import (
     ConvectionDiffusionSolver,
     UpdateStats,
 )
+from vtkillum.core.lights import DIRECTIONAL, resolved_radius
+from vtkillum.core.volume import GridGeometry
 from vtkillum.filters.base import IlluminationFilterBase
 from vtkillum.io.illumination_arrays import illumination_arrays
 
@@ -98,7 +108,8 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
     """
 
     #: Why this filter runs on the whole volume on every rank under MPI (mode 1).
-    distributed_needs = ('the distributed convection-diffusion core (vtkillum.core.convection_diffusion.distributed: the convection as a sweep across ranks, the diffusion as multigrid with halo exchange) is not wired into this filter yet')
+    distributed_needs = ("the paper model's distributed diffusion solves with multigrid "
+                         "only (set Solver to multigrid)")
 
     def __init__(self) -> None:
         super().__init__()
@@ -214,6 +225,150 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         """Drop the cached light-volume state (device memory); the next run starts afresh."""
         self._solver = None
 
+    # --- distributed mode (issue 36) ----------------------------------------------------------------
+    def distributed_unsupported(self) -> str | None:
+        """None (distributed) but for the paper model with a solver other than multigrid."""
+        if self._model == "paper" and self._solver_name != "multigrid":
+            return self.distributed_needs
+        return None
+
+    def _choose_piece_mode(self, in_info, out_info) -> tuple:
+        """The base class's choice without its output-grid condition: this filter's output
+        is the light grid, whose pieces the distributed core computes from the data points
+        each needs (:func:`~vtkillum.core.convection_diffusion.distributed.required_data_extent`)."""
+        from vtkillum.core.parallel.comm import mpi
+
+        pieces = out_info.Get(SDDP.UPDATE_NUMBER_OF_PIECES()) \
+            if out_info.Has(SDDP.UPDATE_NUMBER_OF_PIECES()) else 1
+        piece = out_info.Get(SDDP.UPDATE_PIECE_NUMBER()) \
+            if out_info.Has(SDDP.UPDATE_PIECE_NUMBER()) else 0
+        if pieces <= 1:
+            return ("whole", piece, pieces, None)
+        reason = self.distributed_unsupported()
+        if reason is None and not self.GetDistributed():
+            reason = "the Distributed property is off"
+        if reason is None:
+            MPI = mpi()
+            if MPI is None:
+                reason = "mpi4py is not installed (pip install 'vtkillum[mpi]')"
+            elif MPI.COMM_WORLD.Get_size() != pieces:
+                reason = (f"{pieces} pieces on {MPI.COMM_WORLD.Get_size()} MPI ranks; the "
+                          "distributed core needs one piece per rank")
+        return ("whole" if reason else "distributed", piece, pieces, reason)
+
+    def RequestUpdateExtent(self, request, inInfo, outInfo):
+        """Distributed mode: the input points this rank's light-grid block needs (its
+        footprints and one light cell around it), not a piece of the data's split."""
+        result = super().RequestUpdateExtent(request, inInfo, outInfo)
+        if self._piece_mode[0] == "distributed":
+            in_info = inInfo[0].GetInformationObject(0)
+            out_info = outInfo.GetInformationObject(0)
+            _, piece, pieces, _ = self._piece_mode
+            whole = in_info.Get(SDDP.WHOLE_EXTENT())
+            lo, hi, dims, shape = self._light_block(whole, out_info, piece, pieces)
+            dlo, dhi = required_data_extent(lo, hi, dims, self._input_spacing(in_info), shape)
+            start = np.asarray(whole[0::2])
+            extent = tuple(int(v) for a in range(3)
+                           for v in (start[a] + dlo[a], start[a] + dhi[a] - 1))
+            in_info.Set(SDDP.UPDATE_EXTENT(), extent, 6)
+        return result
+
+    @staticmethod
+    def _input_spacing(in_info):
+        return np.asarray(in_info.Get(vtkDataObject.SPACING()) or (1.0, 1.0, 1.0), np.float64)
+
+    def _light_block(self, whole, out_info, piece: int, pieces: int):
+        """This rank's light-grid block ``[lo, hi)`` (the points its output piece owns), the
+        data's points per axis and the light grid's."""
+        from vtkillum.core.convection_diffusion.distributed_layout import extent_block
+        from vtkillum.core.parallel import Decomposition
+
+        out_whole = out_info.Get(SDDP.WHOLE_EXTENT())
+        dims = tuple(int(whole[2 * a + 1] - whole[2 * a] + 1) for a in range(3))
+        shape = tuple(int(out_whole[2 * a + 1] - out_whole[2 * a] + 1) for a in range(3))
+        zero = tuple(v for n in shape for v in (0, n - 1))
+        lo, hi = extent_block(Decomposition.of(zero, pieces).owner_extent(piece))
+        return lo, hi, dims, shape
+
+    def _execute_piece(self, image, in_info, out_info, piece: int, pieces: int):
+        """This rank's piece of the light grid from
+        :func:`~vtkillum.core.convection_diffusion.distributed.distributed_light_volume`
+        (its owned block), widened to VTK's piece extent (the shared planes of the
+        neighbours' blocks by a halo exchange); a new vtkImageData on the piece's extent."""
+        from vtkmodules.vtkCommonDataModel import vtkImageData
+
+        from vtkillum.core.parallel.comm import rank_device
+        from vtkillum.core.parallel.decomposition import split_extent
+        from vtkillum.core.units import WorldUnits
+        from vtkillum.filters.base import IlluminationParameters, check_image_data
+        from vtkillum.io.convert import add_point_array, volume_from_image_data
+        from vtkillum.io.illumination_arrays import add_lights_field
+
+        check_image_data(image)
+        self.UpdateProgress(0.0)
+        whole = tuple(in_info.Get(SDDP.WHOLE_EXTENT()))
+        lo, hi, dims, shape = self._light_block(whole, out_info, piece, pieces)
+        name, association = self._selected_array(image)
+        component = "magnitude" if self._input_component == -1 else self._input_component
+        volume = volume_from_image_data(image, name, component, self._nan_policy, association)
+        if not self._lights:
+            raise ValueError(f"{type(self).__name__} has no lights; add one with "
+                             "AddDirectionalLight(direction, irradiance) or AddPointLight(...)")
+        units = WorldUnits.for_volume(volume)
+        canonical = units.volume(volume)
+        data_start = np.asarray(image.GetExtent()[0::2]) - np.asarray(whole[0::2])
+        # the whole box in canonical units (its first point; the piece's minus its offset)
+        box = _Box(dims, np.asarray(canonical.spacing, np.float64),
+                   np.asarray(canonical.origin, np.float64)
+                   - np.asarray(canonical.direction) @ (data_start * canonical.spacing),
+                   np.asarray(canonical.direction, np.float64))
+        lights = units.lights(list(self._lights), volume)
+        tf = self._transfer_function(volume)
+        unit_distance = units.to_length(self._unit_distance or volume.mean_spacing())
+        params = IlluminationParameters(
+            transfer_function=tf, unit_distance=unit_distance, albedo=self._albedo,
+            anisotropy=self._anisotropy, lights=lights,
+            device=rank_device(None, self._device), output_shape=shape, units=units,
+            progress=lambda fraction: self.UpdateProgress(float(np.clip(fraction, 0.0, 1.0))))
+        with units.explained():
+            local = distributed_light_volume(
+                canonical.scalars, data_start, dims, box.spacing, tf, unit_distance, lights,
+                origin=box.origin, direction=box.direction, light_volume_shape=shape,
+                block=(lo, hi), diffusion_model=self._model,
+                scattering=units.to_length(self._scattering, 2), solver=self._solver_name,
+                tolerance=self._tolerance, iterations=self._iterations,
+                source_radius=units.to_length(self._source_radius),
+                convection_scheme=self._scheme, albedo=params.albedo,
+                anisotropy=params.anisotropy, device=params.device)
+        self._stats = UpdateStats(shape=shape, model=self._model, opacity=True,
+                                  convected=list(range(len(lights))), composed=True,
+                                  diffused=True, diffusion=local.diffusion,
+                                  converged=local.diffusion.converged or local.diffusion.stalled,
+                                  ms=dict(local.ms))
+        arrays = piece_arrays(local, box, lights)
+        out_whole = tuple(out_info.Get(SDDP.WHOLE_EXTENT()))
+        extent = split_extent(out_whole, piece, pieces)
+        first = np.asarray(extent[0::2]) - np.asarray(out_whole[0::2])
+        last = np.asarray(extent[1::2]) - np.asarray(out_whole[0::2]) + 1
+        arrays = widen_to_piece(arrays, lo, hi, first, last, shape)
+        output = vtkImageData()
+        output.SetExtent(*extent)
+        output.SetOrigin(out_info.Get(vtkDataObject.ORIGIN()))
+        output.SetSpacing(out_info.Get(vtkDataObject.SPACING()))
+        output.SetDirectionMatrix(out_info.Get(vtkDataObject.DIRECTION()))
+        for index, (array_name, values) in enumerate(arrays.items()):
+            add_point_array(output, array_name, np.asarray(values, np.float32),
+                            set_active=index == 0)
+        add_lights_field(output, list(self._lights))
+        time = self._input_time(image, out_info)
+        if time is not None:
+            output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), time)
+        mode = f"{self._label()}: piece {piece + 1} of {pieces}: {local.mode}"
+        if mode not in self._notes_given:
+            self._notes_given.add(mode)
+            vtkOutputWindow.GetInstance().DisplayText(mode + "\n")
+        return output
+
     # --- computation ------------------------------------------------------------------------------
     def compute(self, volume, params):
         if self._solver is None or self._solver.device != params.device:
@@ -249,3 +404,76 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         keys = (vtkDataObject.FIELD_NAME(), vtkDataObject.FIELD_ASSOCIATION(),
                 vtkDataObject.FIELD_ATTRIBUTE_TYPE())
         return tuple(info.Get(k) if info.Has(k) else None for k in keys)
+
+
+@dataclass
+class _Box(GridGeometry):
+    """The whole data grid's geometry (no data) for a distributed piece."""
+
+    dims: tuple
+    spacing: np.ndarray
+    origin: np.ndarray
+    direction: np.ndarray
+
+
+def block_irradiance(light, box, shape, lo, hi) -> np.ndarray:
+    """:func:`~vtkillum.core.lights.irradiance_on_grid` on block ``[lo, hi)`` of the grid of
+    ``shape`` points (the same per-point arithmetic)."""
+    size = tuple(int(b - a) for a, b in zip(lo, hi))
+    if light.kind == DIRECTIONAL:
+        return np.broadcast_to(np.asarray(light.irradiance, np.float32), (*size, 3)).copy()
+    spacing = box.extent / (np.asarray(shape) - 1)
+    p = box.to_local(light.position)
+    axes = [(np.arange(n) * h - c)[a:b] for n, h, c, a, b in zip(shape, spacing, p, lo, hi)]
+    d2 = (axes[0][:, None, None] ** 2 + axes[1][None, :, None] ** 2
+          + axes[2][None, None, :] ** 2)
+    d2 = np.maximum(d2, max(resolved_radius(light, box), 0.5 * float(spacing.min())) ** 2)
+    return (np.asarray(light.intensity)[None, None, None, :] / d2[..., None]).astype(np.float32)
+
+
+def piece_arrays(local, box, lights) -> dict:
+    """The output arrays (``illumination_arrays``' names and values) on a rank's block:
+    physical: ``fluence = phi_s~ + sum_l T_l E_l``, ``transmittance``, ``scattered_fluence
+    = phi_s~`` (filtered along surfaces); paper: ``L`` as fluence and scattered fluence."""
+    if local.model == "paper":
+        return {"fluence": local.scattered_fluence, "scattered_fluence": local.scattered_fluence}
+    scattered = local.rendered_scattered_fluence
+    total = scattered.copy()
+    for li, light in enumerate(lights):
+        total += local.transmittance[li][..., None] * block_irradiance(
+            light, box, local.shape, local.lo, local.hi)
+    return {"fluence": total,
+            "transmittance": np.clip(np.moveaxis(local.transmittance, 0, -1), 0.0, 1.0),
+            "scattered_fluence": scattered}
+
+
+def widen_to_piece(arrays, lo, hi, first, last, shape) -> dict:
+    """The arrays of block ``[lo, hi)`` on the piece ``[first, last)`` that covers it (VTK's
+    pieces share their boundary planes), the rest from the owners by a halo exchange."""
+    import warp as wp
+
+    from vtkillum.core.convection_diffusion.distributed_layout import Halo, Layout, region
+    from vtkillum.core.parallel import Parallel
+
+    comm = Parallel.create().comm
+    boxes = comm.allgather(((np.asarray(lo), np.asarray(hi)),
+                            (np.asarray(first), np.asarray(last))))
+    layout = Layout(shape, [b for b, _ in boxes], comm.Get_rank(), [g for _, g in boxes])
+    halo = Halo(comm, layout)
+    size = tuple(int(b - a) for a, b in zip(first, last))
+    out = {}
+    for tag, (name, values) in enumerate(arrays.items()):
+        values = np.asarray(values, np.float32)
+        comps = values.shape[3:]
+        wide = np.zeros(size + comps, np.float32)
+        wide[region(lo, hi, first)] = values
+        channels = [wide] if comps in ((), (3,)) else [np.ascontiguousarray(wide[..., c])
+                                                       for c in range(comps[0])]
+        done = []
+        for c, channel in enumerate(channels):
+            arr = wp.array(channel, dtype=wp.vec3 if channel.ndim == 4 else wp.float32,
+                           device="cpu")
+            halo.exchange(arr, 7000 + 16 * tag + c)
+            done.append(arr.numpy())
+        out[name] = done[0] if len(done) == 1 and comps in ((), (3,)) else np.stack(done, -1)
+    return out
