@@ -82,6 +82,31 @@ def distributed_ambient_extinction(volume, piece_extent, whole_extent, transfer_
         ``σ̃t`` (1/world units) on the piece's points.
     """
     par = Parallel.create(comm, device)
+    sigma_tilde, ghosted = ghosted_ambient_extinction(
+        volume, piece_extent, whole_extent, transfer_function, unit_distance, radius, 0, par,
+        data_extent)
+    return np.ascontiguousarray(sigma_tilde[sub_slices(tuple(int(v) for v in piece_extent),
+                                                       ghosted)])
+
+
+def ghosted_ambient_extinction(volume, piece_extent, whole_extent, transfer_function,
+                               unit_distance: float, radius: float, extra: int, par: Parallel,
+                               data_extent=None) -> tuple[np.ndarray, tuple]:
+    """``σ̃t`` on this rank's piece widened by ``extra`` points on every side (clamped to the
+    whole extent), as the one-rank method has it there (collective over ``par.comm``;
+    ``extra`` must be the same on every rank).
+
+    ``σt`` is widened by ``extra`` plus :func:`ghost_levels_for` points, so the cube of every
+    point of the widened piece lies in the block (or outside the whole volume, where both
+    take 0). Parameters as :func:`distributed_ambient_extinction`.
+
+    Returns
+    -------
+    sigma_tilde : ndarray float32
+        ``σ̃t`` on ``ghosted``.
+    ghosted : tuple of 6 int
+        The widened extent.
+    """
     whole_extent = tuple(int(v) for v in whole_extent)
     piece_extent = tuple(int(v) for v in piece_extent)
     decomposition = Decomposition.of(whole_extent, par.size)
@@ -95,7 +120,8 @@ def distributed_ambient_extinction(volume, piece_extent, whole_extent, transfer_
                          f"{data_extent} {extent_shape(data_extent)}")
     if not _contains(data_extent, piece_extent):
         raise ValueError(f"the data extent {data_extent} does not hold the piece {piece_extent}")
-    ghosts = ghost_levels_for(radius, volume.spacing)
+    inner = decomposition.ghosted(par.rank, int(extra))
+    ghosts = ghost_levels_for(radius, volume.spacing) + int(extra)
     ghosted = decomposition.ghosted(par.rank, ghosts)
     # The tables span the whole data range: ghost points included, every rank's range.
     value_range = global_value_range(volume, par.comm)
@@ -110,4 +136,4 @@ def distributed_ambient_extinction(volume, piece_extent, whole_extent, transfer_
         widened = halo_exchange(own, decomposition, par.rank, ghosts, par.comm)
     sigma_tilde = ambient_extinction(wp.array(widened, dtype=wp.float32, device=par.device),
                                      volume.spacing, radius, device=par.device).numpy()
-    return np.ascontiguousarray(sigma_tilde[sub_slices(piece_extent, ghosted)])
+    return np.ascontiguousarray(sigma_tilde[sub_slices(inner, ghosted)]), inner
