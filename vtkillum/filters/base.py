@@ -94,8 +94,10 @@ a filter runs in one of two modes, and one line per rank and layout says which:
     ``MPI_COMM_WORLD``, one warp device per rank), which exchanges planes or ghost layers
     with the other ranks and never gathers the volume. Needs mpi4py, as many MPI ranks as
     pieces, the output grid equal to the input grid (``OutputScale`` 1) and the
-    ``Distributed`` property on (off by default for now, see :meth:`SetDistributed`);
-    otherwise mode 1, with the reason in the line.
+    ``Distributed`` property on (its default is the filter's
+    :attr:`~IlluminationFilterBase.distributed_by_default`: on where the distributed
+    result equals the one-rank result, see :meth:`SetDistributed`); otherwise mode 1,
+    with the reason in the line.
 *whole volume on every rank* (mode 1, every other filter)
     the filter requests the whole input as one piece, computes the whole volume's
     illumination (shadows and scattered light cross pieces) and outputs piece *p* of it.
@@ -109,6 +111,7 @@ from __future__ import annotations
 
 import dataclasses
 import threading
+import types
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -309,7 +312,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         self._pending = None  # (key, cached output or None), from RequestUpdateExtent
         self._steps_seen: dict = {}  # (requested time, upstream MTime) -> step computed
         self._notes_given: set = set()  # notes already given (_deliver, _check_series_fits)
-        self._distributed = False  # distributed core under MPI (SetDistributed)
+        self._distributed = bool(self.distributed_by_default)  # SetDistributed
         self._last_error: Exception | None = None
         self._interrupt: KeyboardInterrupt | None = None  # caught in RequestData, see module doc
         self.SetInputArrayToProcess(0, 0, 0, vtkDataObject.FIELD_ASSOCIATION_POINTS,
@@ -776,12 +779,18 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
     #: What a distributed version of the method would need (said in mode 1's log line).
     distributed_needs = "this method has no distributed version"
 
+    #: The ``Distributed`` property's default: on for filters whose distributed core gives
+    #: the one-rank result (light transmittance: bit-identical; ambient extinction without
+    #: the radiance cache: within float rounding), off elsewhere.
+    distributed_by_default = False
+
     def SetDistributed(self, on: bool) -> None:
         """Use the distributed core under MPI when the filter has one.
 
-        Off by default for now: the distributed transmittance's interpolation at the cuts
-        differs from one rank by up to 0.2 in T on ParaView's Wavelet with a point light
-        next to a cut (``docs/parallel.md``); mode 1 gives the one-rank result exactly.
+        The default is :attr:`distributed_by_default` (on for light transmittance, whose
+        distributed march is the one-rank march, ``docs/parallel.md``). Off: mode 1 (the
+        whole volume on every rank), which gives the one-rank result too, at the whole
+        volume's memory and time on every rank.
         """
         self.set_parameter("_distributed", bool(on))
 
@@ -819,7 +828,7 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
     def _execute_piece(self, image, in_info, out_info, piece: int, pieces: int):
         """Compute this rank's piece with the distributed core (a new vtkImageData on the
         piece's extent, without ghosts)."""
-        from vtkillum.core.parallel.comm import rank_device
+        from vtkillum.core.parallel.comm import rank_device, world
         from vtkillum.core.parallel.decomposition import split_extent
 
         check_image_data(image)
@@ -847,15 +856,24 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
                              "AddDirectionalLight(direction, irradiance) or AddPointLight(...)")
         dims = tuple(int(extent[2 * a + 1] - extent[2 * a] + 1) for a in range(3))
         device = rank_device(None, self._device if self.uses_device else "cpu")
+        # What one rank derives from the whole volume, derived the same way here: its first
+        # point (canonical units, point lights), its data range (the default opacity ramp).
+        from vtkillum.io.convert import first_point
+
+        first = first_point(image.GetOrigin(), whole, volume.spacing, volume.direction)
+        ranges = world().allgather(tuple(float(v) for v in volume.value_range))
+        whole_like = types.SimpleNamespace(
+            spacing=volume.spacing, origin=first,
+            value_range=(min(r[0] for r in ranges), max(r[1] for r in ranges)))
         params = IlluminationParameters(
-            transfer_function=self._transfer_function(volume),
+            transfer_function=self._transfer_function(whole_like),
             unit_distance=self._unit_distance or volume.mean_spacing(),
             albedo=self._albedo, anisotropy=self._anisotropy, lights=list(self._lights),
             device=device, output_shape=dims,
             progress=lambda fraction: self.UpdateProgress(float(np.clip(fraction, 0.0, 1.0))),
         )
-        request = PieceRequest(piece, pieces, extent, whole, keep)
-        units = WorldUnits.for_volume(volume)
+        units = WorldUnits.for_volume(whole_like)
+        request = PieceRequest(piece, pieces, extent, whole, keep, units.to_point(first))
         inside = dataclasses.replace(params, unit_distance=units.to_length(params.unit_distance),
                                      lights=units.lights(params.lights, volume), units=units)
         with units.explained():
@@ -1259,8 +1277,10 @@ class PieceRequest:
     """What a distributed :meth:`IlluminationFilterBase.compute_piece` is asked for.
 
     ``piece`` of ``pieces`` (this rank's, one per MPI rank), its ``extent`` (VTK's split,
-    no ghosts; the arrays returned cover it), the input's ``whole`` extent and the
-    ``data_extent`` the volume holds (the piece plus the ghost levels delivered).
+    no ghosts; the arrays returned cover it), the input's ``whole`` extent, the
+    ``data_extent`` the volume holds (the piece plus the ghost levels delivered) and the
+    whole volume's first point ``origin`` in the canonical units the volume is in (the
+    one-rank volume's origin, bit for bit; None when not known).
     """
 
     piece: int
@@ -1268,6 +1288,7 @@ class PieceRequest:
     extent: tuple
     whole: tuple
     data_extent: tuple
+    origin: object = None
 
 
 def piece_extents(whole, piece: int, pieces: int, ghost_levels: int = 0) -> tuple:

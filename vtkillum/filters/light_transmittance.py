@@ -54,6 +54,8 @@ class LightTransmittanceFilter(IlluminationFilterBase):
     # Only the opacity shadows: a colour, albedo or anisotropy edit reuses the arrays.
     illumination_depends_on = frozenset()
     reuses_results = True
+    #: Under MPI the distributed march gives the one-rank arrays bit for bit: on by default.
+    distributed_by_default = True
 
     def __init__(self) -> None:
         super().__init__()
@@ -69,15 +71,16 @@ class LightTransmittanceFilter(IlluminationFilterBase):
         return self._step_size
 
     def compute_piece(self, volume, params, piece):
-        """Distributed under MPI: the pipelined sweep of
-        :func:`vtkillum.core.parallel.transmittance.distributed_light_transmittance` on this
-        rank's piece (no ghost levels needed: neighbouring pieces share their planes)."""
+        """Distributed under MPI: the one-rank shadow rays, marched across the ranks
+        (:func:`vtkillum.core.parallel.transmittance.distributed_light_transmittance`), on
+        this rank's piece; no ghost levels (neighbouring pieces share their planes). The
+        arrays equal the one-rank filter's bit for bit."""
         from vtkillum.core.parallel.transmittance import distributed_light_transmittance
 
         transmittance, _fluence = distributed_light_transmittance(
             volume, piece.extent, piece.whole, params.transfer_function, params.unit_distance,
             params.lights, step_size=params.units.to_length(self._step_size) or None,
-            device=params.device, progress=params.progress)
+            device=params.device, progress=params.progress, origin=piece.origin)
         illumination = IlluminationVolume.for_volume(volume, transmittance=transmittance)
         return illumination_arrays(illumination, volume, params.lights, params.output_shape)
 

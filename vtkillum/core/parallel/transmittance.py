@@ -376,9 +376,9 @@ def ray_setup(lights: Lights, li: int, p: wp.vec3, g: Blocks):
     w, dist, _e = light_incidence(lights, li, p)
     tt = ray_box(p, w, g.extent)
     length = wp.min(tt[1], dist)
-    n = int(0)
-    h = float(0.0)
-    tau_stop = float(1.0e30)
+    n = int(0)  # noqa: UP018, RUF046 (a dynamic warp variable)
+    h = float(0.0)  # noqa: UP018 (a dynamic warp variable)
+    tau_stop = float(1.0e30)  # noqa: UP018 (a dynamic warp variable)
     if length > 0.0:
         n = int(wp.ceil(length / g.step))
         h = length / float(n)
@@ -464,7 +464,7 @@ def finish_kernel(g: Blocks, lights: Lights, tau: wp.array4d(dtype=wp.float32),
     acc = wp.vec3(0.0, 0.0, 0.0)
     for li in range(lights.count):
         _w, n, h, _stop = ray_setup(lights, li, p, g)
-        t = float(1.0)
+        t = float(1.0)  # noqa: UP018 (a dynamic warp variable)
         if n > 0:
             t = wp.exp(-tau[li, i, j, k] * h)
         transmittance[li, i, j, k] = t
