@@ -94,18 +94,18 @@ def test_distributed_filter_gives_its_piece_of_the_one_rank_output(par, capfd, k
     all_ranks(par, ok, f"{kind}: extent {out.GetExtent()} want {want}, errors {errors}")
 
 
-def test_radiance_cache_falls_back_to_the_whole_volume_with_a_reason(par, capfd):
-    from vtkillum.filters import AmbientExtinctionFilter
-
-    f = _filter("ambient")
-    f.ComputeRadianceOn()
-    f.AddDirectionalLight((0, 0, -1), (1, 1, 1))
+def test_distributed_off_falls_back_to_the_whole_volume_with_a_reason(par, capfd):
+    """``SetDistributed(False)``: mode 1 (the whole volume on every rank), the same arrays
+    and one line saying why."""
+    f = _filter("transmittance")
+    f.SetDistributed(False)
     f.UpdatePiece(par.rank, par.size, 0)
     log = capfd.readouterr()
     text = log.out + log.err
-    ok = isinstance(f, AmbientExtinctionFilter)
+    ok = f.GetOutputDataObject(0).GetPointData().GetArray("transmittance") is not None
     if par.size > 1:
-        ok = ok and "whole volume on every rank; not distributed: the radiance cache" in text
+        ok = ok and "whole volume on every rank; not distributed: the Distributed property " \
+                    "is off" in text
     all_ranks(par, ok, text[-500:])
 
 
