@@ -104,40 +104,68 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
         return self._ambient
 
     def distributed_unsupported(self) -> str | None:
-        if self._compute_radiance:
-            return ("the radiance cache's tube march is not distributed yet (it needs a sweep "
-                    "across ranks carrying each light's front and step phase, like "
-                    "transmittance's); ComputeRadiance off runs the ambient extinction "
-                    "distributed")
-        return None
+        return None  # σ̃t by ghost layers, the radiance cache by segment forwarding
 
     def _world_radius(self, spacing) -> float:
         return self._radius * float(np.mean(spacing)) if self._radius_units == "voxels" \
             else self._radius
 
     def distributed_ghost_levels(self, in_info=None) -> int:
-        """Ghost points holding the cube of the ambient sphere around the piece."""
+        """Ghost points holding the cube of the ambient sphere around the piece, and with
+        ``ComputeRadiance`` the step field's box too
+        (:func:`vtkillum.core.ambient.distributed_radiance.radiance_ghost_levels`): the
+        pipeline then delivers every ``σt`` the piece needs and no ghost layer is exchanged."""
         from vtkmodules.vtkCommonDataModel import vtkDataObject
+        from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
 
         from vtkillum.core.ambient.distributed import ghost_levels_for
+        from vtkillum.core.ambient.distributed_radiance import radiance_ghost_levels
 
         spacing = (1.0, 1.0, 1.0)
         if in_info is not None and in_info.Has(vtkDataObject.SPACING()):
             spacing = in_info.Get(vtkDataObject.SPACING())
-        return ghost_levels_for(self._world_radius(spacing), spacing)
+        radius = self._world_radius(spacing)
+        if self._compute_radiance and in_info is not None and in_info.Has(SDDP.WHOLE_EXTENT()):
+            whole = in_info.Get(SDDP.WHOLE_EXTENT())
+            dims = [whole[2 * a + 1] - whole[2 * a] + 1 for a in range(3)]
+            return radiance_ghost_levels(dims, spacing, radius)
+        return ghost_levels_for(radius, spacing)
 
     def compute_piece(self, volume, params, piece):
-        """Distributed under MPI (``ComputeRadiance`` off): ``σ̃t`` of this rank's piece from
-        the ghost layers the input delivered (or exchanged with the neighbouring ranks),
-        :func:`vtkillum.core.ambient.distributed.distributed_ambient_extinction`."""
+        """Distributed under MPI: ``σ̃t`` of this rank's piece from the ghost layers the input
+        delivered (or exchanged with the neighbouring ranks),
+        :func:`vtkillum.core.ambient.distributed.distributed_ambient_extinction`; with
+        ``ComputeRadiance`` also the radiance cache, each light's tube march handed from rank
+        to rank along its path,
+        :func:`vtkillum.core.ambient.distributed_radiance.distributed_radiance_cache` (the
+        one-rank result; no state is kept between executions in this mode)."""
         from vtkillum.core.ambient.distributed import distributed_ambient_extinction
+        from vtkillum.core.ambient.distributed_radiance import distributed_radiance_cache
 
         radius = params.units.to_length(self._radius) if self._radius_units == "world" \
             else self._radius * float(np.mean(volume.spacing))
-        sigma_tilde = distributed_ambient_extinction(
+        lights = list(params.lights) if self._compute_radiance else []
+        if self._compute_radiance and not lights:
+            raise ValueError(self._NO_LIGHTS)
+        if not lights:
+            sigma_tilde = distributed_ambient_extinction(
+                volume, piece.extent, piece.whole, params.transfer_function,
+                params.unit_distance, radius, device=params.device,
+                data_extent=piece.data_extent)
+            return {"ambient_extinction": params.units.per_world_length(sigma_tilde)}
+        result = distributed_radiance_cache(
             volume, piece.extent, piece.whole, params.transfer_function, params.unit_distance,
-            radius, device=params.device, data_extent=piece.data_extent)
-        return {"ambient_extinction": params.units.per_world_length(sigma_tilde)}
+            radius, lights, params.albedo, params.anisotropy, device=params.device,
+            data_extent=piece.data_extent)
+        params.progress(0.9)
+        arrays = {"ambient_extinction": params.units.per_world_length(result.sigma_tilde),
+                  "ambient_radiance": result.radiance.sum(axis=0)}
+        arrays.update({f"ambient_radiance_{i}": r for i, r in enumerate(result.radiance)})
+        return arrays
+
+    _NO_LIGHTS = ("AmbientExtinctionFilter has no lights for the radiance cache; add one with "
+                  "AddDirectionalLight(direction, irradiance) or call ComputeRadianceOff() for "
+                  "the ambient extinction alone")
 
     def compute(self, volume, params):
         if self._ambient is None or self._ambient.device != params.device:
@@ -147,9 +175,7 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
         radius = params.units.to_length(self._radius) if self._radius_units == "world" \
             else self._radius
         if self._compute_radiance and not lights:
-            raise ValueError("AmbientExtinctionFilter has no lights for the radiance cache; add "
-                             "one with AddDirectionalLight(direction, irradiance) or call "
-                             "ComputeRadianceOff() for the ambient extinction alone")
+            raise ValueError(self._NO_LIGHTS)
         if lights:
             state = self._ambient.update(
                 volume, params.transfer_function, params.unit_distance, params.albedo,

@@ -57,7 +57,7 @@ import warp as wp
 
 from vtkillum.core.ambient.cache import STEP_SAMPLES
 from vtkillum.core.ambient.device_table import DeviceTable
-from vtkillum.core.ambient.distributed import ghosted_ambient_extinction
+from vtkillum.core.ambient.distributed import ghost_levels_for, ghosted_ambient_extinction
 from vtkillum.core.ambient.table import load_table
 from vtkillum.core.ambient.tube_march import (
     NEGLIGIBLE,
@@ -417,6 +417,9 @@ def distributed_radiance_cache(volume, piece_extent, whole_extent, transfer_func
         rel = np.asarray(ext[0::2]) - np.asarray(whole[0::2])
         rel1 = np.asarray(ext[1::2]) - np.asarray(whole[0::2])
         extra = max(extra, int(np.max(rel - d0)), int(np.max(d1 - rel1)))
+    if extra > radiance_ghost_levels(dims, spacing, radius, samples) - ghost_levels_for(
+            radius, spacing):
+        raise RuntimeError(f"step-field ghost width {extra} exceeds radiance_ghost_levels")
     sigma_block, block = ghosted_ambient_extinction(
         volume, piece_extent, whole, transfer_function, unit_distance, radius, extra, par,
         data_extent)
@@ -545,3 +548,18 @@ def distributed_radiance_cache(volume, piece_extent, whole_extent, transfer_func
             break
     radiance = radiance.reshape((len(lights),) + tuple(local) + (3,))
     return DistributedRadiance(sigma_tilde, radiance, rounds, forwarded, timings)
+
+
+def radiance_ghost_levels(whole_dims, spacing, radius: float, samples: int = STEP_SAMPLES) -> int:
+    """Input ghost levels around any piece that hold everything
+    :func:`distributed_radiance_cache` reads (then no ``σt`` is exchanged): the SAT cube's
+    (:func:`~vtkillum.core.ambient.distributed.ghost_levels_for`) plus the step field's box
+    and one field cell each side, ``ceil(2 ρ) + taps + 2`` with ``ρ`` data points per field
+    interval and ``taps = ceil(r / (samples h)) + 2`` (a bound on the ``extra`` computed there
+    for every piece layout)."""
+    dims = np.asarray(whole_dims, np.int64).reshape(3)
+    spacing = np.asarray(spacing, np.float64).reshape(3)
+    fdims = np.asarray(step_field_shape(dims, spacing, radius, samples))
+    ratio = (dims - 1) / np.maximum(fdims - 1, 1)
+    taps = np.ceil(float(radius) / samples / spacing) + 2
+    return ghost_levels_for(radius, spacing) + int(np.max(np.ceil(2 * ratio) + taps + 2))
