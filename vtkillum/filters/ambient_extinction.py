@@ -62,6 +62,9 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
     """
 
     requires_lights = False  # σ̃t alone needs no light; the radiance needs at least one
+    #: Distributed under MPI by default: ``σ̃t`` and the radiance cache are the one-rank
+    #: result within the rounding of a piece's summed-area table (``docs/parallel.md``).
+    distributed_by_default = True
 
     def __init__(self) -> None:
         super().__init__()
@@ -156,7 +159,7 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
         result = distributed_radiance_cache(
             volume, piece.extent, piece.whole, params.transfer_function, params.unit_distance,
             radius, lights, params.albedo, params.anisotropy, device=params.device,
-            data_extent=piece.data_extent)
+            data_extent=piece.data_extent, whole_origin=getattr(piece, "origin", None))
         params.progress(0.9)
         arrays = {"ambient_extinction": params.units.per_world_length(result.sigma_tilde),
                   "ambient_radiance": result.radiance.sum(axis=0)}

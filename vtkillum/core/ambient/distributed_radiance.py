@@ -334,12 +334,14 @@ def _exchange(par: Parallel, buckets: list) -> np.ndarray:
     return recvbuf.view(RECORD)
 
 
-def _whole_geometry(volume, piece_data_extent, whole):
-    """A stand-in for the whole volume (lights are mapped into its local frame)."""
+def _whole_geometry(volume, piece_data_extent, whole, origin=None):
+    """A stand-in for the whole volume (lights are mapped into its local frame); ``origin``
+    its first point when known (else derived from the piece's, within rounding)."""
     first = np.asarray(piece_data_extent[0::2], np.float64) - np.asarray(whole[0::2])
     direction = np.asarray(volume.direction, np.float64)
-    origin = np.asarray(volume.origin, np.float64) - direction @ (first * np.asarray(
-        volume.spacing, np.float64))
+    if origin is None:
+        origin = np.asarray(volume.origin, np.float64) - direction @ (first * np.asarray(
+            volume.spacing, np.float64))
     dims = extent_shape(whole)
     return SimpleNamespace(dims=dims, spacing=np.asarray(volume.spacing, np.float64),
                            origin=origin, direction=direction,
@@ -350,7 +352,7 @@ def distributed_radiance_cache(volume, piece_extent, whole_extent, transfer_func
                                unit_distance: float, radius: float, lights, albedo: float = 0.9,
                                anisotropy: float = 0.0, comm=None, device: str | None = None,
                                data_extent=None, samples: int = STEP_SAMPLES,
-                               table=None) -> DistributedRadiance:
+                               table=None, whole_origin=None) -> DistributedRadiance:
     """``σ̃t`` and the radiance cache ``L̃d`` on this rank's piece (collective over ``comm``).
 
     The result is the one-rank :class:`~vtkillum.core.ambient.cache.AmbientScatteringCache`
@@ -381,6 +383,9 @@ def distributed_radiance_cache(volume, piece_extent, whole_extent, transfer_func
         Step-field samples per tube step (the cache's ``step_samples``).
     table : PreintegrationTable, optional
         Default :func:`~vtkillum.core.ambient.table.load_table` for ``albedo``.
+    whole_origin : (3,) float, optional
+        The whole volume's first point (world units), so that point lights land in its
+        local frame as on one rank bit for bit; default derived from the piece's origin.
 
     Returns
     -------
@@ -451,7 +456,7 @@ def distributed_radiance_cache(volume, piece_extent, whole_extent, transfer_func
 
     # --- start a record per (light, piece point) ---------------------------------------------------
     t1 = time.perf_counter()
-    geometry = _whole_geometry(volume, data_extent, whole)
+    geometry = _whole_geometry(volume, data_extent, whole, whole_origin)
     wlights = make_lights(lights, geometry, dev)
     if table is None:
         table = load_table(albedo, device=dev)
