@@ -62,9 +62,12 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
     """
 
     requires_lights = False  # σ̃t alone needs no light; the radiance needs at least one
-    #: Distributed under MPI by default: ``σ̃t`` and the radiance cache are the one-rank
-    #: result within the rounding of a piece's summed-area table (``docs/parallel.md``).
-    distributed_by_default = True
+    #: ``σ̃t`` and the radiance cache in distributed mode are the one-rank result within the
+    #: rounding of a piece's summed-area table (equal in the tests); off by default until the
+    #: ParaView glue resolves its unit distance and convention arrays for the piece's run too
+    #: (``_execute_piece`` / ``compute_piece``): under pvbatch the piece's run now takes the
+    #: mean spacing as unit distance where the glue's whole-volume run takes the cell length.
+    distributed_by_default = False
 
     def __init__(self) -> None:
         super().__init__()
