@@ -47,12 +47,16 @@ Stages across ranks
        * the first-scattered source ``Q`` and its first moments (dipole per axis):
          pointwise, the one-rank ``first_scattered_kernel`` at global indices
          (:func:`block_first_scattered_kernel`), exact;
-       * the flux-limited diffusion: the light-grid fields it needs (``Q``, the three
-         moments, ``sigma_t``, ``color sigma_t``, light-grid sized, not the data) are
-         gathered onto rank 0, which runs the one-rank
-         :class:`~vtkillum.core.convection_diffusion.radiative.RadiativeDiffusion`
-         (lagged limiter, nonlinear multigrid, nested start, Anderson) and scatters
-         ``phi_s`` back by blocks: the one-rank solve bit for bit;
+       * the flux-limited diffusion on the blocks
+         (:class:`~vtkillum.core.convection_diffusion.distributed_radiative.DistributedRadiativeDiffusion`,
+         default ``diffusion="distributed"``): the one-rank lagged limiter, leakage,
+         homogenized V(2,2) cycle, nested start and Anderson mixing with halo exchanges,
+         coarse levels gathered onto rank 0, norms and Gram matrix by float64
+         ``Allreduce``: the one-rank iterates up to the order of those sums.
+         ``diffusion="gathered"`` instead gathers ``Q``, the moments, ``sigma_t`` and
+         ``color sigma_t`` (light-grid sized) onto rank 0, which runs the one-rank
+         :class:`~vtkillum.core.convection_diffusion.radiative.RadiativeDiffusion` and
+         scatters ``phi_s`` back (the one-rank solve bit for bit);
        * the reconstruction filter along thick surfaces
          (:func:`~vtkillum.core.convection_diffusion.reconstruction.filter_along_surfaces`,
          radius one cell): on each rank's ghosted block after a halo exchange of
@@ -62,12 +66,8 @@ Stages across ranks
 
 What is simplified
 ------------------
-* The physical model's flux-limited solve is not distributed: it runs on rank 0 on the
-  whole *light* grid (by default an eighth of the data's points; the data itself is never
-  gathered). Its memory and time are one rank's (plus a gather and a scatter of the light
-  grid); a distributed version (the face, leakage and homogenization kernels at global
-  indices on ghosted blocks, the halo of ``phi`` before each coefficient update and
-  colour, float64 allreduce of the residual norms and of Anderson's Gram matrix) remains.
+* The distributed flux-limited solve always starts cold (no warm start, no captured
+  graphs); its coarse levels below ``gather_cells`` cells run on rank 0.
 * No partial recomputation (Algorithm 1) and no warm start across calls: every call
   recomputes its block.
 * Ghost transfers go through host buffers (``numpy``), also on CUDA devices (no
@@ -111,6 +111,7 @@ from vtkillum.core.convection_diffusion.distributed_layout import (
     write_region,
 )
 from vtkillum.core.convection_diffusion.distributed_multigrid import DistributedMultigrid
+from vtkillum.core.convection_diffusion.distributed_radiative import DistributedRadiativeDiffusion
 from vtkillum.core.convection_diffusion.opacity import MAX_SUBSAMPLES
 from vtkillum.core.convection_diffusion.reconstruction import filter_along_surfaces
 from vtkillum.core.lights import DIRECTIONAL, pack_lights
@@ -130,7 +131,7 @@ CONVECTION_TAG = 1000
 BEAM_TAG = 5000
 #: MPI tag of the halo exchange of ``phi_s`` before the surface filter.
 PHI_HALO_TAG = 6000
-#: Diffusion solvers of the distributed physical model (on rank 0).
+#: Diffusion solvers of the distributed physical model.
 PHYSICAL_SOLVERS = ("multigrid", "gauss-seidel")
 
 
@@ -163,8 +164,7 @@ class LocalLightVolume:
     model : str
         The diffusion model.
     diffusion : DiffusionReport
-        Iterations and relative residuals of the diffusion (``"physical"``: rank 0's
-        solve, broadcast).
+        Iterations and relative residuals of the diffusion (the same on every rank).
     ms : dict
         Milliseconds per stage on this rank (``opacity``, ``convection``, ``composition``,
         ``diffusion``), ``convection_wait``: of the convection, the time spent waiting for
@@ -239,7 +239,8 @@ def distributed_light_volume(scalars, piece_start, dims, spacing, transfer_funct
                              flux_limiter: str = "levermore-pomraning",
                              first_moment: bool = True, delta_scaling: bool = True,
                              anderson: bool = True,
-                             gather_cells: int | None = None, comm=None,
+                             gather_cells: int | None = None, diffusion: str = "distributed",
+                             comm=None,
                              device: str | None = None) -> LocalLightVolume:
     """This rank's block of the convection–diffusion light volume; collective over ``comm``.
 
@@ -280,7 +281,12 @@ def distributed_light_volume(scalars, piece_start, dims, spacing, transfer_funct
         The physical model's options, as :class:`ConvectionDiffusionSolver`.
     gather_cells : int, optional
         Multigrid levels of at most this many cells are gathered onto rank 0 (default
-        :data:`~vtkillum.core.convection_diffusion.distributed_multigrid.GATHER_CELLS`).
+        :data:`~vtkillum.core.convection_diffusion.distributed_multigrid.GATHER_CELLS`;
+        the physical model's: ``distributed_radiative.GATHER_CELLS``).
+    diffusion : str
+        The physical model's flux-limited solve: ``"distributed"`` (default, on the
+        blocks) or ``"gathered"`` (on rank 0's gathered light grid, bit for bit the
+        one-rank solve).
     comm : mpi4py communicator, optional
         Default ``MPI_COMM_WORLD``.
     device : str, optional
@@ -300,6 +306,8 @@ def distributed_light_volume(scalars, piece_start, dims, spacing, transfer_funct
     from vtkillum.core.convection_diffusion.solver import DEFAULT_TOLERANCE
 
     tolerance = DEFAULT_TOLERANCE if tolerance is None else float(tolerance)
+    if diffusion not in ("distributed", "gathered"):
+        raise ValueError(f"diffusion must be 'distributed' or 'gathered', got {diffusion!r}")
     if convection_scheme not in SCHEMES:
         raise ValueError(f"convection_scheme must be one of {sorted(SCHEMES)}")
     ms = {}
@@ -400,7 +408,8 @@ def distributed_light_volume(scalars, piece_start, dims, spacing, transfer_funct
         physical = _physical(comm, layout, device, sigma, color_sigma, T, h, kinds, vecs, dirs,
                              rgbs_n, r_s, convection_scheme, float(albedo), float(anisotropy),
                              flux_limiter, bool(first_moment), bool(delta_scaling),
-                             bool(anderson), solver, int(iterations), tolerance, ms)
+                             bool(anderson), solver, int(iterations), tolerance, ms,
+                             diffusion, gather_cells)
         phi, rendered_dev, q, report, solve_mode = physical
         sl = layout.block_region()
         fluence = np.maximum(phi[sl].numpy(), 0.0) * np.float32(scale)
@@ -419,7 +428,7 @@ def distributed_light_volume(scalars, piece_start, dims, spacing, transfer_funct
 
 def _physical(comm, layout, device, sigma, color_sigma, T, h, kinds, vecs, dirs, rgbs_n, r_s,
               scheme, albedo, anisotropy, limiter, first_moment, delta_scaling, anderson,
-              solver, iterations, tolerance, ms):
+              solver, iterations, tolerance, ms, diffusion="distributed", gather_cells=None):
     """The physical model after the convection: δ-Eddington beams, the first-scattered
     source and its moments on the block, the flux-limited solve on rank 0, ``phi_s``
     scattered back and filtered along surfaces with a halo (the one-rank
@@ -462,34 +471,28 @@ def _physical(comm, layout, device, sigma, color_sigma, T, h, kinds, vecs, dirs,
                           wp.vec3i(*layout.shape)])
     ms["source"] = _ms(t, device)
 
-    # the flux-limited diffusion: rank 0, on the gathered light grid
+    # the flux-limited diffusion: on the blocks (default), or on rank 0's gathered light grid
     t = time.perf_counter()
-    fields = [q, *moment] if first_moment else [q]
-    whole = _gather_blocks(comm, layout, fields + [sigma, color_sigma])
-    pieces, result = None, None
-    if comm.Get_rank() == 0:
-        from vtkillum.core.convection_diffusion.radiative import RadiativeDiffusion
-
-        gshape = tuple(int(v) for v in layout.shape)
-        arrays = [wp.array(a, dtype=wp.vec3 if a.ndim == 4 else wp.float32, device=device)
-                  for a in whole]
-        wq, wm = arrays[0], (tuple(arrays[1:4]) if first_moment else None)
-        wsig, wcol = arrays[-2], arrays[-1]
-        rd = RadiativeDiffusion(gshape, h, limiter, device)
+    budget = iterations or MAX_ITERATIONS[solver]
+    if diffusion == "gathered":
+        phi, result = _physical_gathered(comm, layout, device, q, moment, sigma, color_sigma,
+                                         h, limiter, albedo, anisotropy, first_moment,
+                                         anderson, solver, budget, tolerance)
+        where = f"on rank 0's gathered light grid {tuple(int(v) for v in layout.shape)}"
+    else:
+        kwargs = {} if gather_cells is None else {"gather_cells": int(gather_cells)}
+        rd = DistributedRadiativeDiffusion(comm, layout, h, limiter, device, **kwargs)
         rd.anderson = anderson
-        rd.set_medium(wsig, wcol, albedo, anisotropy)
-        x = wp.zeros(gshape, dtype=wp.vec3, device=device)
-        budget = iterations or MAX_ITERATIONS[solver]
-        result = rd.solve(wq, x, budget, tolerance, method=solver, displacement=wm, cold=True,
-                          nested_above=None)
-        xs = x.numpy()
-        pieces = [xs[region(lo, hi, (0, 0, 0))] if np.all(hi > lo) else None
-                  for lo, hi in layout.blocks]
-    mine = comm.scatter(pieces, root=0)
-    result = comm.bcast(result, root=0)
-    phi = wp.zeros(local, dtype=wp.vec3, device=device)
-    if mine is not None:
-        write_region(phi, layout.block_region(), mine)
+        rd.set_medium(rd.load(sigma, layout), rd.load(color_sigma, layout), albedo,
+                      anisotropy)
+        wm = tuple(rd.load(m, layout) for m in moment) if first_moment else None
+        x = wp.zeros(rd.levels[0].layout.local_shape, dtype=wp.vec3, device=device)
+        result = rd.solve(rd.load(q, layout), x, budget, tolerance, method=solver,
+                          displacement=wm, cold=True)
+        phi = wp.zeros(local, dtype=wp.vec3, device=device)
+        rd.store(x, phi, layout)
+        where = (f"on the blocks ({rd.distributed_levels} levels on {comm.Get_size()} ranks, "
+                 f"coarse levels from {rd.gathered_shape} on rank 0)")
     ms["diffusion"] = _ms(t, device)
 
     # the reconstruction filter: local, with a one-layer halo of phi_s
@@ -499,9 +502,41 @@ def _physical(comm, layout, device, sigma, color_sigma, T, h, kinds, vecs, dirs,
     ms["reconstruction"] = _ms(t, device)
     text = (" + physical model: first-scattered source on the blocks"
             + (" with δ-Eddington beams swept across ranks" if f > 0 else "")
-            + f", flux-limited diffusion ({solver}) on rank 0's gathered light grid "
-            f"{tuple(int(v) for v in layout.shape)}, surface filter with halo")
+            + f", flux-limited diffusion ({solver}) {where}, surface filter with halo")
     return phi, rendered, q, result, text
+
+
+def _physical_gathered(comm, layout, device, q, moment, sigma, color_sigma, h, limiter, albedo,
+                       anisotropy, first_moment, anderson, solver, budget, tolerance):
+    """The flux-limited solve on rank 0 (``diffusion="gathered"``): ``Q``, the moments,
+    ``sigma_t`` and ``color sigma_t`` gathered, the one-rank ``RadiativeDiffusion`` of a
+    cold start, ``phi_s`` scattered back by blocks (the one-rank result bit for bit).
+    Returns ``(phi_s ghosted, report)``."""
+    from vtkillum.core.convection_diffusion.radiative import RadiativeDiffusion
+
+    fields = [q, *moment] if first_moment else [q]
+    whole = _gather_blocks(comm, layout, fields + [sigma, color_sigma])
+    pieces, result = None, None
+    if comm.Get_rank() == 0:
+        gshape = tuple(int(v) for v in layout.shape)
+        arrays = [wp.array(a, dtype=wp.vec3 if a.ndim == 4 else wp.float32, device=device)
+                  for a in whole]
+        wq, wm = arrays[0], (tuple(arrays[1:4]) if first_moment else None)
+        rd = RadiativeDiffusion(gshape, h, limiter, device)
+        rd.anderson = anderson
+        rd.set_medium(arrays[-2], arrays[-1], albedo, anisotropy)
+        x = wp.zeros(gshape, dtype=wp.vec3, device=device)
+        result = rd.solve(wq, x, budget, tolerance, method=solver, displacement=wm, cold=True,
+                          nested_above=None)
+        xs = x.numpy()
+        pieces = [xs[region(lo, hi, (0, 0, 0))] if np.all(hi > lo) else None
+                  for lo, hi in layout.blocks]
+    mine = comm.scatter(pieces, root=0)
+    result = comm.bcast(result, root=0)
+    phi = wp.zeros(layout.local_shape, dtype=wp.vec3, device=device)
+    if mine is not None:
+        write_region(phi, layout.block_region(), mine)
+    return phi, result
 
 
 def _gather_blocks(comm, layout, arrays) -> list | None:
