@@ -391,8 +391,8 @@ class ComputeVolumeRenderer:
         if self.result is None:
             raise ValueError("nothing rendered yet: render the window or call update()")
         background = self.renderer.GetBackground()
-        return tonemap(self.exposure * self.result.radiance, self.result.alpha, background,
-                       exposure=1.0, gamma=self.gamma)
+        return tonemap(self.result.radiance, self.result.alpha, background,
+                       exposure=self.exposure, gamma=self.gamma)
 
     def _show(self, result: RenderResult) -> None:
         rgb = self.display_image()
