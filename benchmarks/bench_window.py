@@ -30,9 +30,9 @@ DEFAULT_METHODS = ["emission", "ambient-scattering", "transmittance", "convectio
 
 def time_window(volume, scene, method: str, image: int, frames: int, device: str) -> float:
     """Median ms per camera-move frame of a window showing ``method``."""
+    import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (the OpenGL backend)
     from vtkmodules.vtkRenderingCore import vtkRenderer, vtkRenderWindow
 
-    import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (the OpenGL backend)
     from vtkillum.mappers.camera_bridge import apply_camera_to_vtk
     from vtkillum.mappers.compute_mapper import ComputeVolumeRenderer
 
@@ -66,7 +66,6 @@ def main(argv=None) -> None:
     args = ap.parse_args(argv)
 
     import warp as wp
-
     from bench_scaling import device_volume, make_scene
 
     device = resolve_device(args.device)
