@@ -8,9 +8,12 @@ the distributed function only its data piece (the extent the function says it ne
 Tolerances: the opacity, transmittance and composition are the one-rank values up to
 float32 round-off (1e-6 absolute; they are the same operations on the same numbers);
 the paper diffusion, solved to a relative residual of 1e-6 on both sides, within 2e-5
-relative to the field's maximum; the physical model (its flux-limited solve runs on rank 0
-on the gathered light grid) within 1e-6 of each field's maximum and the same outer
-iterations (measured: equal bit for bit).
+relative to the field's maximum; the physical model: the first-scattered source within 1e-6
+of its maximum (the same operations), the flux-limited solve on the blocks (the one-rank
+iterates up to the order of the residual norms' and Anderson's float64 sums) within
+:data:`PHYSICAL_TOLERANCE` of the maximum of ``phi_s`` (measured: at most 7e-7 on 1, 2 and
+4 ranks) and one rank's outer iterations +-1 (measured: equal); with
+``diffusion="gathered"`` (rank 0 runs the one-rank solve) equal bit for bit.
 """
 
 import numpy as np
@@ -39,6 +42,9 @@ ORIGIN = (1.0, -2.0, 0.5)
 TF = TransferFunction([0.0, 0.4, 1.0], [0.0, 0.5, 0.9],
                       [[1.0, 1.0, 1.0], [1.0, 0.7, 0.4], [0.6, 0.8, 1.0]])
 SCATTERING = (0.4, 0.8, 1.5)
+#: The distributed flux-limited solve against one rank's, relative to the field's maximum
+#: (both solved to a relative correction of 1e-6).
+PHYSICAL_TOLERANCE = 1e-5
 
 
 def data() -> Volume:
@@ -144,24 +150,36 @@ def reference_physical(lights, g, **options):
     return solver
 
 
-def check_physical(par, ref, got):
-    """The physical model: the convection and composition as :func:`check`; ``Q``, ``phi_s``
-    and the surface-filtered ``phi_s`` within 1e-6 of their maxima (the solve is the one-rank
-    code on the same inputs, so in practice they are equal bit for bit), and the same
-    outer iterations."""
+def check_physical(par, ref, got, exact=False):
+    """The physical model: the convection and composition as :func:`check`; ``Q`` within
+    1e-6 of its maximum (the same operations); ``phi_s``, the surface-filtered ``phi_s``
+    and the fluence within :data:`PHYSICAL_TOLERANCE` of their maxima and the outer
+    iterations within one of one rank's (``exact``: the gathered solve, 1e-6 and the same
+    iterations and residuals)."""
     check(par, ref, got, diffusion=False)
     sl = tuple(slice(a, b) for a, b in zip(got.lo, got.hi))
-    for name, mine, theirs in (("Q", got.source, ref.source),
-                               ("phi_s", got.scattered_fluence, ref.scattered_fluence),
-                               ("filtered phi_s", got.rendered_scattered_fluence,
-                                ref.rendered_scattered_fluence),
-                               ("fluence", got.fluence, ref.fluence)):
+    tol = 1e-6 if exact else PHYSICAL_TOLERANCE
+    for name, mine, theirs, bound in (
+            ("Q", got.source, ref.source, 1e-6),
+            ("phi_s", got.scattered_fluence, ref.scattered_fluence, tol),
+            ("filtered phi_s", got.rendered_scattered_fluence, ref.rendered_scattered_fluence,
+             tol),
+            ("fluence", got.fluence, ref.fluence, tol)):
         err = max_abs(mine, theirs[sl]) / max(float(np.abs(theirs).max()), 1e-30)
-        all_ranks(par, err <= 1e-6, f"{name} differs by {err:.2e} of its maximum")
-    all_ranks(par, got.diffusion.iterations == ref.stats.diffusion.iterations
-              and got.diffusion.converged == ref.stats.diffusion.converged,
-              f"outer iterations {got.diffusion.iterations} vs one rank's "
-              f"{ref.stats.diffusion.iterations}")
+        all_ranks(par, err <= bound, f"{name} differs by {err:.2e} of its maximum")
+    mine, theirs = got.diffusion, ref.stats.diffusion
+    same = (mine.iterations == theirs.iterations if exact
+            else abs(mine.iterations - theirs.iterations) <= 1)
+    all_ranks(par, same and mine.converged and mine.converged == theirs.converged
+              and mine.nested == theirs.nested,
+              f"outer iterations {mine.iterations} (converged {mine.converged}) vs one rank's "
+              f"{theirs.iterations} ({theirs.converged})")
+    if exact:
+        all_ranks(par, mine.residuals == theirs.residuals,
+                  f"residuals {mine.residuals} vs {theirs.residuals}")
+    # every rank reports the same solve
+    reports = par.comm.allgather((mine.iterations, tuple(mine.residuals)))
+    all_ranks(par, all(r == reports[0] for r in reports), f"ranks disagree: {reports}")
 
 
 def run_physical(par, lights, g, blocks=None, **options):
@@ -194,14 +212,36 @@ def test_physical_model_slabs_along_each_axis(par, axis):
                    run_physical(par, lights, 0.3, split_blocks(shape, par.size, axis)))
 
 
-def test_physical_model_options(par):
-    """Without the first moments, δ-Eddington scaling and Anderson acceleration, with
-    Wilson's limiter: still the one-rank result."""
-    options = {"first_moment": False, "delta_scaling": False, "anderson": False,
+@pytest.mark.parametrize("anderson", [True, False])
+def test_physical_model_options(par, anderson):
+    """Without the first moments and δ-Eddington scaling, with Wilson's limiter, Anderson
+    acceleration on and off: still the one-rank result."""
+    options = {"first_moment": False, "delta_scaling": False, "anderson": anderson,
                "flux_limiter": "wilson"}
     lights = LIGHTS["-y"]
     check_physical(par, reference_physical(lights, 0.6, **options),
                    run_physical(par, lights, 0.6, **options))
+
+
+@pytest.mark.parametrize("axis", [None, 0, 2])
+def test_physical_model_coarse_levels_distributed(par, axis):
+    """Every level above the coarsest on the blocks (``gather_cells=1``: the 6x5x4 level's
+    homogenized coefficients, V-cycle and nested iterations distributed), diagonal and point
+    lights, g = 0.3."""
+    shape = tuple(max(2, round(0.5 * n)) for n in DIMS)
+    blocks = None if axis is None else split_blocks(shape, par.size, axis)
+    lights = LIGHTS["diagonal"] + LIGHTS["point-inside"]
+    got = run_physical(par, lights, 0.3, blocks, gather_cells=1)
+    all_ranks(par, "2 levels" in got.mode, got.mode)
+    check_physical(par, reference_physical(lights, 0.3), got)
+
+
+def test_physical_model_gathered_fallback(par):
+    """``diffusion="gathered"``: rank 0 runs the one-rank solve, equal bit for bit."""
+    lights = LIGHTS["several"]
+    got = run_physical(par, lights, 0.5, diffusion="gathered")
+    all_ranks(par, "gathered light grid" in got.mode, got.mode)
+    check_physical(par, reference_physical(lights, 0.5), got, exact=True)
 
 
 def test_piece_too_small_is_refused(par):

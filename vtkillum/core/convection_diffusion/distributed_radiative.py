@@ -47,12 +47,18 @@ through host buffers.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import numpy as np
 import warp as wp
 
-from vtkillum.core.convection_diffusion.coarsening import coarse_coefficients, face_k, resistance, set_face_k
+from vtkillum.core.convection_diffusion.coarsening import (
+    coarse_coefficients,
+    face_k,
+    resistance,
+    set_face_k,
+)
 from vtkillum.core.convection_diffusion.diffusion import DiffusionReport
 from vtkillum.core.convection_diffusion.distributed_layout import (
     Halo,
@@ -298,7 +304,7 @@ class DistributedRadiativeDiffusion:
                 s = self.serial.levels
                 s[0].sigma_a.assign(wholes[0])
                 s[0].sigma_tr.assign(wholes[1])
-                for fine, coarse in zip(s, s[1:]):
+                for fine, coarse in itertools.pairwise(s):
                     ratio = self.serial._ratio(fine, coarse)
                     for a, b in ((fine.sigma_a, coarse.sigma_a), (fine.sigma_tr, coarse.sigma_tr)):
                         wp.launch(restrict_kernel, dim=coarse.shape, device=self.device,
@@ -351,7 +357,7 @@ class DistributedRadiativeDiffusion:
                 s[0].ky.assign(wholes[1][:, :-1])
                 s[0].kz.assign(wholes[2][:, :, :-1])
                 s[0].absorb.assign(wholes[3])
-                for fine, coarse in zip(s, s[1:]):
+                for fine, coarse in itertools.pairwise(s):
                     coarse_coefficients(fine, coarse, self.serial._ratio(fine, coarse),
                                         self.device)
 
