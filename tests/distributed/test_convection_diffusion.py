@@ -236,6 +236,24 @@ def test_physical_model_coarse_levels_distributed(par, axis):
     check_physical(par, reference_physical(lights, 0.3), got)
 
 
+def test_physical_model_gauss_seidel(par):
+    """``solver="gauss-seidel"``: 40 red–black sweeps with a halo before each colour, not
+    converged, are one rank's 40 sweeps (the same updates; only the residual norms' sums
+    differ in order)."""
+    options = {"solver": "gauss-seidel", "iterations": 40}
+    lights = LIGHTS["diagonal"]
+    ref = reference_physical(lights, 0.3, **options)
+    got = run_physical(par, lights, 0.3, **options)
+    sl = tuple(slice(a, b) for a, b in zip(got.lo, got.hi))
+    err = max_abs(got.scattered_fluence, ref.scattered_fluence[sl]) / ref.scattered_fluence.max()
+    all_ranks(par, err <= 1e-6, f"phi_s differs by {err:.2e} of its maximum")
+    all_ranks(par, got.diffusion.iterations == ref.stats.diffusion.iterations == 40
+              and not got.diffusion.converged and not got.diffusion.nested,
+              f"{got.diffusion.iterations} sweeps (one rank {ref.stats.diffusion.iterations})")
+    all_ranks(par, np.allclose(got.diffusion.residuals, ref.stats.diffusion.residuals,
+                               rtol=1e-4), "residuals differ")
+
+
 def test_physical_model_gathered_fallback(par):
     """``diffusion="gathered"``: rank 0 runs the one-rank solve, equal bit for bit."""
     lights = LIGHTS["several"]
