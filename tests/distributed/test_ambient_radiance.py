@@ -28,13 +28,13 @@ AXES = [(1, 0, 0), (-1, 0, 0), (0, 1, 0), (0, -1, 0), (0, 0, 1), (0, 0, -1)]
 DIAGONALS = [(1, 1, 1), (-1, 1, -1), (1, -2, 0.5), (-0.3, -1, 1)]
 
 
-def _compare(par, shape, lights, radius, samples=1, anisotropy=0.3):
+def _compare(par, shape, lights, radius, samples=1, anisotropy=0.3, **options):
     whole = whole_extent(shape)
     field = blobs(shape)
     extent = Decomposition.of(whole, par.size).extents[par.rank]
     got = distributed_radiance_cache(piece_volume(field, extent, whole), extent, whole, TF, 1.0,
                                      radius, lights, anisotropy=anisotropy, comm=par.comm,
-                                     samples=samples)
+                                     samples=samples, **options)
     cache = AmbientScatteringCache(par.device, step_samples=samples, data_textures=False)
     state = cache.update(Volume(field, SPACING, ORIGIN), TF, 1.0, 0.9, anisotropy, lights,
                          radius, "world", cache_shape=shape)
@@ -84,3 +84,10 @@ def test_several_samples_per_step(par):
               for d in [(0, 0, 1), (1, 1, 1), (-1, 0.5, 0)]]
     got, ref, ref_sigma = _compare(par, SHAPES["x"], lights, 1.5, samples=3, anisotropy=-0.2)
     _check(par, got, ref, ref_sigma, "3 samples per step")
+
+
+def test_chains_started_in_batches(par):
+    # 997 chains per batch: several batches, not as many on every rank (uneven pieces)
+    lights = [DirectionalLight(np.asarray(d, float), (1.0, 1.0, 1.0)) for d in [(1, 1, 1), (0, -1, 0)]]
+    got, ref, ref_sigma = _compare(par, SHAPES["y"], lights, 1.0, max_records=997)
+    _check(par, got, ref, ref_sigma, "batches of 997 chains")

@@ -75,6 +75,9 @@ RECORD = np.dtype([("idx", np.int64), ("origin", np.int32), ("n", np.int32), ("s
                    ("e", np.float32, 3), ("front", np.float32), ("st", np.float32),
                    ("eta", np.float32), ("value", np.float32, 3)])
 
+#: Chains a rank starts per batch (:func:`distributed_radiance_cache`'s ``max_records``).
+MAX_RECORDS = 1 << 22
+
 _NO_OWNER = -2
 _DONE = -1
 
@@ -183,15 +186,17 @@ def owner_of(u: wp.vec3, lo: wp.array(dtype=wp.vec3), hi: wp.array(dtype=wp.vec3
 @wp.kernel
 def start_records(lights: Lights, radius: float, spacing: wp.vec3, first: wp.vec3i,
                   local: wp.vec3i, extent: wp.vec3, inv_field: wp.vec3, samples: int,
-                  u: wp.array(dtype=wp.vec3), du: wp.array(dtype=wp.vec3),
+                  offset: int, u: wp.array(dtype=wp.vec3), du: wp.array(dtype=wp.vec3),
                   e: wp.array(dtype=wp.vec3), n_full: wp.array(dtype=wp.int32),
                   eta: wp.array(dtype=wp.float32)):
     """One record per (light, piece point): the one-rank kernel's set-up of the march
-    (``march_path``, ``du``, the first ``u``) for global cache point ``first + (a, b, c)``."""
+    (``march_path``, ``du``, the first ``u``) for global cache point ``first + (a, b, c)``;
+    thread ``t`` makes the rank's pair ``offset + t`` (light-major, k fastest)."""
     t = wp.tid()
+    g = t + offset
     per_light = local[0] * local[1] * local[2]
-    li = t / per_light
-    q = t - li * per_light
+    li = g / per_light
+    q = g - li * per_light
     i = first[0] + q / (local[1] * local[2])
     j = first[1] + (q / local[2]) % local[1]
     k = first[2] + q % local[2]
@@ -348,11 +353,77 @@ def _whole_geometry(volume, piece_data_extent, whole, origin=None):
                            extent=(np.asarray(dims) - 1) * np.asarray(volume.spacing, np.float64))
 
 
+def _start(march, begin: int, count: int, rank: int) -> tuple[np.ndarray, np.ndarray]:
+    """Records ``begin .. begin + count`` of this rank's (light, point) pairs, started and
+    advanced as far as this rank's region goes; returns them and their destinations."""
+    dev = march.dev
+    if count == 0:
+        return np.zeros(0, RECORD), np.zeros(0, np.int32)
+    arrays = {"u": wp.empty(count, dtype=wp.vec3, device=dev),
+              "du": wp.empty(count, dtype=wp.vec3, device=dev),
+              "e": wp.empty(count, dtype=wp.vec3, device=dev),
+              "n_full": wp.empty(count, dtype=wp.int32, device=dev),
+              "eta": wp.empty(count, dtype=wp.float32, device=dev),
+              "front": wp.full(count, 1.0, dtype=wp.float32, device=dev),
+              "st": wp.zeros(count, dtype=wp.float32, device=dev),
+              "n": wp.zeros(count, dtype=wp.int32, device=dev),
+              "s": wp.zeros(count, dtype=wp.int32, device=dev)}
+    wp.launch(start_records, dim=count,
+              inputs=[march.lights, march.radius, march.spacing, march.first, march.local,
+                      march.extent, march.inv_field, march.samples, int(begin), arrays["u"],
+                      arrays["du"], arrays["e"], arrays["n_full"], arrays["eta"]], device=dev)
+    records = np.zeros(count, RECORD)
+    records["idx"] = np.arange(begin, begin + count)
+    records["origin"] = rank
+    dest = _advance(march, records, arrays)
+    for name in ("du", "e", "n_full", "eta"):
+        records[name] = arrays[name].numpy()
+    return records, dest
+
+
+def _advance(march, records: np.ndarray, arrays: dict | None = None) -> np.ndarray:
+    """Run :func:`advance_records` on ``records`` (updated in place; ``arrays``: their state
+    already on the device); returns each record's destination rank (its origin when done,
+    ``s`` then -1)."""
+    dev = march.dev
+    m = len(records)
+    if m == 0:
+        return np.zeros(0, np.int32)
+    if arrays is None:
+        arrays = {name: wp.array(np.ascontiguousarray(records[name]), dtype=dtype, device=dev)
+                  for name, dtype in (("u", wp.vec3), ("du", wp.vec3), ("front", wp.float32),
+                                      ("st", wp.float32), ("n", wp.int32), ("s", wp.int32),
+                                      ("n_full", wp.int32), ("eta", wp.float32),
+                                      ("e", wp.vec3))}
+    dest = wp.empty(m, dtype=wp.int32, device=dev)
+    value = wp.zeros(m, dtype=wp.vec3, device=dev)
+    wp.launch(advance_records, dim=m,
+              inputs=[march.field, march.local_field, march.field_origin, march.fdims,
+                      march.lo, march.hi, march.rank, march.transmittance, march.lookup_scale,
+                      march.samples, arrays["u"], arrays["du"], arrays["front"], arrays["st"],
+                      arrays["n"], arrays["s"], arrays["n_full"], arrays["eta"], arrays["e"],
+                      dest, value, march.error], device=dev)
+    for name in ("u", "front", "st", "n", "s"):
+        records[name] = arrays[name].numpy()
+    records["value"] = value.numpy()
+    dest = dest.numpy()
+    if int(march.error.numpy()[0]):
+        raise RuntimeError(f"rank {march.rank}: a tube-march sample fell outside the "
+                           "step-field block (a bug in the ghost widths)")
+    if np.any(dest == _NO_OWNER):
+        raise RuntimeError(f"rank {march.rank}: a tube-march sample has no owner")
+    done = dest == _DONE
+    dest = np.where(done, records["origin"], dest).astype(np.int32)
+    records["s"][done] = -1
+    return dest
+
+
 def distributed_radiance_cache(volume, piece_extent, whole_extent, transfer_function,
                                unit_distance: float, radius: float, lights, albedo: float = 0.9,
                                anisotropy: float = 0.0, comm=None, device: str | None = None,
                                data_extent=None, samples: int = STEP_SAMPLES,
-                               table=None, whole_origin=None) -> DistributedRadiance:
+                               table=None, whole_origin=None,
+                               max_records: int = MAX_RECORDS) -> DistributedRadiance:
     """``σ̃t`` and the radiance cache ``L̃d`` on this rank's piece (collective over ``comm``).
 
     The result is the one-rank :class:`~vtkillum.core.ambient.cache.AmbientScatteringCache`
@@ -386,6 +457,9 @@ def distributed_radiance_cache(volume, piece_extent, whole_extent, transfer_func
     whole_origin : (3,) float, optional
         The whole volume's first point (world units), so that point lights land in its
         local frame as on one rank bit for bit; default derived from the piece's origin.
+    max_records : int
+        Chains started per batch on each rank (a record is 88 bytes on the host, about as
+        much on the device): the memory bound of the march, whatever the piece's size.
 
     Returns
     -------
@@ -454,7 +528,7 @@ def distributed_radiance_cache(volume, piece_extent, whole_extent, transfer_func
     sigma_tilde = np.ascontiguousarray(sigma_block[sub_slices(piece_extent, block)])
     timings["extinction"] = time.perf_counter() - t0
 
-    # --- start a record per (light, piece point) ---------------------------------------------------
+    # --- the march's constants ------------------------------------------------------------------
     t1 = time.perf_counter()
     geometry = _whole_geometry(volume, data_extent, whole, whole_origin)
     wlights = make_lights(lights, geometry, dev)
@@ -465,92 +539,57 @@ def distributed_radiance_cache(volume, piece_extent, whole_extent, transfer_func
     transmittance = dtable.transmittance_slice
     lookup_scale = radius * (transmittance.shape[0] - 1) / float(table.sigma_max)
     extent = geometry.extent
-    cache_spacing = wp.vec3(*(extent / (dims - 1)).astype(np.float32))
-    inv_field = wp.vec3(*((fdims - 1) / np.maximum(extent, 1e-30)).astype(np.float32))
     local = extent_shape(piece_extent)
     count = len(lights) * int(np.prod(local))
-    first = wp.vec3i(*[int(v) for v in np.asarray(piece_extent[0::2]) - whole[0::2]])
-    u = wp.empty(count, dtype=wp.vec3, device=dev)
-    du = wp.empty(count, dtype=wp.vec3, device=dev)
-    e = wp.empty(count, dtype=wp.vec3, device=dev)
-    n_full = wp.empty(count, dtype=wp.int32, device=dev)
-    eta = wp.empty(count, dtype=wp.float32, device=dev)
-    if count:
-        wp.launch(start_records, dim=count,
-                  inputs=[wlights, radius, cache_spacing, first, wp.vec3i(*local),
-                          wp.vec3f(*extent.astype(np.float32)), inv_field, samples,
-                          u, du, e, n_full, eta], device=dev)
-    records = np.zeros(count, RECORD)
-    records["idx"] = np.arange(count)
-    records["origin"] = par.rank
-    records["u"], records["du"], records["e"] = u.numpy(), du.numpy(), e.numpy()
-    records["n_full"], records["eta"] = n_full.numpy(), eta.numpy()
-    records["front"] = 1.0
-    radiance = np.zeros((count, 3), np.float32)
     lo, hi = _regions(decomposition, whole, fdims)
-    lo_w = wp.array(lo, dtype=wp.vec3, device=dev)
-    hi_w = wp.array(hi, dtype=wp.vec3, device=dev)
-    error = wp.zeros(1, dtype=wp.int32, device=dev)
+    march = SimpleNamespace(
+        dev=dev, rank=par.rank, lights=wlights, radius=radius,
+        spacing=wp.vec3(*(extent / (dims - 1)).astype(np.float32)),
+        first=wp.vec3i(*[int(v) for v in np.asarray(piece_extent[0::2]) - whole[0::2]]),
+        local=wp.vec3i(*local), extent=wp.vec3f(*extent.astype(np.float32)),
+        inv_field=wp.vec3(*((fdims - 1) / np.maximum(extent, 1e-30)).astype(np.float32)),
+        samples=samples, field=field_block, local_field=local_field, field_origin=field_origin,
+        fdims=wp.vec3i(*[int(v) for v in fdims]), lo=wp.array(lo, dtype=wp.vec3, device=dev),
+        hi=wp.array(hi, dtype=wp.vec3, device=dev), transmittance=transmittance,
+        lookup_scale=float(lookup_scale), error=wp.zeros(1, dtype=wp.int32, device=dev))
+    radiance = np.zeros((count, 3), np.float32)
     timings["march"] = time.perf_counter() - t1
     timings["exchange"] = 0.0
 
-    # --- advance, forward, repeat ----------------------------------------------------------------
+    # --- in chunks of records: start, advance, forward, repeat -----------------------------------
+    chunk = max(1, int(max_records))
+    chunks = max(par.comm.allgather(-(-count // chunk)))  # every rank joins every round
     rounds = forwarded = 0
-    fdims_w = wp.vec3i(*[int(v) for v in fdims])
-    while True:
+    for c in range(chunks):
+        begin, end = min(c * chunk, count), min((c + 1) * chunk, count)
         t2 = time.perf_counter()
-        m = len(records)
-        if m:
-            arrays = {name: wp.array(np.ascontiguousarray(records[name]),
-                                     dtype=dtype, device=dev)
-                      for name, dtype in (("u", wp.vec3), ("du", wp.vec3), ("front", wp.float32),
-                                          ("st", wp.float32), ("n", wp.int32), ("s", wp.int32),
-                                          ("n_full", wp.int32), ("eta", wp.float32),
-                                          ("e", wp.vec3))}
-            dest = wp.empty(m, dtype=wp.int32, device=dev)
-            value = wp.zeros(m, dtype=wp.vec3, device=dev)
-            wp.launch(advance_records, dim=m,
-                      inputs=[field_block, local_field, field_origin, fdims_w, lo_w, hi_w,
-                              par.rank, transmittance, float(lookup_scale), samples,
-                              arrays["u"], arrays["du"], arrays["front"], arrays["st"],
-                              arrays["n"], arrays["s"], arrays["n_full"], arrays["eta"],
-                              arrays["e"], dest, value, error], device=dev)
-            for name in ("u", "front", "st", "n", "s"):
-                records[name] = arrays[name].numpy()
-            records["value"] = value.numpy()
-            dest = dest.numpy()
-            if int(error.numpy()[0]):
-                raise RuntimeError(f"rank {par.rank}: a tube-march sample fell outside the "
-                                   "step-field block (a bug in the ghost widths)")
-            if np.any(dest == _NO_OWNER):
-                raise RuntimeError(f"rank {par.rank}: a tube-march sample has no owner")
-            done = dest == _DONE
-            dest = np.where(done, records["origin"], dest)
-            records["s"][done] = -1
-        else:
-            dest = np.zeros(0, np.int32)
+        records, dest = _start(march, begin, end - begin, par.rank)
         timings["march"] += time.perf_counter() - t2
-        home = (dest == par.rank) & (records["s"] == -1)
-        radiance[records["idx"][home]] = records["value"][home]
-        records, dest = records[~home], dest[~home]
-        if par.size == 1:
-            if len(records):
-                raise RuntimeError("one rank: a record left its only rank")
-            break
-        t3 = time.perf_counter()
-        order = np.argsort(dest, kind="stable")
-        cuts = np.searchsorted(dest[order], np.arange(par.size + 1))
-        buckets = [records[order[cuts[q]:cuts[q + 1]]] for q in range(par.size)]
-        forwarded += len(records)
-        arrived = _exchange(par, buckets)
-        rounds += 1
-        back = arrived["s"] == -1
-        radiance[arrived["idx"][back]] = arrived["value"][back]
-        records = arrived[~back].copy()
-        in_flight = par.comm.allreduce(len(records))
-        timings["exchange"] += time.perf_counter() - t3
-        if in_flight == 0:
-            break
+        while True:
+            home = (dest == par.rank) & (records["s"] == -1)
+            radiance[records["idx"][home]] = records["value"][home]
+            records, dest = records[~home], dest[~home]
+            if par.size == 1:
+                if len(records):
+                    raise RuntimeError("one rank: a record left its only rank")
+                break
+            t3 = time.perf_counter()
+            order = np.argsort(dest, kind="stable")
+            cuts = np.searchsorted(dest[order], np.arange(par.size + 1))
+            buckets = [records[order[cuts[q]:cuts[q + 1]]] for q in range(par.size)]
+            forwarded += len(records)
+            arrived = _exchange(par, buckets)
+            rounds += 1
+            back = arrived["s"] == -1
+            radiance[arrived["idx"][back]] = arrived["value"][back]
+            records = arrived[~back].copy()
+            in_flight = par.comm.allreduce(len(records))
+            timings["exchange"] += time.perf_counter() - t3
+            if in_flight == 0:
+                break
+            t2 = time.perf_counter()
+            dest = _advance(march, records)
+            timings["march"] += time.perf_counter() - t2
     radiance = radiance.reshape((len(lights),) + tuple(local) + (3,))
     return DistributedRadiance(sigma_tilde, radiance, rounds, forwarded, timings)
 
