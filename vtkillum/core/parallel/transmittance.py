@@ -320,6 +320,7 @@ def distributed_light_transmittance(volume, piece_extent, whole_extent, transfer
             marching[:, 6] = tau_out.numpy().view(np.int32)
             d = dest_out.numpy()
             done = d == FINISHED
+            marching[done, 5] = FINISHED  # returns to its owner as a result, not a march
             mine = done & (marching[:, 0] == me)
             _store(tau, marching[mine], lo_idx)
             d = np.where(done, marching[:, 0], d)
