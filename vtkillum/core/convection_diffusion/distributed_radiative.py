@@ -105,7 +105,7 @@ from vtkillum.core.warp_common import axis_offset, component
 GATHER_CELLS = 4096
 #: Ghost layers of every level (a homogenized coarse face reads the fine face ``2 I + 2``).
 GHOST = 2
-#: MPI tags: ``HALO_TAG + level`` for the halo exchanges.
+#: MPI tags: ``HALO_TAG + 16 level + n`` for array ``n`` of a level's halo exchange.
 HALO_TAG = 7000
 
 
@@ -244,7 +244,7 @@ class DistributedRadiativeDiffusion:
         if not top.layout.empty:
             write_region(dst, top.layout.block_region(),
                          read_region(src, src_layout.block_region()))
-        top.halo.exchange(dst, HALO_TAG)
+        self._exchange(0, dst)
         return dst
 
     def store(self, src: wp.array, dst: wp.array, dst_layout: Layout) -> None:
@@ -254,18 +254,23 @@ class DistributedRadiativeDiffusion:
             write_region(dst, dst_layout.block_region(),
                          read_region(src, top.layout.block_region()))
 
-    def _gather(self, level: _Level, arr) -> np.ndarray | None:
+    def _gather(self, level: _Level, *arrays) -> list | None:
+        """Rank 0: the whole grid of each of ``arrays`` (level's ghosted arrays) from every
+        rank's block, one ``gather`` for all; other ranks: None."""
         lay = level.layout
-        parts = self.comm.gather(read_region(arr, lay.block_region()) if not lay.empty
-                                 else None, root=0)
+        parts = self.comm.gather([read_region(a, lay.block_region()) if not lay.empty else None
+                                  for a in arrays], root=0)
         if self.comm.Get_rank() != 0:
             return None
-        comps = (3,) if arr.dtype == wp.vec3 else ()
-        whole = np.zeros(level.shape + comps, dtype=np.float32)
-        for (lo, hi), p in zip(lay.blocks, parts):
-            if p is not None:
-                whole[region(lo, hi, (0, 0, 0))] = p
-        return whole
+        out = []
+        for n, arr in enumerate(arrays):
+            comps = (3,) if arr.dtype == wp.vec3 else ()
+            whole = np.zeros(level.shape + comps, dtype=np.float32)
+            for (lo, hi), p in zip(lay.blocks, parts):
+                if p[n] is not None:
+                    whole[region(lo, hi, (0, 0, 0))] = p[n]
+            out.append(whole)
+        return out
 
     def _scatter(self, level: _Level, whole, arr) -> None:
         lay = level.layout
@@ -278,8 +283,28 @@ class DistributedRadiativeDiffusion:
             write_region(arr, lay.block_region(), mine)
 
     def _exchange(self, index: int, *arrays) -> None:
-        for a in arrays:
-            self.levels[index].halo.exchange(a, HALO_TAG + index)
+        """Fill the ghosts of ``arrays`` (level ``index``'s ghosted arrays) from their
+        owners: every array's messages posted at once, one wait (a round of latency, not
+        one per array)."""
+        halo = self.levels[index].halo
+        if not halo.sends and not halo.recvs:
+            return
+        MPI = mpi()
+        requests, received, outgoing = [], [], []
+        for n, arr in enumerate(arrays):
+            tag = HALO_TAG + 16 * index + n
+            comps = (3,) if arr.dtype == wp.vec3 else ()
+            for q, sl in halo.recvs:
+                buf = np.empty(tuple(v.stop - v.start for v in sl) + comps, dtype=np.float32)
+                requests.append(self.comm.Irecv(buf, source=q, tag=tag))
+                received.append((arr, sl, buf))
+            for q, sl in halo.sends:
+                buf = read_region(arr, sl)
+                outgoing.append(buf)
+                requests.append(self.comm.Isend(buf, dest=q, tag=tag))
+        MPI.Request.Waitall(requests)
+        for arr, sl, buf in received:
+            write_region(arr, sl, buf)
 
     # --- medium and coefficients -------------------------------------------------------------
     def set_medium(self, sigma: wp.array3d, color_sigma: wp.array3d, albedo: float,
@@ -299,7 +324,7 @@ class DistributedRadiativeDiffusion:
                                getattr(self.levels[index], name))
         if self.gathered is not None:
             g = self.levels[self.gathered]
-            wholes = [self._gather(g, g.sigma_a), self._gather(g, g.sigma_tr)]
+            wholes = self._gather(g, g.sigma_a, g.sigma_tr)
             if self.serial is not None:
                 s = self.serial.levels
                 s[0].sigma_a.assign(wholes[0])
@@ -350,7 +375,7 @@ class DistributedRadiativeDiffusion:
             self._exchange(index, *coarse.coefficients)
         if self.gathered is not None:
             g = self.levels[self.gathered]
-            wholes = [self._gather(g, a) for a in g.coefficients]
+            wholes = self._gather(g, *g.coefficients)
             if self.serial is not None:
                 s = self.serial.levels
                 s[0].kx.assign(wholes[0][:-1])
@@ -404,7 +429,7 @@ class DistributedRadiativeDiffusion:
         whole = self._gather(g, b)
         xs = None
         if self.serial is not None:
-            self._gb.assign(whole)
+            self._gb.assign(whole[0])
             self._gx.zero_()
             self.serial.vcycle(self._gx, self._gb, 0)
             xs = self._gx.numpy()
@@ -422,10 +447,11 @@ class DistributedRadiativeDiffusion:
             self._restrict(index, src_q, levels[index].q)
             self._restrict(index, src_x, levels[index].estimate)
         g = levels[gi]
-        wq, we = self._gather(g, g.q), self._gather(g, g.estimate)
+        wholes = self._gather(g, g.q, g.estimate)
         change = None
         if self.serial is not None:
             s = self.serial
+            wq, we = wholes
             sq = wp.array(wq, dtype=wp.vec3, device=self.device)
             sol = wp.array(we, dtype=wp.vec3, device=self.device)
             if len(s.levels) > 1:
