@@ -353,9 +353,15 @@ def _whole_geometry(volume, piece_data_extent, whole, origin=None):
                            extent=(np.asarray(dims) - 1) * np.asarray(volume.spacing, np.float64))
 
 
-def _start(march, begin: int, count: int, rank: int) -> tuple[np.ndarray, np.ndarray]:
-    """Records ``begin .. begin + count`` of this rank's (light, point) pairs, started and
-    advanced as far as this rank's region goes; returns them and their destinations."""
+_STATE = (("u", wp.vec3), ("du", wp.vec3), ("front", wp.float32), ("st", wp.float32),
+          ("n", wp.int32), ("s", wp.int32), ("n_full", wp.int32), ("eta", wp.float32),
+          ("e", wp.vec3))
+
+
+def _start(march, begin: int, count: int, rank: int, radiance: np.ndarray):
+    """Start this rank's (light, point) pairs ``begin .. begin + count`` and advance them as
+    far as this rank's region goes; the chains done here go straight into ``radiance``.
+    Returns the others as records and their destination ranks."""
     dev = march.dev
     if count == 0:
         return np.zeros(0, RECORD), np.zeros(0, np.int32)
@@ -372,29 +378,22 @@ def _start(march, begin: int, count: int, rank: int) -> tuple[np.ndarray, np.nda
               inputs=[march.lights, march.radius, march.spacing, march.first, march.local,
                       march.extent, march.inv_field, march.samples, int(begin), arrays["u"],
                       arrays["du"], arrays["e"], arrays["n_full"], arrays["eta"]], device=dev)
-    records = np.zeros(count, RECORD)
-    records["idx"] = np.arange(begin, begin + count)
+    dest, value = _advance_arrays(march, arrays, count)
+    done = dest == _DONE
+    radiance[begin + np.flatnonzero(done)] = value[done]
+    away = np.flatnonzero(~done)
+    records = np.zeros(len(away), RECORD)
+    records["idx"] = begin + away
     records["origin"] = rank
-    dest = _advance(march, records, arrays)
-    for name in ("du", "e", "n_full", "eta"):
-        records[name] = arrays[name].numpy()
-    return records, dest
+    for name, _ in _STATE:
+        records[name] = arrays[name].numpy()[away]
+    return records, dest[away]
 
 
-def _advance(march, records: np.ndarray, arrays: dict | None = None) -> np.ndarray:
-    """Run :func:`advance_records` on ``records`` (updated in place; ``arrays``: their state
-    already on the device); returns each record's destination rank (its origin when done,
-    ``s`` then -1)."""
+def _advance_arrays(march, arrays: dict, m: int) -> tuple[np.ndarray, np.ndarray]:
+    """Run :func:`advance_records` on the device state ``arrays`` of ``m`` chains (updated in
+    place); returns ``dest`` (-1: done) and ``value`` as numpy."""
     dev = march.dev
-    m = len(records)
-    if m == 0:
-        return np.zeros(0, np.int32)
-    if arrays is None:
-        arrays = {name: wp.array(np.ascontiguousarray(records[name]), dtype=dtype, device=dev)
-                  for name, dtype in (("u", wp.vec3), ("du", wp.vec3), ("front", wp.float32),
-                                      ("st", wp.float32), ("n", wp.int32), ("s", wp.int32),
-                                      ("n_full", wp.int32), ("eta", wp.float32),
-                                      ("e", wp.vec3))}
     dest = wp.empty(m, dtype=wp.int32, device=dev)
     value = wp.zeros(m, dtype=wp.vec3, device=dev)
     wp.launch(advance_records, dim=m,
@@ -403,15 +402,27 @@ def _advance(march, records: np.ndarray, arrays: dict | None = None) -> np.ndarr
                       march.samples, arrays["u"], arrays["du"], arrays["front"], arrays["st"],
                       arrays["n"], arrays["s"], arrays["n_full"], arrays["eta"], arrays["e"],
                       dest, value, march.error], device=dev)
-    for name in ("u", "front", "st", "n", "s"):
-        records[name] = arrays[name].numpy()
-    records["value"] = value.numpy()
     dest = dest.numpy()
     if int(march.error.numpy()[0]):
         raise RuntimeError(f"rank {march.rank}: a tube-march sample fell outside the "
                            "step-field block (a bug in the ghost widths)")
     if np.any(dest == _NO_OWNER):
         raise RuntimeError(f"rank {march.rank}: a tube-march sample has no owner")
+    return dest, value.numpy()
+
+
+def _advance(march, records: np.ndarray) -> np.ndarray:
+    """:func:`advance_records` on ``records`` (updated in place); returns each record's
+    destination rank (its origin when done, ``s`` then -1)."""
+    m = len(records)
+    if m == 0:
+        return np.zeros(0, np.int32)
+    arrays = {name: wp.array(np.ascontiguousarray(records[name]), dtype=dtype, device=march.dev)
+              for name, dtype in _STATE}
+    dest, value = _advance_arrays(march, arrays, m)
+    for name in ("u", "front", "st", "n", "s"):
+        records[name] = arrays[name].numpy()
+    records["value"] = value
     done = dest == _DONE
     dest = np.where(done, records["origin"], dest).astype(np.int32)
     records["s"][done] = -1
@@ -563,7 +574,7 @@ def distributed_radiance_cache(volume, piece_extent, whole_extent, transfer_func
     for c in range(chunks):
         begin, end = min(c * chunk, count), min((c + 1) * chunk, count)
         t2 = time.perf_counter()
-        records, dest = _start(march, begin, end - begin, par.rank)
+        records, dest = _start(march, begin, end - begin, par.rank, radiance)
         timings["march"] += time.perf_counter() - t2
         while True:
             home = (dest == par.rank) & (records["s"] == -1)
