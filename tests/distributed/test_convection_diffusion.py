@@ -21,6 +21,8 @@ import pytest
 
 pytest.importorskip("mpi4py")
 
+import itertools
+
 from vtkillum.core.convection_diffusion import ConvectionDiffusionSolver
 from vtkillum.core.convection_diffusion.distributed import (
     distributed_light_volume,
@@ -234,6 +236,24 @@ def test_physical_model_coarse_levels_distributed(par, axis):
     got = run_physical(par, lights, 0.3, blocks, gather_cells=1)
     all_ranks(par, "2 levels" in got.mode, got.mode)
     check_physical(par, reference_physical(lights, 0.3), got)
+
+
+def test_physical_model_ranks_without_coarse_cells(par):
+    """Slabs along y with one-plane blocks at odd indices (2 ranks: [0, 9), [9, 10); 4 ranks:
+    [0, 3), [3, 4), [4, 9), [9, 10)): those ranks own no cell of the coarse level but
+    interpolate from it; every level above the coarsest on the blocks."""
+    shape = np.array([max(2, round(0.5 * n)) for n in DIMS])
+    cuts = {1: [0, 10], 2: [0, 9, 10], 4: [0, 3, 4, 9, 10]}.get(par.size)
+    if cuts is None or shape[1] != 10:
+        pytest.skip("written for 1, 2 or 4 ranks and 10 light-grid planes along y")
+    blocks = []
+    for a, b in itertools.pairwise(cuts):
+        lo, hi = np.zeros(3, np.int64), shape.copy()
+        lo[1], hi[1] = a, b
+        blocks.append((lo, hi))
+    lights = LIGHTS["diagonal"] + LIGHTS["point-inside"]
+    check_physical(par, reference_physical(lights, 0.3),
+                   run_physical(par, lights, 0.3, blocks, gather_cells=1))
 
 
 def test_physical_model_gauss_seidel(par):
