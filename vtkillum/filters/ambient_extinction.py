@@ -54,6 +54,13 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
 
     Notes
     -----
+    Under MPI with ``Distributed`` on (off by default for now, see
+    :attr:`distributed_by_default`), each rank computes its piece only: ``σ̃t`` from ghost
+    layers, the radiance cache by handing each light's tube march from rank to rank with
+    its state (:mod:`vtkillum.core.ambient.distributed_radiance`); the arrays are the
+    one-rank arrays (equal in ``tests/distributed/test_ambient_filter.py``). The kept cache
+    (edit-dependent recomputation) is not used in that mode.
+
     Units: ``σ̃t`` in 1/world units; the radiance arrays in the lights' irradiance
     units (directional: as given; point: intensity / world unit²), i.e. the light
     front level reaching each point. Cost: one SAT of the input (float64, 8 bytes

@@ -19,11 +19,10 @@ the float64 rounding of the (smaller) summed-area table: within 1e-6 relative of
 largest ``σ̃t`` (``tests/distributed/test_ambient.py``). The data are never gathered:
 each rank receives ``ghost`` planes of ``σt`` from its neighbours, nothing else.
 
-The radiance cache (the tube march, eqs. 14-17) is not distributed here: its front is a
-product of table factors along chains of steps ``2r`` anchored at each light's entry
-into the whole box, a global sweep like ``transmittance``'s (what it needs:
-:mod:`vtkillum.core.parallel.transmittance`'s plane exchange carrying ``ln L̃f`` and the
-step phase). Filters run it on the whole volume (mode 1) and say so.
+The radiance cache (the tube march, eqs. 14-17) across ranks is
+:mod:`vtkillum.core.ambient.distributed_radiance`: each chain of steps ``2r`` (anchored at
+its light's entry into the whole box) is handed from rank to rank with its march state,
+the step field built from :func:`ghosted_ambient_extinction`'s widened ``σ̃t``.
 """
 
 from __future__ import annotations
