@@ -170,16 +170,23 @@ def block_field_sample(field: wp.array(dtype=wp.float32), local: wp.vec3i, origi
 
 
 @wp.func
-def owner_of(u: wp.vec3, lo: wp.array(dtype=wp.vec3), hi: wp.array(dtype=wp.vec3)):
+def in_region(u: wp.vec3, a: wp.vec3, b: wp.vec3):
+    """Whether ``u`` lies in the half-open box ``[a, b)``."""
+    return u[0] >= a[0] and u[0] < b[0] and u[1] >= a[1] and u[1] < b[1] \
+        and u[2] >= a[2] and u[2] < b[2]
+
+
+@wp.func
+def owner_of(u: wp.vec3, lo: wp.array(dtype=wp.vec3), hi: wp.array(dtype=wp.vec3), me: int):
     """The rank whose region ``[lo, hi)`` (field index units; ±1e30 at the whole box's
-    faces) holds ``u``; -2 for none."""
+    faces) holds ``u``, ``me`` tried first; -2 for none."""
     owner = int(-2)
-    for r in range(lo.shape[0]):
-        a = lo[r]
-        b = hi[r]
-        if owner < 0 and u[0] >= a[0] and u[0] < b[0] and u[1] >= a[1] and u[1] < b[1] \
-                and u[2] >= a[2] and u[2] < b[2]:
-            owner = r
+    if in_region(u, lo[me], hi[me]):
+        owner = me
+    else:
+        for r in range(lo.shape[0]):
+            if owner < 0 and in_region(u, lo[r], hi[r]):
+                owner = r
     return owner
 
 
@@ -244,7 +251,7 @@ def advance_records(field: wp.array(dtype=wp.float32), local: wp.vec3i, origin: 
             beyond = f  # no step beyond (η = 0, or the front died): as the one rank
             going = 0
         else:
-            owner = owner_of(pu, lo, hi)
+            owner = owner_of(pu, lo, hi, me)
             if owner != me:
                 out = owner
                 going = 0
