@@ -265,6 +265,28 @@ class ParaViewGlue:
         return super().output_shape(dims)
 
     def _execute(self, image, out_info):
+        return self._with_paraview_defaults(image, image,
+                                            lambda: super(ParaViewGlue, self)._execute(image,
+                                                                                       out_info))
+
+    def _execute_piece(self, image, in_info, out_info, piece, pieces):
+        # Distributed mode: the defaults one rank takes from the whole image (its bounds
+        # and cells give the opacity unit distance), not from this rank's piece.
+        from vtkmodules.vtkCommonDataModel import vtkImageData
+        from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
+
+        whole = vtkImageData()  # the whole extent's geometry, no arrays
+        whole.SetExtent(in_info.Get(SDDP.WHOLE_EXTENT()))
+        whole.SetOrigin(image.GetOrigin())
+        whole.SetSpacing(image.GetSpacing())
+        whole.SetDirectionMatrix(image.GetDirectionMatrix())
+        return self._with_paraview_defaults(
+            image, whole, lambda: super(ParaViewGlue, self)._execute_piece(
+                image, in_info, out_info, piece, pieces))
+
+    def _with_paraview_defaults(self, image, whole, execute):
+        """Run ``execute()`` with ParaView's defaults resolved (the colour map's component,
+        the unit distance of ``whole``), then finish its output."""
         if self._light_error is not None:
             raise ValueError(self._light_error)
         for message in self.__dict__.get("_property_errors", {}).values():
@@ -286,9 +308,9 @@ class ParaViewGlue:
             if array is not None and array.GetNumberOfComponents() > 1:
                 self._input_component = self._component_from_colour_map(array)
             if self._unit_distance == 0:
-                self._unit_distance = approximate_cell_length(image)
+                self._unit_distance = approximate_cell_length(whole)
             self._resolved_unit_distance = self._unit_distance
-            output = super()._execute(image, out_info)
+            output = execute()
         finally:
             self._input_component, self._unit_distance = saved
         self._finish_output(output, name)
@@ -321,6 +343,16 @@ class ParaViewGlue:
         if shape != tuple(params.output_shape):
             arrays = {k: resample_points(v, params.output_shape) for k, v in arrays.items()}
         return dict(arrays)
+
+    def compute_piece(self, volume, params, piece):
+        # Distributed mode (the data grid): the light spacing one rank finds for the whole
+        # grid, and the arrays in the convention, as compute gives them.
+        dims = [piece.whole[2 * a + 1] - piece.whole[2 * a] + 1 for a in range(3)]
+        self._light_spacing = float(max((n - 1) * s / max(n - 1, 1)
+                                        for s, n in zip(volume.spacing, dims)))
+        return convention_arrays(super().compute_piece(volume, params, piece), params.lights)
+
+    compute_piece.wraps_compute_piece = True
 
     def _memo_key(self, volume, params, shape) -> tuple:
         image = self.GetInputDataObject(0, 0)

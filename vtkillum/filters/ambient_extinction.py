@@ -54,7 +54,7 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
 
     Notes
     -----
-    Under MPI with ``Distributed`` on (off by default for now, see
+    Under MPI with ``Distributed`` on (the default, see
     :attr:`distributed_by_default`), each rank computes its piece only: ``σ̃t`` from ghost
     layers, the radiance cache by handing each light's tube march from rank to rank with
     its state (:mod:`vtkillum.core.ambient.distributed_radiance`); the arrays are the
@@ -70,11 +70,9 @@ class AmbientExtinctionFilter(IlluminationFilterBase):
 
     requires_lights = False  # σ̃t alone needs no light; the radiance needs at least one
     #: ``σ̃t`` and the radiance cache in distributed mode are the one-rank result within the
-    #: rounding of a piece's summed-area table (equal in the tests); off by default until the
-    #: ParaView glue resolves its unit distance and convention arrays for the piece's run too
-    #: (``_execute_piece`` / ``compute_piece``): under pvbatch the piece's run now takes the
-    #: mean spacing as unit distance where the glue's whole-volume run takes the cell length.
-    distributed_by_default = False
+    #: rounding of a piece's summed-area table (equal in the tests, and under pvbatch, where
+    #: the ParaView glue resolves the piece's unit distance from the whole image).
+    distributed_by_default = True
 
     def __init__(self) -> None:
         super().__init__()

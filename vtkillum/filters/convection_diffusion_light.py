@@ -110,6 +110,9 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
     #: Why this filter runs on the whole volume on every rank under MPI (mode 1).
     distributed_needs = ("the paper model's distributed diffusion solves with multigrid "
                          "only (set Solver to multigrid)")
+    #: Distributed under MPI by default: the light volume is one rank's within 1e-5 of its
+    #: maximum (the diffusion's sums are reduced across ranks in another order).
+    distributed_by_default = True
 
     def __init__(self) -> None:
         super().__init__()
@@ -227,9 +230,13 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
 
     # --- distributed mode (issue 36) ----------------------------------------------------------------
     def distributed_unsupported(self) -> str | None:
-        """None (distributed) but for the paper model with a solver other than multigrid."""
+        """None (distributed) but for the paper model with a solver other than multigrid,
+        and for the baked RGBA output (made from the light grid resampled to the data)."""
         if self._model == "paper" and self._solver_name != "multigrid":
             return self.distributed_needs
+        if getattr(self, "_output_rgba", False):
+            return ("the baked RGBA output (OutputRGBA) resamples the whole light grid to the "
+                    "data; switch OutputRGBA off for the distributed light grid")
         return None
 
     def _choose_piece_mode(self, in_info, out_info) -> tuple:
@@ -356,6 +363,17 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
         output.SetOrigin(out_info.Get(vtkDataObject.ORIGIN()))
         output.SetSpacing(out_info.Get(vtkDataObject.SPACING()))
         output.SetDirectionMatrix(out_info.Get(vtkDataObject.DIRECTION()))
+        if shape == dims and self._pass_input_arrays:  # the light grid is the data grid
+            # The input's arrays on this piece, as the whole-volume run passes them on.
+            in_extent = tuple(int(extent[i] - out_whole[i - i % 2] + whole[i - i % 2])
+                              for i in range(6))
+            piece_image = vtkImageData()
+            piece_image.ShallowCopy(image)
+            piece_image.Crop(in_extent)
+            for source, target in ((piece_image.GetPointData(), output.GetPointData()),
+                                   (piece_image.GetCellData(), output.GetCellData())):
+                for i in range(source.GetNumberOfArrays()):
+                    target.AddArray(source.GetAbstractArray(i))
         for index, (array_name, values) in enumerate(arrays.items()):
             add_point_array(output, array_name, np.asarray(values, np.float32),
                             set_active=index == 0)
