@@ -252,6 +252,16 @@ def output_xml(scale_command="SetOutputScale", scale_default=1.0, rgba=True) -> 
     return "".join(parts)
 
 
+def distributed_xml() -> str:
+    """The MPI mode switch of the filters with a distributed core (on by default)."""
+    return _boolean("Distributed", "SetDistributed", 1,
+                    "Under MPI (pvbatch/pvserver on several ranks): compute only this rank's "
+                    "piece, exchanging planes and ghost layers with the other ranks (the "
+                    "one-rank result); off: every rank computes the whole volume and keeps "
+                    "its piece. One Output Messages line per rank names the mode.",
+                    advanced=True)
+
+
 def _proxy(name: str, label: str, *property_xmls: str, ports=("Illumination",),
            representation: str = "Volume", hints: str = ""):
     """Declare a filter proxy: image-data input, ``property_xmls`` in panel order, output
@@ -302,6 +312,7 @@ class OpticalProperties(ParaViewGlue, OpticalPropertiesFilter):
         _number("double", "StepSize", "SetStepSize", 0.0,
                 "Longest step along shadow rays (world units); 0: half the smallest spacing.",
                 lo=0.0, advanced=True),
+        distributed_xml(),
         output_xml())
 class LightTransmittance(IlluminatedRGBAOutput, ParaViewGlue, LightTransmittanceFilter):
     """Shadow rays to every light: transmittance per light (single scattering)."""
@@ -334,6 +345,7 @@ class LightTransmittance(IlluminatedRGBAOutput, ParaViewGlue, LightTransmittance
                      ConvectionDiffusionLightFilter().GetConvectionScheme(),
                      "Discretisation of the light transport along the light direction.",
                      advanced=True),
+        distributed_xml(),
         output_xml("SetLightVolumeScale", DEFAULT_LIGHT_VOLUME_SCALE))
 class ConvectionDiffusionLight(IlluminatedRGBAOutput, ParaViewGlue,
                                ConvectionDiffusionLightFilter):
@@ -349,6 +361,7 @@ class ConvectionDiffusionLight(IlluminatedRGBAOutput, ParaViewGlue,
                      "voxels: Radius times the mean spacing; world: world units."),
         _boolean("ComputeRadiance", "SetComputeRadiance", 1,
                  "Also tube-march the radiance cache (the light the render view shows)."),
+        distributed_xml(),
         output_xml())
 class AmbientExtinction(IlluminatedRGBAOutput, ParaViewGlue, AmbientExtinctionFilter):
     """Ament et al.'s ambient extinction and radiance cache (the cache is the fluence)."""

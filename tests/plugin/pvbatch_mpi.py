@@ -67,6 +67,15 @@ for k, (label, settings) in enumerate(FILTERS.items()):
     simple.Hide(lit, view)
     summary["screenshots"][label] = f"{name}_rgba.png"
 
+# The Properties panel's switch: Distributed off runs the whole volume on every rank.
+switched = globals()["vtkIllumAmbientExtinction"](Input=source)
+switched.Scalars = ["POINTS", "RTData"]
+switched.Lights = LIGHTS
+switched.Radius = 2.0
+switched.Distributed = 0
+simple.SaveData(str(OUT / "switched_off.pvti"), proxy=switched)
+summary["switched_off"] = "switched_off.pvti"
+
 # The render view's own (per-sample) display of a filter: lit on one rank; on several
 # ranks ParaView's own volume on every rank (never half lit) and one message.
 lit = globals()["vtkIllumLightTransmittance"](Input=source)

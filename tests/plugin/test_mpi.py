@@ -114,6 +114,23 @@ def test_pieces_are_split_and_the_mode_is_logged(runs, ranks):
 
 
 @pytest.mark.parametrize("ranks", RANKS)
+def test_the_distributed_property_switches_to_the_whole_volume(runs, ranks):
+    """Distributed = 0 in the Properties panel: mode 1, logged, and the same arrays."""
+    one_dir, one, _ = runs[1]
+    many_dir, many, log = runs[ranks]
+    label = "vtkIllum Ambient Extinction"
+    for piece in range(1, ranks + 1):
+        assert f"{label}: piece {piece} of {ranks}: illumination computed on the whole volume " \
+               "on this rank and cut to its piece (mode: whole volume on every rank; not " \
+               "distributed: the Distributed property is off" in log, log[-3000:]
+    _, reference, _ = read_pvti(one_dir / one["switched_off"])
+    _, arrays, pieces = read_pvti(many_dir / many["switched_off"])
+    assert pieces == ranks and set(arrays) == set(reference)
+    for name, values in reference.items():
+        assert np.abs(arrays[name] - values).max() <= 1e-5 * max(np.abs(values).max(), 1e-30), name
+
+
+@pytest.mark.parametrize("ranks", RANKS)
 def test_baked_rgba_composites_into_the_one_rank_picture(runs, ranks):
     one_dir, one, _ = runs[1]
     many_dir, many, _ = runs[ranks]
