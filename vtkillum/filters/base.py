@@ -216,6 +216,15 @@ class IlluminationParameters:
                      anisotropy=self.anisotropy, lights=list(self.lights), **fields)
 
 
+
+def pass_arrays(source_image, output) -> None:
+    """Add ``source_image``'s point and cell arrays to ``output`` (same points and cells)."""
+    for source, target in ((source_image.GetPointData(), output.GetPointData()),
+                           (source_image.GetCellData(), output.GetCellData())):
+        for i in range(source.GetNumberOfArrays()):
+            target.AddArray(source.GetAbstractArray(i))
+
+
 class IlluminationFilterBase(VTKPythonAlgorithmBase):
     """Base of the illumination filters: one ``vtkImageData`` in, one ``vtkImageData`` out.
 
@@ -884,20 +893,22 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             piece_image.Crop(extent)
         output = image_like(piece_image)
         if self._pass_input_arrays:
-            for source, target in ((piece_image.GetPointData(), output.GetPointData()),
-                                   (piece_image.GetCellData(), output.GetCellData())):
-                for i in range(source.GetNumberOfArrays()):
-                    target.AddArray(source.GetAbstractArray(i))
+            pass_arrays(piece_image, output)
+        return self._finish_arrays(output, arrays, dims, "compute_piece", params.lights,
+                                   image, out_info)
+
+    def _finish_arrays(self, output, arrays: dict, shape, where: str, lights, image, out_info):
+        """``output`` with ``arrays`` (float32, the first active), the lights and the time."""
         for index, (array_name, values) in enumerate(arrays.items()):
             values = np.asarray(values)
             if values.dtype.kind == "f":
                 values = values.astype(np.float32, copy=False)
-            if values.shape[:3] != dims:
-                raise ValueError(f"{type(self).__name__}.compute_piece returned {array_name!r} "
-                                 f"with shape {values.shape}; expected {dims} (+ components)")
+            if values.shape[:3] != tuple(shape):
+                raise ValueError(f"{type(self).__name__}.{where} returned {array_name!r} with "
+                                 f"shape {values.shape}; expected {tuple(shape)} (+ components)")
             add_point_array(output, array_name, values, set_active=index == 0)
         if self.requires_lights:
-            add_lights_field(output, params.lights)
+            add_lights_field(output, lights)
         time = self._input_time(image, out_info)
         if time is not None:
             output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), time)
@@ -1040,24 +1051,9 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         same = shape == volume.dims
         output = image_like(image) if same else image_like(volume, shape)
         if same and self._pass_input_arrays:
-            for source, target in ((image.GetPointData(), output.GetPointData()),
-                                   (image.GetCellData(), output.GetCellData())):
-                for i in range(source.GetNumberOfArrays()):
-                    target.AddArray(source.GetAbstractArray(i))
-        for index, (array_name, values) in enumerate(arrays.items()):
-            values = np.asarray(values)
-            if values.dtype.kind == "f":
-                values = values.astype(np.float32, copy=False)
-            if values.shape[:3] != shape:
-                raise ValueError(f"{type(self).__name__}.compute returned {array_name!r} with "
-                                 f"shape {values.shape}; expected {shape} (+ components)")
-            add_point_array(output, array_name, values, set_active=index == 0)
-        if self.requires_lights:
-            add_lights_field(output, params.lights)
-        time = self._input_time(image, out_info)
-        if time is not None:
-            output.GetInformation().Set(vtkDataObject.DATA_TIME_STEP(), time)
-        return output
+            pass_arrays(image, output)
+        return self._finish_arrays(output, arrays, shape, "compute", params.lights, image,
+                                   out_info)
 
     def relevant_model(self, params) -> tuple:
         """What of ``params`` the illumination depends on (:attr:`illumination_depends_on`):

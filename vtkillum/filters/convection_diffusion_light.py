@@ -24,7 +24,7 @@ from vtkillum.core.convection_diffusion.solver import (
 )
 from vtkillum.core.lights import DIRECTIONAL, resolved_radius
 from vtkillum.core.volume import GridGeometry
-from vtkillum.filters.base import IlluminationFilterBase
+from vtkillum.filters.base import IlluminationFilterBase, pass_arrays
 from vtkillum.io.illumination_arrays import illumination_arrays
 
 __all__ = ["DEFAULT_LIGHT_VOLUME_SCALE", "MODELS", "SCHEMES", "SOLVERS",
@@ -370,10 +370,7 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
             piece_image = vtkImageData()
             piece_image.ShallowCopy(image)
             piece_image.Crop(in_extent)
-            for source, target in ((piece_image.GetPointData(), output.GetPointData()),
-                                   (piece_image.GetCellData(), output.GetCellData())):
-                for i in range(source.GetNumberOfArrays()):
-                    target.AddArray(source.GetAbstractArray(i))
+            pass_arrays(piece_image, output)
         for index, (array_name, values) in enumerate(arrays.items()):
             add_point_array(output, array_name, np.asarray(values, np.float32),
                             set_active=index == 0)

@@ -241,11 +241,8 @@ class IlluminatedRGBAOutput:
                       "OutputDimensions); the distributed methods compute on the data grid")
         return reason
 
-    def compute_piece(self, volume, params, piece):
-        """The illumination filter's distributed piece, plus the RGBA of the piece."""
-        arrays = super().compute_piece(volume, params, piece)
-        if not self._output_rgba:
-            return arrays
+    def _light_array(self, arrays: dict) -> str:
+        """The name of the light array the RGBA is built from (an error if none)."""
         light = next((name for name in LIGHT_ARRAYS if name in arrays), None)
         if light is None:
             raise ValueError(
@@ -253,6 +250,14 @@ class IlluminatedRGBAOutput:
                 f"{LIGHT_ARRAYS} (got {sorted(arrays)}), so there is nothing to build the RGBA "
                 "output from; switch OutputRGBA off (or ComputeRadiance on)"
             )
+        return light
+
+    def compute_piece(self, volume, params, piece):
+        """The illumination filter's distributed piece, plus the RGBA of the piece."""
+        arrays = super().compute_piece(volume, params, piece)
+        if not self._output_rgba:
+            return arrays
+        light = self._light_array(arrays)
         cut = tuple(slice(piece.extent[2 * a] - piece.data_extent[2 * a],
                           piece.extent[2 * a + 1] - piece.data_extent[2 * a] + 1)
                     for a in range(3))
@@ -270,13 +275,7 @@ class IlluminatedRGBAOutput:
         if light_shape != params.output_shape:
             arrays = {name: resample_points(values, params.output_shape)
                       for name, values in arrays.items()}
-        light = next((name for name in LIGHT_ARRAYS if name in arrays), None)
-        if light is None:
-            raise ValueError(
-                f"{type(self).__name__}: the illumination filter returned none of "
-                f"{LIGHT_ARRAYS} (got {sorted(arrays)}), so there is nothing to build the RGBA "
-                "output from; switch OutputRGBA off (or ComputeRadiance on)"
-            )
+        light = self._light_array(arrays)
         rgba = illuminated_rgba(volume.scalars, params.transfer_function, params.albedo,
                                 arrays[light], self._exposure, self._gamma, self._rgba_type)
         return {RGBA_ARRAY: rgba, **arrays}
