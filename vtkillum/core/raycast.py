@@ -72,6 +72,7 @@ from vtkillum.core.warp_common import (
     make_lights,
     make_medium,
     make_rgb_grid,
+    ray_box,
     sample_light_grid,
     sample_rgb,
     sample_scalar,
@@ -328,11 +329,33 @@ def cached_transmittance(m: Medium, direct: LightGrid, li: int, p: wp.vec3, wl: 
     near = wp.min(direct.near, dist)
     t = float(1.0)
     if near > 0.0:
-        t = shadow_transmittance(m, p, wl, near, step, xi, 0.0)
+        t = near_transmittance(m, p, wl, near, step, xi)
     q = p + near * wl
     if near < dist and inside_box(q, m.extent):
         t = t * sample_light_grid(direct, li, q)
     return t
+
+
+@wp.func
+def near_transmittance(m: Medium, p: wp.vec3, w: wp.vec3, dist: float, step: float, xi: float):
+    """:func:`~vtkillum.core.warp_common.shadow_transmittance` without early stop, for the
+    few steps of the near field: every sample is taken, none is tested for an empty block.
+
+    The same value to the bit (a sample in an exactly empty block adds exactly 0), for a
+    fraction of the cost: over the near field's 4-8 steps the empty-block test (a ray-box
+    intersection per block) costs more than the samples it would skip.
+    """
+    tt = ray_box(p, w, m.extent)
+    length = wp.min(tt[1], dist)
+    if length <= 0.0:
+        return 1.0
+    n = int(wp.ceil(length / step))
+    h = length / float(n)
+    tau = float(0.0)
+    for k in range(n):
+        q = p + ((float(k) + xi) * h) * w
+        tau += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, q))
+    return wp.exp(-tau * h)
 
 
 @wp.func
@@ -415,7 +438,6 @@ def raycast_kernel(
         if jitter != 0:
             xi = wp.randf(state)
         n = sample_count(t0, t1, step, xi)
-        stop_t = 1.0 - stop_alpha
         for k in range(n):
             p = o + (t0 + (float(k) + xi) * step) * d
             s = sample_scalar(m.scalars, m.inv_spacing, p)
