@@ -52,6 +52,9 @@ SCALARS_FIELD = "vtkillum_scalars"
 #: Default Exposure: a fully lit voxel (irradiance 1, isotropic phase) shows albedo x colour.
 DEFAULT_EXPOSURE = 4.0 * math.pi
 
+#: Filter labels warned in this process that no transfer function is linked (pvserver).
+_UNLINKED_WARNED: set = set()
+
 #: Filter attributes that change only the picture, not the illumination.
 RENDER_ONLY = frozenset({"_exposure", "_gamma", "_rgba_type", "_output_rgba"})
 #: Attributes holding the optical model, which enters the memo key only as far as the
@@ -303,6 +306,7 @@ class ParaViewGlue:
             if array is None:
                 raise ValueError(f"Scalars: the input has no array {name!r}; "
                                  + _describe_arrays(image))
+        self._warn_unlinked_on_server()
         saved = (self._input_component, self._unit_distance)
         try:
             if array is not None and array.GetNumberOfComponents() > 1:
@@ -382,6 +386,34 @@ class ParaViewGlue:
         scalars.SetName(SCALARS_FIELD)
         scalars.InsertNextValue(name or "")
         fd.AddArray(scalars)
+
+    def _warn_unlinked_on_server(self) -> None:
+        """Once, in a pvserver process: no colour map or opacity function is linked.
+
+        The links to the display's transfer functions are made by the plugin's client-side
+        Python (:mod:`vtkillum_paraview.links`); a plugin loaded on the server only leaves
+        them empty, and the filter would silently use its default ramp instead of the
+        colour map the user sees."""
+        if self._lookup_table is not None or self._opacity_function is not None or \
+                self.paraview_label in _UNLINKED_WARNED:
+            return
+        try:
+            from paraview.modules.vtkRemotingCore import vtkProcessModule
+        except ImportError:
+            return
+        module = vtkProcessModule.GetProcessModule()
+        if module is None or module.GetProcessType() not in (
+                vtkProcessModule.PROCESS_SERVER, vtkProcessModule.PROCESS_DATA_SERVER,
+                vtkProcessModule.PROCESS_RENDER_SERVER):
+            return
+        _UNLINKED_WARNED.add(self.paraview_label)  # once per filter kind and process
+        from vtkmodules.vtkCommonCore import vtkOutputWindow
+
+        vtkOutputWindow.GetInstance().DisplayWarningText(
+            f"{self.paraview_label}: no colour map or opacity function is linked, so the "
+            "illumination uses a default ramp over the data range, not your colour map: load "
+            "the vtkIllum plugin on the client too (Tools > Manage Plugins > Load New under "
+            "Local Plugins, or LoadPlugin(path, remote=False) in pvpython)\n")
 
     # === errors ==================================================================================
     def _report(self, err: Exception) -> None:
