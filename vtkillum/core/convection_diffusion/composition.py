@@ -261,17 +261,38 @@ def first_scattered_kernel(T: wp.array4d(dtype=wp.float32), count: int,
     light's unit travel direction (directional) or position (point) in the local frame.
     """
     i, j, k = wp.tid()
-    x = grid_point(i, j, k, h)
+    shape = wp.vec3i(sigma.shape[0], sigma.shape[1], sigma.shape[2])
+    acc, mx, my, mz = first_scattered_at(T, count, kinds, vecs, rgbs, sigma, color_sigma, h,
+                                         source_radius, albedo, g, with_displacement, i, j, k,
+                                         wp.vec3i(i, j, k), shape)
+    out[i, j, k] = acc
+    if with_displacement != 0:
+        px[i, j, k] = mx
+        py[i, j, k] = my
+        pz[i, j, k] = mz
+
+
+@wp.func
+def first_scattered_at(T: wp.array4d(dtype=wp.float32), count: int,
+                       kinds: wp.array(dtype=wp.int32), vecs: wp.array(dtype=wp.vec3),
+                       rgbs: wp.array(dtype=wp.vec3), sigma: wp.array3d(dtype=wp.float32),
+                       color_sigma: wp.array3d(dtype=wp.vec3), h: wp.vec3,
+                       source_radius: float, albedo: float, g: float, with_displacement: int,
+                       i: int, j: int, k: int, cell_index: wp.vec3i, shape: wp.vec3i):
+    """``(sum_l Q_l, and with_displacement its moments sum_l Q_l delta_l along x, y, z)`` of
+    :func:`first_scattered_kernel` for the point stored at ``[i, j, k]`` whose index in the
+    whole light grid of ``shape`` points is ``cell_index`` (the same on one rank; a block's
+    global index when distributed: the cell's box faces are the whole grid's)."""
+    x = grid_point(cell_index[0], cell_index[1], cell_index[2], h)
     st = sigma[i, j, k]
     cs = color_sigma[i, j, k]
-    shape = wp.vec3i(sigma.shape[0], sigma.shape[1], sigma.shape[2])
     acc = wp.vec3(0.0)
     mx = wp.vec3(0.0)
     my = wp.vec3(0.0)
     mz = wp.vec3(0.0)
     for n in range(count):
         e, u = light_at(kinds[n], vecs[n], rgbs[n], x, source_radius)
-        tm, cell = cell_exposure(T[n, i, j, k], st, u, h, wp.vec3i(i, j, k), shape)
+        tm, cell = cell_exposure(T[n, i, j, k], st, u, h, cell_index, shape)
         q = (albedo * tm) * wp.cw_mul(cs, e)
         acc = acc + q
         if with_displacement != 0:
@@ -292,8 +313,4 @@ def first_scattered_kernel(T: wp.array4d(dtype=wp.float32), count: int,
             mx = mx + dx
             my = my + dy
             mz = mz + dz
-    out[i, j, k] = acc
-    if with_displacement != 0:
-        px[i, j, k] = mx
-        py[i, j, k] = my
-        pz[i, j, k] = mz
+    return acc, mx, my, mz

@@ -82,7 +82,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import warp as wp
 
-from vtkillum.core.convection_diffusion.composition import MAX_MOVED, cell_exposure, light_at
+from vtkillum.core.convection_diffusion.composition import first_scattered_at, light_at
 from vtkillum.core.convection_diffusion.convection import (
     CHARACTERISTICS,
     EXPONENTIAL,
@@ -852,36 +852,9 @@ def block_first_scattered_kernel(T: wp.array4d(dtype=wp.float32), count: int,
     i = gi - off[0]
     j = gj - off[1]
     k = gk - off[2]
-    x = grid_point(gi, gj, gk, h)
-    st = sigma[i, j, k]
-    cs = color_sigma[i, j, k]
-    acc = wp.vec3(0.0)
-    mx = wp.vec3(0.0)
-    my = wp.vec3(0.0)
-    mz = wp.vec3(0.0)
-    for n in range(count):
-        e, u = light_at(kinds[n], vecs[n], rgbs[n], x, source_radius)
-        tm, cell = cell_exposure(T[n, i, j, k], st, u, h, wp.vec3i(gi, gj, gk), shape)
-        q = (albedo * tm) * wp.cw_mul(cs, e)
-        acc = acc + q
-        if with_displacement != 0:
-            dx = wp.vec3(0.0)
-            dy = wp.vec3(0.0)
-            dz = wp.vec3(0.0)
-            for c in range(3):
-                sigma_tr = st - g * albedo * cs[c]
-                d = cell
-                if sigma_tr > 0.0:
-                    d = d + (g / sigma_tr) * u
-                moved = wp.abs(d[0]) / h[0] + wp.abs(d[1]) / h[1] + wp.abs(d[2]) / h[2]
-                if moved > MAX_MOVED:
-                    d = d * (MAX_MOVED / moved)
-                dx[c] = d[0] * q[c]
-                dy[c] = d[1] * q[c]
-                dz[c] = d[2] * q[c]
-            mx = mx + dx
-            my = my + dy
-            mz = mz + dz
+    acc, mx, my, mz = first_scattered_at(T, count, kinds, vecs, rgbs, sigma, color_sigma, h,
+                                         source_radius, albedo, g, with_displacement, i, j, k,
+                                         wp.vec3i(gi, gj, gk), shape)
     out[i, j, k] = acc
     if with_displacement != 0:
         px[i, j, k] = mx
