@@ -34,3 +34,27 @@ def max_abs(a, b) -> float:
     """Largest absolute difference (0 for empty arrays)."""
     a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
     return float(np.abs(a - b).max()) if a.size else 0.0
+
+
+def point_arrays(image) -> dict:
+    """The point arrays of ``image`` as numpy, ghost markers left out."""
+    from vtkillum.io.convert import point_array
+
+    pd = image.GetPointData()
+    return {pd.GetArrayName(i): point_array(image, pd.GetArrayName(i))
+            for i in range(pd.GetNumberOfArrays()) if pd.GetArrayName(i) != "vtkGhostType"}
+
+
+def whole_and_piece(whole_filter, piece_filter, par, ghosts: int):
+    """Run ``whole_filter`` on the whole volume and ``piece_filter`` on this rank's piece
+    with ``ghosts`` levels; returns ``(reference arrays, piece arrays, piece output, the
+    extent it should have, the whole extent)``."""
+    from vtkillum.core.parallel import split_extent
+
+    whole_filter.Update()
+    reference = whole_filter.GetOutputDataObject(0)
+    whole = reference.GetExtent()
+    piece_filter.UpdatePiece(par.rank, par.size, ghosts)
+    out = piece_filter.GetOutputDataObject(0)
+    want = split_extent(whole, par.rank, par.size, ghosts)
+    return point_arrays(reference), point_arrays(out), out, want, whole

@@ -10,7 +10,7 @@ only the summed-area table of ``σ̃t`` rounds differently on a piece).
 import numpy as np
 import pytest
 
-from .conftest import all_ranks, max_abs
+from .conftest import all_ranks, max_abs, whole_and_piece
 
 vtk_ok = pytest.importorskip("vtkmodules.vtkImagingCore")
 
@@ -55,30 +55,15 @@ def _filter(split_axis: int, radiance: bool = True):
     return f
 
 
-def _arrays(image):
-    from vtkillum.io.convert import point_array
-
-    pd = image.GetPointData()
-    return {pd.GetArrayName(i): point_array(image, pd.GetArrayName(i))
-            for i in range(pd.GetNumberOfArrays()) if pd.GetArrayName(i) != "vtkGhostType"}
-
-
 @pytest.mark.parametrize("split_axis", [0, 1, 2])
 @pytest.mark.parametrize("ghosts", [0, 2])
 def test_radiance_cache_filter_gives_its_piece_of_the_one_rank_output(par, capfd, split_axis,
                                                                       ghosts):
-    from vtkillum.core.parallel import split_extent, sub_slices
+    from vtkillum.core.parallel import sub_slices
 
-    whole_filter = _filter(split_axis)
-    whole_filter.Update()
-    reference = whole_filter.GetOutputDataObject(0)
-    whole = reference.GetExtent()
-    f = _filter(split_axis)
-    f.UpdatePiece(par.rank, par.size, ghosts)
-    out = f.GetOutputDataObject(0)
-    want = split_extent(whole, par.rank, par.size, ghosts)
+    ref_arrays, got, out, want, whole = whole_and_piece(_filter(split_axis), _filter(split_axis), par,
+                                                        ghosts)
     ok = tuple(out.GetExtent()) == want
-    ref_arrays, got = _arrays(reference), _arrays(out)
     names = {"ambient_extinction", "ambient_radiance"} | {f"ambient_radiance_{i}"
                                                           for i in range(5)}
     ok = ok and names <= set(ref_arrays) and names <= set(got)

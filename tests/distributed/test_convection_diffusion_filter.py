@@ -13,7 +13,7 @@ the filter adds only the display fluence's irradiance, the same per-point arithm
 import numpy as np
 import pytest
 
-from .conftest import all_ranks, max_abs
+from .conftest import all_ranks, max_abs, whole_and_piece
 
 pytest.importorskip("vtkmodules.vtkImagingCore")
 pytest.importorskip("mpi4py")
@@ -51,29 +51,14 @@ def _filter(model, distributed=True, solver="multigrid"):
     return f
 
 
-def _arrays(image):
-    from vtkillum.io.convert import point_array
-
-    pd = image.GetPointData()
-    return {pd.GetArrayName(i): point_array(image, pd.GetArrayName(i))
-            for i in range(pd.GetNumberOfArrays()) if pd.GetArrayName(i) != "vtkGhostType"}
-
-
 @pytest.mark.parametrize("model", ["physical", "paper"])
 @pytest.mark.parametrize("ghosts", [0, 1])
 def test_distributed_filter_gives_its_piece_of_the_one_rank_output(par, capfd, model, ghosts):
-    from vtkillum.core.parallel import split_extent, sub_slices
+    from vtkillum.core.parallel import sub_slices
 
-    whole_filter = _filter(model, distributed=False)
-    whole_filter.Update()
-    reference = whole_filter.GetOutputDataObject(0)
-    whole = reference.GetExtent()
-    f = _filter(model)
-    f.UpdatePiece(par.rank, par.size, ghosts)
-    out = f.GetOutputDataObject(0)
-    want = split_extent(whole, par.rank, par.size, ghosts)
+    ref_arrays, got, out, want, whole = whole_and_piece(_filter(model, distributed=False), _filter(model), par,
+                                                        ghosts)
     ok = tuple(out.GetExtent()) == want
-    ref_arrays, got = _arrays(reference), _arrays(out)
     errors = {}
     for name, values in ref_arrays.items():
         scale = max(float(np.abs(values).max()), 1e-30)

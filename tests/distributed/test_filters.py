@@ -7,7 +7,7 @@ the pieces are the whole and the mode is the usual one.
 import numpy as np
 import pytest
 
-from .conftest import all_ranks, max_abs
+from .conftest import all_ranks, max_abs, point_arrays, whole_and_piece
 
 vtk_ok = pytest.importorskip("vtkmodules.vtkImagingCore")
 
@@ -49,32 +49,17 @@ def _filter(kind):
     return f
 
 
-def _arrays(image):
-    from vtkillum.io.convert import point_array
-
-    pd = image.GetPointData()
-    return {pd.GetArrayName(i): point_array(image, pd.GetArrayName(i))
-            for i in range(pd.GetNumberOfArrays()) if pd.GetArrayName(i) != "vtkGhostType"}
-
-
 # transmittance: the one-rank march across ranks (measured: 0, bit-identical; the plane
 # sweep it replaced differed by 5.8e-2 here); ambient: exact but for rounding.
 @pytest.mark.parametrize("kind,tol", [("transmittance", 1e-6), ("ambient", 1e-5)])
 @pytest.mark.parametrize("ghosts", [0, 1])
 def test_distributed_filter_gives_its_piece_of_the_one_rank_output(par, capfd, kind, tol,
                                                                     ghosts):
-    from vtkillum.core.parallel import split_extent, sub_slices
+    from vtkillum.core.parallel import sub_slices
 
-    whole_filter = _filter(kind)
-    whole_filter.Update()
-    reference = whole_filter.GetOutputDataObject(0)
-    whole = reference.GetExtent()
-    f = _filter(kind)
-    f.UpdatePiece(par.rank, par.size, ghosts)
-    out = f.GetOutputDataObject(0)
-    want = split_extent(whole, par.rank, par.size, ghosts)
+    ref_arrays, got, out, want, whole = whole_and_piece(_filter(kind), _filter(kind), par,
+                                                        ghosts)
     ok = tuple(out.GetExtent()) == want
-    ref_arrays, got = _arrays(reference), _arrays(out)
     errors = {}
     for name, values in ref_arrays.items():
         scale = max(float(np.abs(values).max()), 1e-30)
@@ -127,12 +112,12 @@ def test_transmittance_is_distributed_by_default_and_ramps_over_the_whole_range(
 
     one = make()
     one.Update()
-    reference = _arrays(one.GetOutputDataObject(0))
+    reference = point_arrays(one.GetOutputDataObject(0))
     whole = one.GetOutputDataObject(0).GetExtent()
     f = make()
     ok = f.GetDistributed()
     f.UpdatePiece(par.rank, par.size, 0)
-    got = _arrays(f.GetOutputDataObject(0))
+    got = point_arrays(f.GetOutputDataObject(0))
     cut = sub_slices(split_extent(whole, par.rank, par.size), whole)
     err = max_abs(got["transmittance"], reference["transmittance"][cut])
     ok = ok and err <= 1e-6

@@ -792,6 +792,9 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
     #: the one-rank result (light transmittance: bit-identical; ambient extinction without
     #: the radiance cache: within float rounding), off elsewhere.
     distributed_by_default = False
+    #: True for a filter whose distributed core computes the pieces of its own output grid
+    #: (convection–diffusion's light grid), so an output grid other than the data's is fine.
+    distributed_on_output_grid = False
 
     def SetDistributed(self, on: bool) -> None:
         """Use the distributed core under MPI when the filter has one.
@@ -817,7 +820,8 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         reason = self.distributed_unsupported()
         if reason is None and not self.GetDistributed():
             reason = "the Distributed property is off"
-        if reason is None and in_info.Has(SDDP.WHOLE_EXTENT()):
+        if reason is None and not self.distributed_on_output_grid and \
+                in_info.Has(SDDP.WHOLE_EXTENT()):
             whole = in_info.Get(SDDP.WHOLE_EXTENT())
             dims = tuple(int(whole[2 * a + 1] - whole[2 * a] + 1) for a in range(3))
             if tuple(self.output_shape(dims)) != dims:

@@ -113,6 +113,9 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
     #: Distributed under MPI by default: the light volume is one rank's within 1e-5 of its
     #: maximum (the diffusion's sums are reduced across ranks in another order).
     distributed_by_default = True
+    #: Its pieces are the light grid's, computed from the data points each needs
+    #: (:func:`~vtkillum.core.convection_diffusion.distributed.required_data_extent`).
+    distributed_on_output_grid = True
 
     def __init__(self) -> None:
         super().__init__()
@@ -238,30 +241,6 @@ class ConvectionDiffusionLightFilter(IlluminationFilterBase):
             return ("the baked RGBA output (OutputRGBA) resamples the whole light grid to the "
                     "data; switch OutputRGBA off for the distributed light grid")
         return None
-
-    def _choose_piece_mode(self, in_info, out_info) -> tuple:
-        """The base class's choice without its output-grid condition: this filter's output
-        is the light grid, whose pieces the distributed core computes from the data points
-        each needs (:func:`~vtkillum.core.convection_diffusion.distributed.required_data_extent`)."""
-        from vtkillum.core.parallel.comm import mpi
-
-        pieces = out_info.Get(SDDP.UPDATE_NUMBER_OF_PIECES()) \
-            if out_info.Has(SDDP.UPDATE_NUMBER_OF_PIECES()) else 1
-        piece = out_info.Get(SDDP.UPDATE_PIECE_NUMBER()) \
-            if out_info.Has(SDDP.UPDATE_PIECE_NUMBER()) else 0
-        if pieces <= 1:
-            return ("whole", piece, pieces, None)
-        reason = self.distributed_unsupported()
-        if reason is None and not self.GetDistributed():
-            reason = "the Distributed property is off"
-        if reason is None:
-            MPI = mpi()
-            if MPI is None:
-                reason = "mpi4py is not installed (pip install 'vtkillum[mpi]')"
-            elif MPI.COMM_WORLD.Get_size() != pieces:
-                reason = (f"{pieces} pieces on {MPI.COMM_WORLD.Get_size()} MPI ranks; the "
-                          "distributed core needs one piece per rank")
-        return ("whole" if reason else "distributed", piece, pieces, reason)
 
     def RequestUpdateExtent(self, request, inInfo, outInfo):
         """Distributed mode: the input points this rank's light-grid block needs (its
