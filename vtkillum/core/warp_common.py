@@ -959,7 +959,6 @@ def stream_seed(seed: int, index: int, salt: int) -> int:
     return x - (1 << 32) if x >= (1 << 31) else x
 
 
-def to_device(array: np.ndarray, dtype, device: str):
-    """Copy a numpy array to ``device`` with a clear error when the device runs out of memory
-    (:func:`vtkillum.core.device_arrays.upload`: counted as host-to-device traffic)."""
-    return upload(array, dtype, device)
+#: Copy a numpy array to a device, with a clear error when it runs out of memory (the
+#: counted upload of :mod:`vtkillum.core.device_arrays`; the name the methods use).
+to_device = upload
