@@ -512,6 +512,27 @@ def test_cli_single_matches_compute_path(tmp_path):
     window.Finalize()
 
 
+def test_exposure_scales_the_volume_not_the_background(setup):
+    """The display is ``exposure * L + (1 - alpha) * background``: a pixel the volume does
+    not cover shows the renderer's background as it is, whatever the exposure."""
+    volume, scene, illumination, reference, exposure = setup
+    renderer = vtkRenderer()
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
+    renderer.SetBackground(0.2, 0.3, 0.4)
+    shown = ComputeVolumeRenderer(renderer, volume, scene, method="illumination",
+                                  illumination=illumination, device="cpu", jitter=False,
+                                  early_termination=EARLY_STOP, exposure=3.0 * exposure)
+    window.Render()
+    image = shown.display_image()
+    expected = tonemap(3.0 * exposure * shown.result.radiance, shown.result.alpha,
+                       (0.2, 0.3, 0.4), gamma=1.0)
+    assert np.abs(image.astype(int) - expected).max() <= 1
+    empty = shown.result.alpha == 0.0
+    assert empty.any()
+    assert np.all(image[empty] == np.rint(255 * np.array([0.2, 0.3, 0.4])).astype(np.uint8))
+    window.Finalize()
+
+
 def test_progressive_path_refines_and_restarts():
     volume = Volume(np.pad(np.ones((6, 6, 6)), 1), spacing=(1.0, 1.0, 1.0))
     scene = Scene(transfer_function=TransferFunction([0.0, 1.0], [0.0, 0.5]),

@@ -390,7 +390,9 @@ class ComputeVolumeRenderer:
         """The 8-bit RGB image shown, ``(H, W, 3)``, row 0 at the top."""
         if self.result is None:
             raise ValueError("nothing rendered yet: render the window or call update()")
-        background = self.renderer.GetBackground()
+        # exposure scales the volume's light, not the renderer's background: the background
+        # goes in divided by it (no exposure * radiance temporary of the image's size)
+        background = np.asarray(self.renderer.GetBackground(), np.float32) / self.exposure
         return tonemap(self.result.radiance, self.result.alpha, background,
                        exposure=self.exposure, gamma=self.gamma)
 
