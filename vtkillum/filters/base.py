@@ -767,7 +767,8 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
         levels the input delivered), in canonical units like :meth:`compute`'s; ``piece``
         is a :class:`PieceRequest`. Returns the output arrays on ``piece.extent``'s points.
         """
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} has no distributed core: its "
+                                  "distributed_unsupported() must name why (mode 1)")
 
     def distributed_ghost_levels(self, in_info=None) -> int:
         """Ghost levels of the input the distributed method needs around its piece."""
