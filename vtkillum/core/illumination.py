@@ -110,6 +110,8 @@ class IlluminationVolume:
         self._device: dict[tuple[str, str], object] = {}  # (part, device) -> warp array
         self._shapes: dict[str, tuple | None] = {"scattered": None, "transmittance": None}
         self.transmittance_range: tuple[float, float] | None = None
+        self.scattered_range: tuple[float, float] | None = None
+        self._textures: dict[tuple[str, str], object] = {}  # (part, device) -> texture
         if scattered is not None:
             self._set("scattered", scattered)
         if transmittance is not None:
@@ -121,15 +123,13 @@ class IlluminationVolume:
             data, value_range = _checked_device(data, part)
             self._device[(part, str(data.device))] = data
             self._shapes[part] = _logical_shape(data, part)
-            if part == "transmittance":
-                self.transmittance_range = value_range
+            setattr(self, f"{part}_range", value_range)
             return
         host = _checked_grid(data, "scattered fluence") if part == "scattered" \
             else _checked_transmittance(data)
         self._host[part] = host
         self._shapes[part] = tuple(int(n) for n in host.shape)
-        if part == "transmittance":
-            self.transmittance_range = (float(host.min()), float(host.max()))
+        setattr(self, f"{part}_range", (float(host.min()), float(host.max())))
 
     def with_extent(self, extent) -> "IlluminationVolume":
         """The same grids (shared, not copied or checked again) covering another ``extent``."""
@@ -191,6 +191,16 @@ class IlluminationVolume:
             else:
                 self._device[key] = upload(host, wp.float32, device)
         return self._device[key]
+
+    def device_texture(self, part: str, device: str, make):
+        """``make(grid)`` of ``part``'s device grid (a texture, :mod:`vtkillum.core.textures`),
+        made once per part and device and kept with this volume (its grids never change);
+        None if the part is absent."""
+        key = (part, str(device))
+        if key not in self._textures:
+            grid = self._device_part(part, device)
+            self._textures[key] = None if grid is None else make(grid)
+        return self._textures[key]
 
     # --- geometry -------------------------------------------------------------------------------
     @property

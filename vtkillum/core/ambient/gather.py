@@ -101,7 +101,6 @@ from typing import Any
 import numpy as np
 import warp as wp
 
-from vtkillum.core.empty_space import BLOCK
 from vtkillum.core.ambient.textures import (
     AmbientTextures,
     fetch_ambient,
@@ -112,6 +111,7 @@ from vtkillum.core.ambient.textures import (
 )
 from vtkillum.core.ambient.tube_march import RadianceGrid, radiance_unit, sample_radiance
 from vtkillum.core.device import resolve_device
+from vtkillum.core.empty_space import BLOCK
 from vtkillum.core.raymarch import pixel_ray, sample_count
 from vtkillum.core.warp_common import (
     CameraParams,

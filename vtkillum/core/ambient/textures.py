@@ -42,14 +42,17 @@ from dataclasses import dataclass
 import warp as wp
 
 from vtkillum.core.device import init_warp
-from vtkillum.core.warp_common import (
-    Medium,
-    lookup_color,
-    lookup_sigma_t,
-    sample_scalar,
-    table_coord,
-    texture_from,
+
+# The overloads shared with the ray caster live in vtkillum.core.textures; the gather and
+# the tube march import them from here with the ambient-only ones below.
+from vtkillum.core.textures import (  # noqa: F401
+    fetch_optics,
+    fetch_scalar,
+    optics_color,
+    optics_texture,
+    textures_available,
 )
+from vtkillum.core.warp_common import sample_scalar, texture_from
 
 init_warp()
 
@@ -86,24 +89,9 @@ class AmbientTextures:
     scattered: object = None
 
 
-def hardware_filtering_available(device: str) -> bool:
-    """Whether ``device`` has texture units (a CUDA device)."""
-    return wp.get_device(device).is_cuda
-
-
-# --- device functions: one name, an array overload (exact) and a texture overload ----------------
-# (the radiance cache's pair, ``fetch_radiance``, is in :mod:`~vtkillum.core.ambient.gather`)
-@wp.func
-def fetch_scalar(src: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.vec3):
-    """Software trilinear sample of a point-centred scalar grid at local position ``p``."""
-    return sample_scalar(src, inv_spacing, p)
-
-
-@wp.func
-def fetch_scalar(src: wp.Texture3D, inv_spacing: wp.vec3, p: wp.vec3):  # noqa: F811
-    """Hardware-filtered sample of a point-centred scalar grid at local position ``p``."""
-    u = wp.cw_mul(p, inv_spacing)
-    return wp.texture_sample(src, wp.vec3(u[2] + 0.5, u[1] + 0.5, u[0] + 0.5), dtype=float)
+#: Whether a device has texture units (a CUDA device): the shared test, under the name the
+#: ambient cache uses.
+hardware_filtering_available = textures_available
 
 
 def data_texture(scalars, sigma_tilde, current=None):
@@ -115,16 +103,8 @@ def data_texture(scalars, sigma_tilde, current=None):
     return texture_from(pair, current)
 
 
-def optics_texture(medium: Medium, current=None):
-    """The medium's colour and ``σt`` tables as one 1D RGBA float texture (``current`` is
-    overwritten when it fits; see :func:`texture_from`). Entry ``i`` is texel ``i + 0.5``."""
-    n = medium.sigma_table.shape[0]
-    packed = wp.empty(n, dtype=wp.vec4f, device=medium.sigma_table.device)
-    wp.launch(pack_optics_kernel, dim=n, inputs=[medium.sigma_table, medium.color_table, packed],
-              device=packed.device)
-    return texture_from(packed, current)
-
-
+# --- device functions: one name, an array overload (exact) and a texture overload ----------------
+# (the radiance cache's pair, ``fetch_radiance``, is in :mod:`~vtkillum.core.ambient.gather`)
 @wp.func
 def fetch_data(src: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.vec3):
     """The scalar at ``p`` (software trilinear) in the first component; ``σ̃t`` is not
@@ -150,41 +130,6 @@ def fetch_ambient(src: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp
 def fetch_ambient(src: int, inv_spacing: wp.vec3, p: wp.vec3, data: wp.vec2):  # noqa: F811
     """``σ̃t`` from the :func:`fetch_data` result (already fetched with the scalar)."""
     return data[1]
-
-
-@wp.func
-def fetch_optics(src: wp.array(dtype=wp.float32), m: Medium, s: float):
-    """``σt`` of data value ``s`` in the fourth component (software lerp of ``m.sigma_table``;
-    ``src`` is that table); the colour comes from :func:`optics_color`."""
-    return wp.vec4(0.0, 0.0, 0.0, lookup_sigma_t(m, s))
-
-
-@wp.func
-def fetch_optics(src: wp.Texture1D, m: Medium, s: float):  # noqa: F811
-    """Colour (xyz) and ``σt`` (w) of data value ``s`` by one hardware-filtered fetch of the
-    :func:`optics_texture` (same table coordinate as the software lerps)."""
-    return wp.texture_sample(src, table_coord(m, s) + 0.5, dtype=wp.vec4f)
-
-
-@wp.func
-def optics_color(src: wp.array(dtype=wp.float32), m: Medium, s: float, optics: wp.vec4):
-    """Scattering colour of data value ``s`` (software lerp of ``m.color_table``)."""
-    return lookup_color(m, s)
-
-
-@wp.func
-def optics_color(src: wp.Texture1D, m: Medium, s: float, optics: wp.vec4):  # noqa: F811
-    """Scattering colour from the :func:`fetch_optics` result (already fetched)."""
-    return wp.vec3(optics[0], optics[1], optics[2])
-
-
-@wp.kernel
-def pack_optics_kernel(sigma: wp.array(dtype=wp.float32), color: wp.array(dtype=wp.vec3),
-                       out: wp.array(dtype=wp.vec4f)):
-    """``out[i] = (color[i], sigma[i])``; ``wp.tid()`` is the table entry."""
-    i = wp.tid()
-    c = color[i]
-    out[i] = wp.vec4f(c[0], c[1], c[2], sigma[i])
 
 
 @wp.kernel
