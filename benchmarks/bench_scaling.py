@@ -60,7 +60,10 @@ from vtkillum.core.transfer_function import TransferFunction
 from vtkillum.core.volume import Volume
 
 METHODS = ["emission", "single", "transmittance", "convection-diffusion", "ambient-scattering",
-           "photon", "many-lights", "refraction", "path"]
+           "photon", "photon-density", "many-lights", "refraction", "path"]
+#: Rows that are not render methods: the photon-density *volume* (what PhotonDensityFilter
+#: hands to a mapper, rendered by the illumination ray caster), sized like ``photon``.
+VOLUME_ROWS = {"photon-density": "photon"}
 STEPS = ["first image", "camera move", "TF edit", "light move"]
 H200_BANDWIDTH = 4.8e12
 
@@ -171,6 +174,40 @@ def options_for(method: str, spp: int) -> dict:
     return {"spp": spp} if method == "path" else {}
 
 
+def render_photon_density(volume, scene, width, height, device, **options):
+    """The photon-density illumination volume, as ``PhotonDensityFilter`` makes it (its
+    defaults: automatic photon count and radius, exact direct light, Historygrams, one
+    pass, a grid of the data's size), kept on the device and ray cast by
+    :func:`~vtkillum.core.raycast.render_illuminated`; recomputed (incrementally, by the
+    Historygrams) when the transfer function or the lights change, as the filter does."""
+    from vtkillum.core.photon.illumination import photon_illumination
+    from vtkillum.core.photon.mapper import PhotonMapper
+    from vtkillum.core.raycast import render_illuminated
+
+    mapper = volume.derived("bench.photon_mapper", device, lambda: PhotonMapper(
+        device, 0, 0.0, 0, 1, 0, True, False, "exact"))
+    tf = scene.resolved_transfer_function(volume)
+    u = scene.resolved_unit_distance(volume)
+    key = (tf.opacity.tobytes(), tf.colors.tobytes(), u,
+           repr([light.to_dict() for light in scene.lights]))
+    t0 = time.perf_counter()
+    illumination = volume.derived("bench.photon_density", key, lambda: photon_illumination(
+        mapper, volume, tf, u, scene.albedo, scene.anisotropy, scene.lights, volume.dims,
+        on_device=True))
+    t1 = time.perf_counter()
+    result = render_illuminated(volume, scene, width, height, device,
+                                illumination=illumination, **options)
+    result.info.update(method="photon-density", light_volume_s=t1 - t0)
+    return result
+
+
+def render_row(volume, scene, method, width, height, device, **options):
+    """:func:`vtkillum.core.render.render`, or the renderer of a :data:`VOLUME_ROWS` row."""
+    if method == "photon-density":
+        return render_photon_density(volume, scene, width, height, device, **options)
+    return render(volume, scene, method, width, height, device, **options)
+
+
 # --- measuring --------------------------------------------------------------------------------
 def time_step(volume, scenes, method, image, device, repeats, probe, options):
     """Whole call and device time (medians over ``repeats`` renders alternating between
@@ -180,7 +217,7 @@ def time_step(volume, scenes, method, image, device, repeats, probe, options):
     for r in range(repeats):
         scene = scenes[r % len(scenes)]
         t0 = time.perf_counter()
-        result = render(volume, scene, method, image, image, device, **options)
+        result = render_row(volume, scene, method, image, image, device, **options)
         total.append(time.perf_counter() - t0)
         kernel.append(kernel_seconds(result.info))
     k = None if any(x is None for x in kernel) else float(np.median(kernel))
@@ -209,7 +246,7 @@ def bench_method(method, sizes, args, device, name, probe, out) -> None:
         dims = (n, n, n)
         try:
             free = probe.free()
-            need = check_fits(method, dims, 1, None, {}, (args.image, args.image), device,
+            need = check_fits(VOLUME_ROWS.get(method, method), dims, 1, None, {}, (args.image, args.image), device,
                               free_bytes=free if free is not None else None)
         except DeviceMemoryError as err:
             print(f"| {n}³ | skipped | {err} | | | | |", flush=True)
@@ -294,8 +331,8 @@ def main(argv=None) -> None:
     with MemoryProbe(device) as probe:
         small, _ = device_volume(16, device)
         for method in args.methods:
-            render(small, make_scene(small), method, 16, 16, device,
-                   **options_for(method, 1))
+            render_row(small, make_scene(small), method, 16, 16, device,
+                       **options_for(method, 1))
         del small
         _release(device)
         print(f"## bench_scaling — {name}" + ("" if probe.resettable or not probe.cuda else
@@ -312,7 +349,7 @@ def main(argv=None) -> None:
               f"{free / 2**30:.1f} GiB free, {args.image}² image, one light\n")
         print("| method | largest cube (estimate) |")
         print("|---|---|")
-        cubes = largest_cubes(free, args.methods, 1, (args.image, args.image), device)
+        cubes = largest_cubes(free, [m for m in args.methods if m not in VOLUME_ROWS], 1, (args.image, args.image), device)
         for method, edge in cubes.items():
             print(f"| {method} | {edge}³ |")
         rows.append({"largest_cube": cubes, "free_bytes": free})

@@ -20,7 +20,8 @@ from vtkillum.core.light_transmittance import light_transmittance
 
 def photon_illumination(mapper, volume, transfer_function, unit_distance: float, albedo: float,
                         anisotropy: float, lights, shape, passes: int = 1,
-                        step_size: float | None = None, progress=None) -> IlluminationVolume:
+                        step_size: float | None = None, progress=None,
+                        on_device: bool = False) -> IlluminationVolume:
     """Update ``mapper``'s photons and return the illumination volume on a grid of ``shape``.
 
     Parameters
@@ -38,6 +39,9 @@ def photon_illumination(mapper, volume, transfer_function, unit_distance: float,
         Shadow-ray step of the transmittance (world units); default half a voxel.
     progress : callable, optional
         ``progress(fraction)``.
+    on_device : bool
+        Keep the grids on the mapper's device (a renderer there reads them without a copy;
+        :class:`IlluminationVolume` downloads them only if its numpy views are read).
 
     Returns
     -------
@@ -47,12 +51,12 @@ def photon_illumination(mapper, volume, transfer_function, unit_distance: float,
     mapper.update(volume, transfer_function, unit_distance, albedo, anisotropy, lights)
     if progress is not None:
         progress(0.3)
-    scattered = mapper.fluence(volume, shape, passes)
+    scattered = mapper.fluence(volume, shape, passes, on_device=on_device)
     if progress is not None:
         progress(0.7)
     transmittance = None
     if mapper.direct == "exact":
         transmittance, _ = light_transmittance(volume, transfer_function, unit_distance, lights,
                                                shape=shape, step_size=step_size,
-                                               device=mapper.device)
+                                               device=mapper.device, on_device=on_device)
     return IlluminationVolume.for_volume(volume, scattered, transmittance)

@@ -523,12 +523,14 @@ class PhotonMapper:
                             (alpha_sum / done).astype(np.float32),
                             {"passes": done, "radius_last": radii[done - 1]})
 
-    def fluence(self, volume, shape, passes: int = 1, progress=None) -> np.ndarray:
+    def fluence(self, volume, shape, passes: int = 1, progress=None, on_device: bool = False):
         """Photon fluence ``φ`` on a grid of ``shape`` points covering the volume's box.
 
         Pass 0 uses the kept photon map; passes 1 .. ``passes - 1`` trace independent maps
         with the shrinking radii of :func:`radius_schedule` and are averaged in.
-        Returns (nx, ny, nz, 3) float32, the lights' irradiance units.
+        Returns (nx, ny, nz, 3) float32, the lights' irradiance units; with ``on_device``
+        a warp ``array3d(vec3)`` on the mapper's device instead (no download: for a
+        renderer on that device).
         """
         from vtkillum.core.photon.density import accumulate_fluence, fluence_grid
 
@@ -538,7 +540,7 @@ class PhotonMapper:
         first = fluence_grid(self.grid, self.extinction, shape, volume.extent, self.device,
                              to_numpy=False)
         if int(passes) <= 1:
-            return first.numpy().reshape(*shape, 3)
+            return first if on_device else first.numpy().reshape(*shape, 3)
         radii = radius_schedule(self.radius, int(passes), self.alpha)
         # The passes are summed in float64 on the device: one copy to the host at the end.
         total = wp.zeros(shape, dtype=wp.vec3d, device=self.device)
@@ -556,6 +558,11 @@ class PhotonMapper:
                                  bins=bin_scale(volume.value_range))
             accumulate_fluence(total, fluence_grid(grid, me, shape, volume.extent, self.device,
                                                    to_numpy=False), self.device)
+        if on_device:
+            mean = wp.empty(shape, dtype=wp.vec3, device=self.device)
+            wp.launch(mean_fluence_kernel, dim=shape, inputs=[total, 1.0 / int(passes), mean],
+                      device=self.device)
+            return mean
         return (total.numpy().reshape(*shape, 3) / int(passes)).astype(np.float32)
 
     def segments_numpy(self) -> dict:
@@ -629,3 +636,12 @@ def check_config(photons, radius, max_order, segments, direct, alpha,
         raise ValueError(f"photon.direct must be one of {DIRECT_MODES}, got {direct!r}")
     if not (0.0 < float(alpha) < 1.0):
         raise ValueError(f"photon.alpha must lie in (0, 1), got {alpha!r}")
+
+
+@wp.kernel
+def mean_fluence_kernel(total: wp.array3d(dtype=wp.vec3d), inv_passes: float,
+                        out: wp.array3d(dtype=wp.vec3)):
+    """``out = total / passes`` in single precision; ``wp.tid()`` is the grid point."""
+    i, j, k = wp.tid()
+    v = total[i, j, k] * wp.float64(inv_passes)
+    out[i, j, k] = wp.vec3(wp.float32(v[0]), wp.float32(v[1]), wp.float32(v[2]))
