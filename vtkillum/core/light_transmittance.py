@@ -1,7 +1,7 @@
 """Transmittance towards each light, and the unscattered fluence it gives, on a light grid.
 
-For every point ``x`` of a regular *light grid* covering a volume's box, a
-shadow ray is marched from ``x`` towards every light ``l``:
+For every point ``x`` of a regular *light grid* covering a volume's box, the
+transmittance along the shadow ray from ``x`` towards every light ``l`` is
 
     T_l(x) = exp(-integral_0^D sigma_t(x + t w_l) dt)
 
@@ -20,11 +20,49 @@ point lights), which is the project's illumination-volume convention
 (:mod:`vtkillum.core.illumination`): the ray caster turns it into the
 single-scattering source ``sigma_s * phi / (4 pi)``.
 
-The line integral is evaluated with the midpoint rule on equal steps no longer
+Line integrals are evaluated with the midpoint rule on equal steps no longer
 than ``step_size``; this is exact in homogeneous media and second-order
 accurate where ``sigma_t`` is smooth. A march ends once ``T`` falls below
 :data:`~vtkillum.core.warp_common.SHADOW_STOP_T` (10⁻⁶, an absolute error no picture
 shows): in dense data most rays end long before the box exit.
+
+Point lights: one exact shadow ray per grid point (cost O(N⁴) for N³ points).
+
+Directional lights: chained ray segments (the default, ``segment_planes = L = 16``).
+All shadow rays of a directional light are parallel, so a ray's far part has already
+been integrated by the points it passes. With ``a`` the dominant axis of ``w`` in the
+volume's local frame (``|w_a|`` largest), the grid planes normal to ``a`` are numbered
+``r = 0, 1, ...`` from the light-side face and taken in slabs:
+
+* planes ``r <= L`` march exactly to the box exit (at most ``L`` planes away);
+* a point ``p`` of plane ``r`` in ``(sL, (s + 1)L]`` marches exactly (same step rule,
+  midpoint samples, empty-block skipping) towards the light until the ray meets plane
+  ``r_b = sL`` at ``q``, ``m = r - r_b`` planes (``m * h_a / |w_a|`` world units,
+  ``h_a`` the grid spacing along ``a``) away, and
+  ``T(p) = exp(-tau(p, q)) T(q)`` with ``T(q)`` interpolated bilinearly in plane ``r_b``,
+  already finished by the slab before (``q`` clamped to the plane's box);
+* a ray that leaves the box through a side before plane ``r_b`` is exact:
+  ``T(p) = exp(-tau)`` of its part inside;
+* where ``T(q) < SHADOW_STOP_T`` the point takes ``T(q)`` without a march, and a
+  segment's march stops once the product falls below ``SHADOW_STOP_T`` (an error of at
+  most 10⁻⁶, absolute, as for the exact rays).
+
+The one error source is the bilinear interpolation at every ``L``-th plane. For an
+axis-aligned light ``q`` is a grid point and the chain equals the exact rays (to float32
+rounding, where the exact ray's steps fall on the same samples: ``step_size`` dividing
+``h_a``). For an oblique light every chain link reads the plane at the same in-plane
+fractions ``f = frac(L h_a w_b / (h_b w_a))`` (``b`` an in-plane axis) and blurs a sharp
+shadow edge like a random walk of ``N / L`` steps of variance ``f (1 - f)`` cells²:
+about ``sqrt(N / L * f (1 - f))`` grid cells after ``N`` planes (at most 1.4 cells at
+N = 128, 2.8 cells at N = 512 for ``L = 16``); where ``L h_a w_b / (h_b w_a)`` is an
+integer it vanishes. In homogeneous media it is exact where the light enters through the
+light-side face; the box's side faces, through which light also enters, are sharp
+edges like any other. Measured against the exact rays on 56³ grids of sharp blobs
+(``tests/core/test_light_transmittance.py``): see :func:`light_transmittance`.
+
+Cost: each point marches at most ``L`` planes, ``O(N³ L)`` samples instead of the exact
+rays' ``O(N⁴)``, in ``N / L`` launches per light (a slab's points depend only on the
+slab before). ``segment_planes=0`` (or None) gives the exact rays for every light.
 
 A shadow ray is never longer than the box diagonal, so a step shorter than
 ``diagonal / MAX_STEPS_PER_RAY`` (the ray caster's limit,
@@ -41,15 +79,20 @@ import warp as wp
 
 from vtkillum.core.device import resolve_device
 from vtkillum.core.device_arrays import download
+from vtkillum.core.lights import DIRECTIONAL as DIRECTIONAL_KIND
+from vtkillum.core.lights import pack_lights
 from vtkillum.core.raymarch import MAX_STEPS_PER_RAY
 from vtkillum.core.warp_common import (
     SHADOW_STOP_T,
     Lights,
     Medium,
+    axis_offset,
+    component,
     grid_point,
     light_incidence,
     make_lights,
     make_medium,
+    ray_box,
     shadow_transmittance,
 )
 
@@ -58,10 +101,15 @@ from vtkillum.core.warp_common import (
 #: Ctrl-C only between launches.
 CHUNK_SAMPLES = {"cpu": 1 << 25, "cuda": 1 << 32}
 
+#: Default ``segment_planes`` of :func:`light_transmittance`: planes between the chained
+#: segments' interpolations (directional lights).
+SEGMENT_PLANES = 16
+
 
 def light_transmittance(volume, transfer_function, unit_distance: float, lights, shape=None,
                         step_size: float | None = None, device: str | None = None,
-                        progress=None, on_device: bool = False):
+                        progress=None, on_device: bool = False,
+                        segment_planes: int | None = SEGMENT_PLANES):
     """Transmittance towards each light and the unscattered RGB fluence on a light grid.
 
     Parameters
@@ -88,6 +136,10 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
     on_device : bool
         Return the warp arrays on ``device`` instead of numpy copies (for a renderer on the
         same device: no download, no upload).
+    segment_planes : int or None
+        Directional lights: grid planes ``L`` between the chained segments' bilinear
+        interpolations (module docstring); default :data:`SEGMENT_PLANES`. ``0`` or None:
+        one exact shadow ray per grid point, as for point lights (which always get them).
 
     Returns
     -------
@@ -96,12 +148,19 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
     fluence : ndarray (nx', ny', nz', 3) float32
         ``sum_l T_l E_l``, RGB, in the lights' irradiance units (intensity / world
         unit² for point lights).
+
+    Notes
+    -----
+    The chained segments' error, measured against ``segment_planes=0`` on 56³ grids
+    of sharp random blobs for oblique lights: see
+    ``tests/core/test_light_transmittance.py``.
     """
     lights = list(lights)
     if not lights:
         raise ValueError("light_transmittance needs at least one light; add a directional or "
                          "point light")
     shape = _grid_shape(volume, shape)
+    segment_planes = _segment_planes(segment_planes)
     if step_size is None:
         step_size = 0.5 * float(np.min(volume.spacing))
     if not (np.isfinite(step_size) and step_size > 0):
@@ -111,28 +170,31 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
 
     medium = make_medium(volume, transfer_function, unit_distance, device=device)
     packed = make_lights(lights, volume, device)
-    grid_spacing = wp.vec3(*(volume.extent / (np.asarray(shape) - 1)).astype(np.float32))
+    spacing = volume.extent / (np.asarray(shape) - 1)
+    grid_spacing = wp.vec3(*spacing.astype(np.float32))
     n_lights = len(lights)
     transmittance = wp.zeros((n_lights, *shape), dtype=wp.float32, device=device)
 
-    # Launches of at most CHUNK_SAMPLES samples each (whole lights or runs of grid points in
-    # C order), so that progress is reported and Ctrl-C is seen between them.
-    n_points = int(np.prod(shape))
+    # The launches, planned on the host: (light, kernel inputs, count) of at most
+    # CHUNK_SAMPLES samples each, so that progress is reported and Ctrl-C is seen between
+    # them.
     budget = CHUNK_SAMPLES["cpu" if device == "cpu" else "cuda"]
-    chunk = int(min(n_points, max(1, budget // steps_per_ray)))
-    launches = n_lights * ((n_points + chunk - 1) // chunk)
-    done = 0
+    kinds, vecs, _rgb = pack_lights(lights, volume.direction, volume.origin)
+    plan = []
     for li in range(n_lights):
-        for first in range(0, n_points, chunk):
-            count = min(chunk, n_points - first)
-            wp.launch(transmittance_kernel, dim=count,
-                      inputs=[medium, packed, li, first, grid_spacing, float(step_size),
-                              transmittance], device=device)
-            done += 1
-            if progress is not None or launches > 1:
-                wp.synchronize_device(device)  # the launch ends here: Ctrl-C lands after it
-            if progress is not None:
-                progress(done / launches)
+        if kinds[li] == DIRECTIONAL_KIND and segment_planes:
+            plan += _chain_launches(li, -vecs[li].astype(np.float64), shape, spacing,
+                                    segment_planes, step_size, steps_per_ray, budget)
+        else:
+            plan += _ray_launches(li, shape, steps_per_ray, budget)
+    for done, (kernel, inputs, count) in enumerate(plan, 1):
+        wp.launch(kernel, dim=count,
+                  inputs=[medium, packed, *inputs, grid_spacing, float(step_size),
+                          transmittance], device=device)
+        if progress is not None or (device == "cpu" and len(plan) > 1):
+            wp.synchronize_device(device)  # the launch ends here: Ctrl-C lands after it
+        if progress is not None:
+            progress(done / len(plan))
 
     fluence = wp.zeros(shape, dtype=wp.vec3, device=device)
     wp.launch(fluence_kernel, dim=shape, inputs=[packed, transmittance, grid_spacing, fluence],
@@ -140,6 +202,58 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
     if on_device:
         return transmittance, fluence
     return download(transmittance), download(fluence).reshape(*shape, 3)
+
+
+def _segment_planes(value) -> int:
+    """``segment_planes`` checked: a non-negative integer (None: 0, the exact rays)."""
+    if value is None:
+        return 0
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)) \
+            or value < 0:
+        raise ValueError(f"segment_planes must be a non-negative integer (0 or None: exact "
+                         f"shadow rays), got {value!r}")
+    return int(value)
+
+
+def _ray_launches(li: int, shape, steps_per_ray: int, budget: int) -> list:
+    """Launches of :func:`transmittance_kernel`: runs of grid points in C order."""
+    n_points = int(np.prod(shape))
+    chunk = int(min(n_points, max(1, budget // steps_per_ray)))
+    return [(transmittance_kernel, [li, first], min(chunk, n_points - first))
+            for first in range(0, n_points, chunk)]
+
+
+def _chain_launches(li: int, toward, shape, spacing, planes: int, step_size: float,
+                    steps_per_ray: int, budget: int) -> list:
+    """Launches of :func:`chained_kernel` for directional light ``li``, slab after slab.
+
+    ``toward`` is the unit direction towards the light in the local frame; the slabs
+    are those of the module docstring, each launch a run of points of one slab (plane
+    after plane from the light side, C order within a plane).
+    """
+    axis = int(np.argmax(np.abs(toward)))
+    n_a = int(shape[axis])
+    b, c = (axis + 1) % 3, (axis + 2) % 3
+    plane_points = int(shape[b]) * int(shape[c])
+    # Planes numbered from the light-side face: r -> index first + direction * r.
+    first, direction = (n_a - 1, -1) if toward[axis] > 0 else (0, 1)
+    # A segment spans at most `planes` planes, and so does an exact ray from r <= planes.
+    segment = planes * float(spacing[axis]) / abs(float(toward[axis]))
+    steps = int(min(steps_per_ray, np.ceil(segment / step_size) + 1))
+    chunk = int(max(1, budget // steps))
+    launches = []
+    r0, look_back = 0, -1  # the first slab: planes 0..planes, exact to the box exit
+    while r0 < n_a:
+        r1 = min(n_a, (planes + 1 if look_back < 0 else r0 + planes))
+        n_points = (r1 - r0) * plane_points
+        for start in range(0, n_points, chunk):
+            launches.append((chained_kernel,
+                             [li, axis, first, direction, r0, start, look_back,
+                              wp.vec3i(*(int(n) for n in shape))],
+                             min(chunk, n_points - start)))
+        look_back = r1 - 1
+        r0 = r1
+    return launches
 
 
 def max_steps_per_ray(volume, step_size: float) -> int:
@@ -198,6 +312,73 @@ def transmittance_kernel(medium: Medium, lights: Lights, li: int, first_point: i
     p = grid_point(i, j, k, grid_spacing)
     w, dist, _irradiance = light_incidence(lights, li, p)
     out[li, i, j, k] = shadow_transmittance(medium, p, w, dist, step_size, 0.5, SHADOW_STOP_T)
+
+
+@wp.kernel
+def chained_kernel(medium: Medium, lights: Lights, li: int, axis: int, first_plane: int,
+                   direction: int, r0: int, first_point: int, look_back: int,
+                   shape: wp.vec3i, grid_spacing: wp.vec3, step_size: float,
+                   out: wp.array4d(dtype=wp.float32)):
+    """One chained shadow-ray segment towards directional light ``li`` (module docstring).
+
+    ``wp.tid()`` = ``t``: point number ``n = first_point + t`` of a slab whose first plane
+    is ``r0`` (planes counted from the light-side face: plane ``r`` has index
+    ``first_plane + direction * r`` along ``axis``); ``n`` runs over the planes, then the
+    in-plane axes ``(axis + 1) % 3`` and ``(axis + 2) % 3`` in that order. ``shape`` is the
+    grid's ``(nx, ny, nz)`` and ``grid_spacing`` its spacing (world units).
+    ``look_back`` is the plane (counted as ``r``) whose transmittance the segments end on;
+    -1 marches exactly to the box exit. Writes the transmittance (unitless) to
+    ``out[li, i, j, k]``.
+    """
+    n = first_point + wp.tid()
+    b = (axis + 1) % 3
+    c = (axis + 2) % 3
+    nb = component(shape, b)
+    nc = component(shape, c)
+    plane = n // (nb * nc)
+    rest = n - plane * nb * nc
+    ib = rest // nc
+    ic = rest - ib * nc
+    idx = axis_offset(axis, first_plane + direction * (r0 + plane)) + axis_offset(b, ib) \
+        + axis_offset(c, ic)
+    p = grid_point(idx[0], idx[1], idx[2], grid_spacing)
+    w, dist, _irradiance = light_incidence(lights, li, p)
+    if look_back < 0:
+        out[li, idx[0], idx[1], idx[2]] = shadow_transmittance(medium, p, w, dist, step_size,
+                                                               0.5, SHADOW_STOP_T)
+        return
+    back = first_plane + direction * look_back
+    ha = component(grid_spacing, axis)
+    length = (float(back) * ha - component(p, axis)) / component(w, axis)
+    t_far = 1.0
+    stop = SHADOW_STOP_T
+    if ray_box(p, w, medium.extent)[1] >= length * (1.0 - 1.0e-5):
+        # The ray meets plane `back` inside the box, at q: T(q) bilinearly in that plane.
+        q = p + length * w
+        hb = component(grid_spacing, b)
+        hc = component(grid_spacing, c)
+        ub = wp.clamp(component(q, b) / hb, 0.0, float(nb - 1))
+        uc = wp.clamp(component(q, c) / hc, 0.0, float(nc - 1))
+        jb = wp.min(int(wp.floor(ub)), nb - 2)
+        jc = wp.min(int(wp.floor(uc)), nc - 2)
+        fb = ub - float(jb)
+        fc = uc - float(jc)
+        base = axis_offset(axis, back) + axis_offset(b, jb) + axis_offset(c, jc)
+        db = axis_offset(b, 1)
+        dc = axis_offset(c, 1)
+        v00 = out[li, base[0], base[1], base[2]]
+        v10 = out[li, base[0] + db[0], base[1] + db[1], base[2] + db[2]]
+        v01 = out[li, base[0] + dc[0], base[1] + dc[1], base[2] + dc[2]]
+        v11 = out[li, base[0] + db[0] + dc[0], base[1] + db[1] + dc[1],
+                  base[2] + db[2] + dc[2]]
+        t_far = (1.0 - fc) * ((1.0 - fb) * v00 + fb * v10) + fc * ((1.0 - fb) * v01
+                                                                    + fb * v11)
+        if t_far < SHADOW_STOP_T:  # at most SHADOW_STOP_T too bright, as a stopped ray
+            out[li, idx[0], idx[1], idx[2]] = t_far
+            return
+        stop = SHADOW_STOP_T / t_far
+    out[li, idx[0], idx[1], idx[2]] = t_far * shadow_transmittance(medium, p, w, length,
+                                                                   step_size, 0.5, stop)
 
 
 @wp.kernel
