@@ -22,8 +22,11 @@ def rotation(axis, angle):
     return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * k @ k
 
 
-def test_homogeneous_medium_matches_beer_lambert(device):
-    """Exponential attenuation over the distance to the box exit, for an oblique light."""
+@pytest.mark.parametrize("segment_planes", [0, 16])
+def test_homogeneous_medium_matches_beer_lambert(device, segment_planes):
+    """Exponential attenuation over the distance to the box exit, for an oblique light
+    (12 planes: the default chain marches them all exactly; longer chains are tested in
+    test_transmittance_chained.py)."""
     volume = Volume(np.ones((12, 10, 9)), spacing=(0.5, 0.4, 0.6), origin=(1.0, -2.0, 0.5),
                     direction=rotation((1, 2, 3), 0.7))
     alpha, u = 0.4, 0.8
@@ -47,8 +50,10 @@ def test_homogeneous_medium_matches_beer_lambert(device):
     np.testing.assert_allclose(phi, expected[..., None] * light.irradiance, rtol=2e-4, atol=1e-6)
 
 
-def test_slab_attenuates_by_its_thickness(device):
-    """A sharp slab of known thickness between the light and the far side: exp(-sigma d)."""
+@pytest.mark.parametrize("segment_planes", [0, 3])
+def test_slab_attenuates_by_its_thickness(device, segment_planes):
+    """A sharp slab of known thickness between the light and the far side: exp(-sigma d)
+    (exact rays, and chained segments every 3 planes: exact for an axis-aligned light)."""
     n = 24
     s = np.zeros((6, 6, n))
     s[:, :, 8:16] = 1.0  # points 8..15: the slab's edges lie half a cell outside them
@@ -56,7 +61,7 @@ def test_slab_attenuates_by_its_thickness(device):
     alpha = 0.3
     tf = TransferFunction([0.0, 0.499, 0.501, 1.0], [0.0, 0.0, alpha, alpha])
     T, _ = light_transmittance(volume, tf, 1.0, [DirectionalLight((0, 0, -1))],
-                               step_size=0.01, device=device)
+                               step_size=0.01, device=device, segment_planes=segment_planes)
     thickness = 8 * 0.5  # from z = 7.5 * 0.5 to 15.5 * 0.5
     sigma = -np.log(1 - alpha)
     below = T[0, :, :, :6]
@@ -92,23 +97,25 @@ def test_point_light_inside_medium_marches_only_to_the_light(device):
     np.testing.assert_allclose(T[0], np.exp(-np.log(2.0) * d), rtol=2e-4, atol=1e-6)
 
 
-def test_opaque_wall_casts_a_full_shadow(device):
+@pytest.mark.parametrize("segment_planes", [0, 3])
+def test_opaque_wall_casts_a_full_shadow(device, segment_planes):
     s = np.zeros((16, 8, 8))
     s[7:9] = 1.0
     volume = Volume(s)
     tf = TransferFunction([0.0, 0.5, 1.0], [0.0, 0.999, 0.999])
     T, phi = light_transmittance(volume, tf, 1.0, [DirectionalLight((1, 0, 0), (2, 2, 2))],
-                                 device=device)
+                                 device=device, segment_planes=segment_planes)
     assert np.all(T[0, :6] > 0.999)  # in front of the wall (light comes from x = 0)
     assert np.all(T[0, 10:] < 1e-4)  # behind it
     assert np.all(phi[10:] < 2e-4)
 
 
-def test_lower_resolution_grid_covers_the_same_box(device):
+@pytest.mark.parametrize("segment_planes", [0, 2])
+def test_lower_resolution_grid_covers_the_same_box(device, segment_planes):
     volume = Volume(np.ones((17, 9, 9)), spacing=(0.25, 0.5, 0.5))
     tf = TransferFunction([0.0, 1.0], [0.2, 0.2])
     T, phi = light_transmittance(volume, tf, 1.0, [DirectionalLight((-1, 0, 0))], shape=(5, 3, 4),
-                                 device=device)
+                                 device=device, segment_planes=segment_planes)
     assert T.shape == (1, 5, 3, 4) and phi.shape == (5, 3, 4, 3)
     x = np.linspace(0.0, 4.0, 5)  # light from +x: distance 4 - x
     np.testing.assert_allclose(T[0, :, 1, 2], np.exp(np.log(0.8) * (4.0 - x)), rtol=2e-4)
@@ -129,7 +136,8 @@ def test_no_lights_is_an_error():
         light_transmittance(volume, TransferFunction([0.0], [0.5]), 1.0, [], device="cpu")
 
 
-def test_deep_in_opaque_data_the_shadow_stays_dark(device):
+@pytest.mark.parametrize("segment_planes", [0, 16, 5])
+def test_deep_in_opaque_data_the_shadow_stays_dark(device, segment_planes):
     """Optical depths 0 to 40 across a homogeneous cube: where T > 1e-4 it is Beer-Lambert
     to 1e-3 (relative), and deeper the march may stop early but never reports more than
     SHADOW_STOP_T (a stop at the primary ray's 1e-2 once left such points 100x too bright)."""
@@ -140,7 +148,7 @@ def test_deep_in_opaque_data_the_shadow_stays_dark(device):
     sigma = 1.0  # optical depth 1 per voxel
     tf = TransferFunction([0.0, 2.0], [1 - np.exp(-sigma), 1 - np.exp(-sigma)])
     T, _ = light_transmittance(volume, tf, 1.0, [DirectionalLight((1.0, 0.0, 0.0))],
-                               device=device)
+                               device=device, segment_planes=segment_planes)
     depth = np.arange(n, dtype=np.float64)  # light enters at x = 0
     exact = np.exp(-sigma * depth)
     t = T[0, :, 2, 2].astype(np.float64)
