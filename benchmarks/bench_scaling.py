@@ -170,8 +170,15 @@ def make_scene(volume: Volume, azimuth: float = 0.0, light_turn: float = 0.0,
                  anisotropy=0.2, lights=[light], camera=cam, background=(0.05, 0.05, 0.06))
 
 
-def options_for(method: str, spp: int) -> dict:
-    return {"spp": spp} if method == "path" else {}
+#: Methods drawn by the illumination ray caster (:mod:`vtkillum.core.raycast`), which take
+#: its ``textures`` option.
+RAYCAST_ROWS = ("emission", "transmittance", "convection-diffusion", "photon-density")
+
+
+def options_for(method: str, spp: int, textures: bool = True) -> dict:
+    if method == "path":
+        return {"spp": spp}
+    return {} if textures or method not in RAYCAST_ROWS else {"textures": False}
 
 
 def render_photon_density(volume, scene, width, height, device, **options):
@@ -235,6 +242,8 @@ def exponent(sizes, times) -> float | None:
 
 def bench_method(method, sizes, args, device, name, probe, out) -> None:
     label = f"{method} (per spp)" if method == "path" else method
+    if args.no_textures and method in RAYCAST_ROWS:
+        label += " (arrays, no textures)"
     print(f"\n### {label} — {name}, {args.image}² image\n")
     print("| volume | step | whole call ms | device ms | peak MiB | estimate MiB | "
           "floor/call |")
@@ -262,7 +271,7 @@ def bench_method(method, sizes, args, device, name, probe, out) -> None:
             "light move": [make_scene(volume, azimuth=10.0, light_turn=10.0),
                            make_scene(volume, azimuth=10.0)],
         }
-        opts = options_for(method, spp)
+        opts = options_for(method, spp, not args.no_textures)
         try:
             for step in STEPS:
                 repeats = 1 if step == "first image" else args.repeats
@@ -315,6 +324,8 @@ def main(argv=None) -> None:
                     help="device memory bandwidth for the floor column, bytes/s")
     ap.add_argument("--small", action="store_true",
                     help="edges 16 24 32, 64² image, 2 repeats (a CPU in CI)")
+    ap.add_argument("--no-textures", action="store_true",
+                    help="the ray caster reads arrays, not CUDA textures (for comparison)")
     ap.add_argument("--json", default=None, help="also write the rows to this file")
     args = ap.parse_args(argv)
     if args.small:

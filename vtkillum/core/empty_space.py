@@ -106,3 +106,68 @@ def occupancy_kernel(m: Medium, ranges: wp.array4d(dtype=wp.float32),
     hi = wp.min(int(wp.ceil(table_coord(m, ranges[bi, bj, bk, 1]))), m.sigma_table.shape[0] - 1)
     # nonzero[i] = number of non-zero entries among the first i
     out[bi, bj, bk] = wp.where(nonzero[hi + 1] - nonzero[lo] > 0, 1, 0)
+
+
+def block_sigma_max(medium: Medium, ranges, sigma_table=None, device: str | None = None):
+    """Largest σt that may occur in each block **or its 26 neighbours**: wp.array3d(float32).
+
+    With post-classification every value of a block's data range can occur in it, so its
+    largest σt is the table's maximum over that range (entries bracketing the range, as
+    :func:`occupancy_kernel` counts them), found in O(1) per block by a sparse table of
+    range maxima (built on the host per transfer function). The neighbours' maximum is
+    taken as well, so the bound holds within one block of any point of the block: what
+    the ray caster needs to decide that the exact near-field march of a shadow ray (a few
+    voxels long) cannot change its transmittance by more than a set amount
+    (:func:`vtkillum.core.raycast.cached_transmittance`).
+    """
+    device = resolve_device(device)
+    sig = medium.sigma_table.numpy() if sigma_table is None else np.asarray(sigma_table)
+    levels = [np.asarray(sig, np.float32)]
+    while (1 << len(levels)) <= sig.shape[0]:
+        prev, half = levels[-1], 1 << (len(levels) - 1)
+        levels.append(np.maximum(prev[:-half], prev[half:]))
+    n = sig.shape[0]
+    sparse = np.zeros((len(levels), n), np.float32)  # sparse[j, i] = max(sig[i : i + 2**j])
+    for j, level in enumerate(levels):
+        sparse[j, :level.shape[0]] = level
+    table = wp.array(sparse, dtype=wp.float32, device=device)
+    shape = tuple(ranges.shape[:3])
+    own = wp.empty(shape, dtype=wp.float32, device=device)
+    wp.launch(block_sigma_max_kernel, dim=shape, inputs=[medium, ranges, table, own],
+              device=device)
+    out = wp.empty(shape, dtype=wp.float32, device=device)
+    wp.launch(dilate_max_kernel, dim=shape, inputs=[own, out], device=device)
+    return out
+
+
+@wp.kernel
+def block_sigma_max_kernel(m: Medium, ranges: wp.array4d(dtype=wp.float32),
+                           sparse: wp.array2d(dtype=wp.float32),
+                           out: wp.array3d(dtype=wp.float32)):
+    """``wp.tid()`` = block; the σt table's maximum over the entries bracketing its range
+    (1/world units), from two overlapping power-of-two spans of the sparse table."""
+    bi, bj, bk = wp.tid()
+    lo = int(wp.floor(table_coord(m, ranges[bi, bj, bk, 0])))
+    hi = wp.min(int(wp.ceil(table_coord(m, ranges[bi, bj, bk, 1]))), m.sigma_table.shape[0] - 1)
+    count = hi - lo + 1
+    j = int(0)
+    while (2 << j) <= count:
+        j += 1
+    out[bi, bj, bk] = wp.max(sparse[j, lo], sparse[j, hi + 1 - (1 << j)])
+
+
+@wp.kernel
+def dilate_max_kernel(src: wp.array3d(dtype=wp.float32), out: wp.array3d(dtype=wp.float32)):
+    """``out[b] = max of src over b's 3x3x3 neighbourhood`` (clipped at the borders)."""
+    bi, bj, bk = wp.tid()
+    v = float(0.0)
+    for di in range(-1, 2):
+        for dj in range(-1, 2):
+            for dk in range(-1, 2):
+                i = bi + di
+                j = bj + dj
+                k = bk + dk
+                if i >= 0 and j >= 0 and k >= 0 and i < src.shape[0] and j < src.shape[1] \
+                        and k < src.shape[2]:
+                    v = wp.max(v, src[i, j, k])
+    out[bi, bj, bk] = v

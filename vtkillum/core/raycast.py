@@ -46,6 +46,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import resolve_device
+from vtkillum.core.empty_space import BLOCK
 from vtkillum.core.illumination import IlluminationVolume, gradient_threshold, shading_terms
 from vtkillum.core.raymarch import (
     RAY_OPTIONS,
@@ -96,12 +97,15 @@ MODE_NAMES = {EMISSION: "emission", SINGLE: "single", ILLUMINATION: "illuminatio
 
 #: Options every ray-cast method accepts, with their defaults. ``near_cells``: how far
 #: (in light-grid cells) ``illumination`` marches the direct light's shadow ray exactly
-#: before reading the cached transmittance (0: read the grid at the sample). ``textures``:
+#: before reading the cached transmittance (0: read the grid at the sample).
+#: ``near_tolerance``: the march is skipped (the grid read at the sample) where the optical
+#: depth of the near field cannot exceed this (see :func:`cached_transmittance`; 0: never
+#: skipped). ``textures``:
 #: on CUDA, ``emission`` and ``illumination`` read the data, the transfer function and the
 #: illumination grids through hardware-filtered textures (:mod:`vtkillum.core.textures`:
 #: one fetch per sample instead of eight loads; images within ~1e-3 of the exact path);
 #: ignored on the CPU, and ``single`` (the reference) always reads arrays.
-RAYCAST_OPTIONS = {**RAY_OPTIONS, "near_cells": 2.0, "textures": True}
+RAYCAST_OPTIONS = {**RAY_OPTIONS, "near_cells": 2.0, "near_tolerance": 0.02, "textures": True}
 
 #: Most pixels per kernel launch when the image is tiled into row bands (progress reporting).
 TILE_PIXELS = {"cpu": 1 << 14, "cuda": 1 << 20}
@@ -200,6 +204,10 @@ def _parse_options(options: dict, volume, scene) -> dict:
         raise ValueError(f"near_cells must be a non-negative number of light-grid cells, got "
                          f"{near!r}")
     opts["near_cells"] = float(near)
+    tol = options.get("near_tolerance", RAYCAST_OPTIONS["near_tolerance"])
+    if not (isinstance(tol, (int, float, np.floating)) and np.isfinite(tol) and 0 <= tol < 1):
+        raise ValueError(f"near_tolerance must be an optical depth in [0, 1), got {tol!r}")
+    opts["near_tolerance"] = float(tol)
     textures = options.get("textures", RAYCAST_OPTIONS["textures"])
     if not isinstance(textures, (bool, np.bool_)):
         raise ValueError(f"textures must be true or false, got {textures!r}")
@@ -289,13 +297,16 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
 
     sources = _sources(mode, opts["textures"], volume, medium, illum, direct, illumination,
                        device)
+    near_bound, near_tol = _near_bound(mode, opts["near_tolerance"], volume, medium, direct,
+                                       device)
     wp.synchronize_device(device)
     t_upload = time.perf_counter()
 
     radiance, alpha, samples, n_tiles = launch_tiles(
         raycast_overload(sources["textures"]),
         [medium, sources["scalars"], sources["optics"], cam, lights, illum, sources["rgb"],
-         sources["rgb_unit"], direct, sources["light"], mode, opts["step_size"],
+         sources["rgb_unit"], direct, sources["light"], near_bound, near_tol, mode,
+         opts["step_size"],
          int(opts["jitter"]), opts["seed"], opts["early_termination"],
          wp.vec4(ka, kd, ks, shininess), float(grad_eps)],
         width, height, band_pixels(device, work), device, progress,
@@ -351,6 +362,27 @@ def _sources(mode, textures: bool, volume, medium, illum, direct, illumination, 
             "rgb_unit": unit if unit > 0.0 else 1.0, "light": light}
 
 
+def _near_bound(mode, tol: float, volume, medium, direct, device):
+    """The per-block ``σt`` bound that lets :func:`cached_transmittance` skip thin near
+    fields, and the tolerance (0 where skipping does not apply: no near field, no block
+    classification, or a near field longer than a block, beyond what the bound covers)."""
+    from vtkillum.core.empty_space import block_ranges, block_sigma_max
+
+    block_edge = float(np.min(np.asarray(volume.spacing))) * BLOCK
+    usable = (mode == ILLUMINATION and tol > 0.0 and direct.count > 0 and direct.near > 0.0
+              and direct.near <= block_edge and float(medium.inv_block[0]) > 0.0)
+    if not usable:
+        return _NO_BOUND.setdefault(device, wp.zeros((1, 1, 1), dtype=wp.float32,
+                                                     device=device)), 0.0
+    ranges = volume.derived(f"block_ranges@{device}", medium.scalars.ptr,
+                            lambda: block_ranges(medium.scalars, device))
+    bound = volume.derived(f"near_bound@{device}", id(medium.sigma_table),
+                           lambda: (medium.sigma_table,
+                                    block_sigma_max(medium, ranges, device=device)))[1]
+    return bound, tol
+
+
+_NO_BOUND: dict[str, object] = {}
 _EMPTY_TEXTURES: dict[str, tuple] = {}
 
 
@@ -379,7 +411,8 @@ def single_scatter_light(m: Medium, lights: Lights, p: wp.vec3, d: wp.vec3, step
 
 @wp.func
 def cached_transmittance(m: Medium, scalars: Any, optics: Any, direct: LightGrid,
-                         light_src: Any, li: int, p: wp.vec3, wl: wp.vec3, dist: float,
+                         light_src: Any, near_bound: wp.array3d(dtype=wp.float32),
+                         near_tol: float, li: int, p: wp.vec3, wl: wp.vec3, dist: float,
                          step: float, xi: float):
     """``T_l(p)``: an exact march over the first ``direct.near`` towards the light, then the grid.
 
@@ -388,8 +421,21 @@ def cached_transmittance(m: Medium, scalars: Any, optics: Any, direct: LightGrid
     grid-aligned error that shows as rings and bands; the short exact march resolves the
     surface instead (see :mod:`vtkillum.core.illumination`). ``scalars``, ``optics`` and
     ``light_src`` are the arrays (exact) or textures (:mod:`vtkillum.core.textures`).
+
+    Where the medium is thin the march is skipped and the grid read at ``p``:
+    ``near_bound`` holds, per block of ``m``, the largest ``σt`` within one block of it
+    (:func:`~vtkillum.core.empty_space.block_sigma_max`), so where
+    ``near · bound ≤ near_tol`` the near field attenuates by at most ``1 - exp(-near_tol)``
+    and the grid at ``p`` and the march-plus-grid differ by at most about that fraction of
+    ``T`` (both approximate the same ``T(p) = T_near · T(q)``). ``near_tol = 0`` never skips.
     """
     near = wp.min(direct.near, dist)
+    if near > 0.0 and near_tol > 0.0:
+        bi = wp.clamp(int(wp.floor(p[0] * m.inv_block[0])), 0, near_bound.shape[0] - 1)
+        bj = wp.clamp(int(wp.floor(p[1] * m.inv_block[1])), 0, near_bound.shape[1] - 1)
+        bk = wp.clamp(int(wp.floor(p[2] * m.inv_block[2])), 0, near_bound.shape[2] - 1)
+        if near * near_bound[bi, bj, bk] <= near_tol:
+            near = 0.0
     t = float(1.0)
     if near > 0.0:
         t = near_transmittance(m, scalars, optics, p, wl, near, step, xi)
@@ -425,14 +471,15 @@ def near_transmittance(m: Medium, scalars: Any, optics: Any, p: wp.vec3, w: wp.v
 
 @wp.func
 def cached_direct_light(m: Medium, scalars: Any, optics: Any, lights: Lights, direct: LightGrid,
-                        light_src: Any, p: wp.vec3, d: wp.vec3, step: float, xi: float):
+                        light_src: Any, near_bound: wp.array3d(dtype=wp.float32),
+                        near_tol: float, p: wp.vec3, d: wp.vec3, step: float, xi: float):
     """``Σ_l p(θ_l) T_l E_l`` at ``p`` with ``T_l`` from :func:`cached_transmittance`."""
     acc = wp.vec3(0.0)
     for li in range(direct.count):
         wl, dist, e = light_incidence(lights, li, p)
         phase = hg_phase(wp.dot(wl, d), m.g)
-        acc += (phase * cached_transmittance(m, scalars, optics, direct, light_src, li, p, wl,
-                                             dist, step, xi)) * e
+        acc += (phase * cached_transmittance(m, scalars, optics, direct, light_src, near_bound,
+                                             near_tol, li, p, wl, dist, step, xi)) * e
     return acc
 
 
@@ -473,6 +520,8 @@ def raycast_kernel(
     rgb_unit: float,
     direct: LightGrid,
     light_src: Any,
+    near_bound: wp.array3d(dtype=wp.float32),
+    near_tol: float,
     mode: int,
     step: float,
     jitter: int,
@@ -548,7 +597,7 @@ def raycast_kernel(
                             shadow_xi = wp.randf(state)
                         light = fetch_rgb(rgb_src, illum, rgb_unit, p) / (4.0 * wp.pi) + \
                             cached_direct_light(m, scalars, optics, lights, direct, light_src,
-                                                p, d, step, shadow_xi)
+                                                near_bound, near_tol, p, d, step, shadow_xi)
                         s_fac = phong_factor(m, lights, p, d, shading, grad_eps)
                         src = (m.albedo * s_fac) * wp.cw_mul(col, light)
                     colour += (trans * a) * src
