@@ -636,6 +636,113 @@ def interop_probe(opts) -> None:
               f"{statistics.median(times_host[1:]):.1f} ms, GL error {get_error()}", flush=True)
 
 
+# --- --profile: where the shader's time goes (feature toggles, ratios to VTK's composite) ----
+def plain_composite(volume, scene, image_size):
+    """:class:`Frames` for a plain ``vtkGPUVolumeRayCastMapper`` composite render of the same
+    data, transfer function and step (no shading, no light): the floor of a frame."""
+    image = image_data_from_volume(volume)
+    mapper = vtkOpenGLGPUVolumeRayCastMapper()
+    mapper.SetInputData(image)
+    mapper.SetBlendModeToComposite()
+    mapper.AutoAdjustSampleDistancesOff()
+    mapper.SetSampleDistance(scene.resolved_step_size(volume))
+    mapper.SetUseJittering(0)
+    prop = vtkVolumeProperty()
+    apply_scene_to_volume_property(scene, volume, prop)
+    prop.ShadeOff()
+    actor = vtkVolume()
+    actor.SetMapper(mapper)
+    actor.SetProperty(prop)
+    window, renderer = window_for(image_size)
+    renderer.AddVolume(actor)
+    apply_camera_to_vtk(scene.camera, renderer.GetActiveCamera())
+    frames = Frames(window, renderer)
+    frames.keep = (actor, mapper, image)
+    return frames
+
+
+def profile_variants(scene):
+    """``name -> (scene, IlluminatedVolume options, illumination kind or None, moving)``."""
+    import copy
+
+    phong = copy.deepcopy(scene)
+    phong.shading = {**phong.shading, "ambient": 0.2, "diffuse": 0.7, "specular": 0.2}
+    return {
+        "no illumination (T = 1, no march)": (scene, {}, None, False),
+        "scattered only (photon density)": (scene, {}, "photon density", False),
+        "transmittance, near_cells 0": (scene, {"near_cells": 0.0}, "transmittance", False),
+        "transmittance, near_cells 2": (scene, {}, "transmittance", False),
+        "transmittance, near_cells 2, Phong": (phong, {}, "transmittance", False),
+        "transmittance, near_cells 2, no leaps": (scene, {"skip_empty": False},
+                                                  "transmittance", False),
+        "transmittance, moving (interactive)": (scene, {}, "transmittance", True),
+        "scattered only, moving (interactive)": (scene, {}, "photon density", True),
+    }
+
+
+def _mapper_module(path: str):
+    """An illuminated_volume_mapper.py of another version (``--baseline``), as a module."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("baseline_illuminated_volume_mapper", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def profile(opts) -> int:
+    """The ``--profile`` table: IlluminatedVolume with features toggled, against VTK's plain
+    composite ray caster on the same data (the floor), frames taking turns. With
+    ``--baseline FILE`` (another version of ``illuminated_volume_mapper.py``, e.g. from
+    ``git show REV:vtkillum/mappers/illuminated_volume_mapper.py``) every variant also runs
+    with that version's class, in the same rounds, and the table gives both."""
+    from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
+
+    volume = procedural.ct_phantom(opts.size)
+    scene = procedural.default_scene("ct", volume)
+    floor = plain_composite(volume, scene, opts.image)
+    classes = {"": IlluminatedVolume}
+    if opts.baseline:
+        classes["baseline: "] = _mapper_module(opts.baseline).IlluminatedVolume
+    runs = {}
+    for name, (sc, options, kind, moving) in profile_variants(scene).items():
+        for label, cls in classes.items():
+            options = dict(options)
+            skip = options.pop("skip_empty", True)
+            window, renderer = window_for(opts.image)
+            light = None if kind is None else synthetic_illumination(
+                volume, kind, len(sc.lights), scale=opts.grid_scale)
+            actor = cls(image_data_from_volume(volume), sc, illumination=light,
+                        exposure=4 * np.pi / 3, **options)
+            actor.skip_empty = skip
+            renderer.AddVolume(actor)
+            apply_camera_to_vtk(sc.camera, renderer.GetActiveCamera())
+            if moving:
+                interactor = vtkGenericRenderWindowInteractor()
+                interactor.SetRenderWindow(window)
+                interactor.Initialize()
+            frames = Frames(window, renderer)
+            frames.keep = (actor,)
+            runs[label + name] = frames
+    for _ in range(opts.frames):  # taking turns: load changes hit all alike
+        floor.frame()
+        for frames in runs.values():
+            frames.frame()
+    print(f"window {floor.window.GetClassName()} ({gl_renderer(floor.window)}), CT phantom "
+          f"{opts.size}^3, image {opts.image}^2, default CT scene (2 lights), grids at "
+          f"{opts.grid_scale:g} x the data's points, median of {opts.frames} camera moves; "
+          "ratio: median over the rounds of the frame / VTK's plain composite frame")
+    print("| variant | ms per frame | ratio to VTK composite |")
+    print("|---|---|---|")
+    print(f"| VTK composite (vtkGPUVolumeRayCastMapper, no shading) | "
+          f"{statistics.median(floor.times):.1f} | 1 |")
+    for name, frames in runs.items():
+        ratio = statistics.median(a / b for a, b in zip(frames.times, floor.times))
+        print(f"| IlluminatedVolume: {name} | {statistics.median(frames.times):.1f} | "
+              f"{ratio:.2f} |", flush=True)
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--size", type=int, default=128, help="volume points per axis")
@@ -665,7 +772,17 @@ def main(argv=None) -> int:
                         help="--interactive: also time CUDA->OpenGL through a registered "
                              "pixel buffer against the host path (warp on CUDA)")
     parser.add_argument("--interop-sizes", type=int, nargs="+", default=[256, 512])
+    parser.add_argument("--profile", action="store_true",
+                        help="IlluminatedVolume with features toggled against VTK's plain "
+                             "composite (ratios; see the module docstring)")
+    parser.add_argument("--grid-scale", type=float, default=1.0,
+                        help="--profile: light grid points per data point")
+    parser.add_argument("--baseline",
+                        help="--profile: another version of illuminated_volume_mapper.py "
+                             "to time alongside")
     opts = parser.parse_args(argv)
+    if opts.profile:
+        return profile(opts)
     if opts.interactive:
         return interactive_main(opts)
     if opts.quality:

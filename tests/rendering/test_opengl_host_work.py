@@ -32,6 +32,7 @@ from vtkmodules.vtkRenderingCore import vtkRenderer
 from vtkillum.io.convert import image_data_from_volume
 from vtkillum.mappers import IlluminatedVolume
 from vtkillum.mappers.gl_trace import GLCallCounter
+from vtkillum.mappers.illuminated_volume_mapper import OPTICS_ROW
 
 
 def scene_for(volume, opacity_scale: float = 1.0) -> Scene:
@@ -117,11 +118,11 @@ def test_transfer_function_edit_uploads_only_the_optics():
     with GLCallCounter() as gl:
         actor.set_scene(scene_for(volume, opacity_scale=2.0))
         window.Render()
-    # only the optics image (table and occupancy: 256 x rows x 2), never the data (24^3)
-    # or the grids (12^3); VTK 9.7 may upload it twice in one render
+    # only the optics image (table and occupancy: OPTICS_ROW x rows x 2, RGBA float32),
+    # never the data (24^3) or the grids (12^3); VTK 9.7 may upload it twice in one render
     sizes = {u[:3] for u in gl.uploads_3d}
     assert len(sizes) == 1, gl.uploads_3d
-    assert sizes.pop()[0] == 256, gl.uploads_3d
+    assert sizes.pop()[0] == OPTICS_ROW, gl.uploads_3d
     assert gl.shader_builds == 0
 
 

@@ -273,8 +273,8 @@ UNIFORMS = {
                "the optics image)",
     "il_blockSize": "vec3: size of an occupancy block (world units)",
     "il_blockCount": "vec3: occupancy blocks along each axis",
-    "il_taQ": "vec4: factor from the stored to the physical value of the T_0..T_3 texture "
-              "(1/65535 for 16-bit, 1 for float)",
+    "il_taQ": "vec4: factor from the texel to the physical value of the T_0..T_3 texture "
+              "(16-bit: the channel's maximum, texels being normalised to [0, 1]; float: 1)",
     "il_tbQ": "vec4: likewise for T_4..T_7",
     "il_scQ": "vec4: likewise for the scattered fluence",
 }
@@ -289,32 +289,28 @@ GLSL_LAYOUT_DEC = """//VTK::Shading::Dec
 #define IL_OPTICS_ROW %(row)d
 #define IL_OPTICS_SHIFT %(shift)d
 #define IL_PHONG %(phong)d
+#define IL_SIGMA_ROW %(sigma_row)d
 #define IL_OCC_ROW %(occ_row)d
 
 mat4 il_texToLocal;  // VTK's texture coordinates of the box -> local frame (set per ray)
+vec3 il_rayStart;    // local position of sample g_currentT = 0 (set per ray)
+vec3 il_stepLocal;   // one step (g_dirStep) in the local frame (set per ray)
+vec3 il_invBlock;    // 1 / il_blockSize (set per ray)
 
 // Per-ray constants of the layout (il_initLayout): for each grid, texture coordinate =
 // clamp(p, 0, extent) * scale + bias (point-centred, clamped to the box like the warp
-// samplers); for each texture, value = texel * A + B (VTK either normalises a texture,
-// v * scale + bias in [0, 1] over in_scalarsRange, or leaves it raw).
+// samplers). Texels are read as they were uploaded, not through VTK's in_volume_scale /
+// in_volume_bias (which a multi-volume sets only for some component layouts): float32
+// textures (data, optics) hold the values, 16-bit ones are normalised by OpenGL to [0, 1]
+// and il_taQ / il_tbQ / il_scQ scale them back.
 vec3 il_dataScale;
 vec3 il_dataBias;
-float il_dataA;
-float il_dataB;
-float il_optA;
-float il_optB;
 vec3 il_taScale;
 vec3 il_taBias;
-vec4 il_taA;
-vec4 il_taB;
 vec3 il_tbScale;
 vec3 il_tbBias;
-vec4 il_tbA;
-vec4 il_tbB;
 vec3 il_scScale;
 vec3 il_scBias;
-vec4 il_scA;
-vec4 il_scB;
 
 // World position -> the volume's local frame [0, il_extent].
 vec3 il_toLocal(vec3 w)
@@ -334,16 +330,6 @@ void il_gridMap(vec3 n, out vec3 scale, out vec3 bias)
   bias = 0.5 / n;
 }
 
-float il_unpackA(float scale, float bias, vec2 range)
-{
-  return (scale == 1.0 && bias == 0.0) ? 1.0 : scale * (range.y - range.x);
-}
-
-float il_unpackB(float scale, float bias, vec2 range)
-{
-  return (scale == 1.0 && bias == 0.0) ? 0.0 : range.x + bias * (range.y - range.x);
-}
-
 // The per-ray constants above (call once per ray, before any fetch).
 void il_initLayout()
 {
@@ -351,36 +337,13 @@ void il_initLayout()
   il_gridMap(vec3(textureSize(in_volume[%(ta)d], 0)), il_taScale, il_taBias);
   il_gridMap(vec3(textureSize(in_volume[%(tb)d], 0)), il_tbScale, il_tbBias);
   il_gridMap(vec3(textureSize(in_volume[%(sc)d], 0)), il_scScale, il_scBias);
-  il_dataA = il_unpackA(in_volume_scale[%(data)d].r, in_volume_bias[%(data)d].r,
-                        in_scalarsRange[%(data4)d]);
-  il_dataB = il_unpackB(in_volume_scale[%(data)d].r, in_volume_bias[%(data)d].r,
-                        in_scalarsRange[%(data4)d]);
-  il_optA = il_unpackA(in_volume_scale[%(opt)d].r, in_volume_bias[%(opt)d].r,
-                       in_scalarsRange[%(opt4)d]);
-  il_optB = il_unpackB(in_volume_scale[%(opt)d].r, in_volume_bias[%(opt)d].r,
-                       in_scalarsRange[%(opt4)d]);
-  for (int c = 0; c < 4; ++c)
-  {
-    il_taA[c] = il_unpackA(in_volume_scale[%(ta)d][c], in_volume_bias[%(ta)d][c],
-                           in_scalarsRange[%(ta4)d + c]);
-    il_taB[c] = il_unpackB(in_volume_scale[%(ta)d][c], in_volume_bias[%(ta)d][c],
-                           in_scalarsRange[%(ta4)d + c]);
-    il_tbA[c] = il_unpackA(in_volume_scale[%(tb)d][c], in_volume_bias[%(tb)d][c],
-                           in_scalarsRange[%(tb4)d + c]);
-    il_tbB[c] = il_unpackB(in_volume_scale[%(tb)d][c], in_volume_bias[%(tb)d][c],
-                           in_scalarsRange[%(tb4)d + c]);
-    il_scA[c] = il_unpackA(in_volume_scale[%(sc)d][c], in_volume_bias[%(sc)d][c],
-                           in_scalarsRange[%(sc4)d + c]);
-    il_scB[c] = il_unpackB(in_volume_scale[%(sc)d][c], in_volume_bias[%(sc)d][c],
-                           in_scalarsRange[%(sc4)d + c]);
-  }
 }
 
 // Data value (data units) at local position p, trilinear.
 float il_scalar(vec3 p)
 {
   vec3 tex = clamp(p, vec3(0.0), il_extent) * il_dataScale + il_dataBias;
-  return texture3D(in_volume[%(data)d], tex).r * il_dataA + il_dataB;
+  return texture3D(in_volume[%(data)d], tex).r;
 }
 
 // Continuous table index of data value s (clamped: constant outside the table).
@@ -389,44 +352,36 @@ float il_tableCoord(float s)
   return clamp((s - il_tableLo) * il_tableScale, 0.0, float(il_tableSize - 1));
 }
 
-// Component c (0-2 colour, 3 sigma_t) of optics-table entry i, still packed (texel); entry
-// i's four values sit at x = 4 (i %% OPTICS_ROW) + c, y = i / OPTICS_ROW of a one-component
-// image (OPTICS_ROW a power of two: a mask and a shift, no integer division).
-float il_opticsTexel(int i, int c)
+// Optics-table entry i (colour rgb, sigma_t a; float32): one texel of the
+// 4-component optics image at x = i %% OPTICS_ROW, y = i / OPTICS_ROW (OPTICS_ROW a power of
+// two: a mask and a shift, no integer division).
+vec4 il_opticsTexel(int i)
 {
-  ivec3 at = ivec3(4 * (i & (IL_OPTICS_ROW - 1)) + c, i >> IL_OPTICS_SHIFT, 0);
-  return texelFetch(in_volume[%(opt)d], at, 0).r;
+  return texelFetch(in_volume[%(opt)d], ivec3(i & (IL_OPTICS_ROW - 1), i >> IL_OPTICS_SHIFT, 0),
+                    0);
 }
 
 // sigma_t (1/world units) of data value s: linear between table entries (lookup_sigma_t).
+// One fetch: after the entries, texel j = (sigma_2j, sigma_2j+1, sigma_2j+2, 0) holds both
+// ends of the interval [i, i + 1] for i = 2j and i = 2j + 1 (x = j %% OPTICS_ROW,
+// y = IL_SIGMA_ROW + j / OPTICS_ROW); the shadow marches read only these.
 float il_sigmaT(float s)
 {
   float x = il_tableCoord(s);
   int i = min(int(x), il_tableSize - 2);
-  return mix(il_opticsTexel(i, 3), il_opticsTexel(i + 1, 3), x - float(i)) * il_optA + il_optB;
+  int j = i >> 1;
+  vec4 v = texelFetch(in_volume[%(opt)d],
+                      ivec3(j & (IL_OPTICS_ROW - 1), IL_SIGMA_ROW + (j >> IL_OPTICS_SHIFT), 0), 0);
+  float f = x - float(i);
+  return (i & 1) == 0 ? mix(v.x, v.y, f) : mix(v.y, v.z, f);
 }
 
-// Colour (rgb) and sigma_t (a) of data value s (lookup_color, lookup_sigma_t).
+// Colour (rgb) and sigma_t (a) of data value s (lookup_color, lookup_sigma_t): two fetches.
 vec4 il_optics(float s)
 {
   float x = il_tableCoord(s);
   int i = min(int(x), il_tableSize - 2);
-  vec4 a = vec4(il_opticsTexel(i, 0), il_opticsTexel(i, 1), il_opticsTexel(i, 2),
-                il_opticsTexel(i, 3));
-  vec4 b = vec4(il_opticsTexel(i + 1, 0), il_opticsTexel(i + 1, 1), il_opticsTexel(i + 1, 2),
-                il_opticsTexel(i + 1, 3));
-  return mix(a, b, x - float(i)) * il_optA + il_optB;
-}
-
-// Colour (rgb) of data value s (lookup_color): what il_optics(s).rgb is, for samples whose
-// sigma_t (il_sigmaT) is known to be > 0 (empty samples never fetch their colour).
-vec3 il_color(float s)
-{
-  float x = il_tableCoord(s);
-  int i = min(int(x), il_tableSize - 2);
-  vec3 a = vec3(il_opticsTexel(i, 0), il_opticsTexel(i, 1), il_opticsTexel(i, 2));
-  vec3 b = vec3(il_opticsTexel(i + 1, 0), il_opticsTexel(i + 1, 1), il_opticsTexel(i + 1, 2));
-  return mix(a, b, x - float(i)) * il_optA + il_optB;
+  return mix(il_opticsTexel(i), il_opticsTexel(i + 1), x - float(i));
 }
 
 // Light l's cached transmittance T_grid,l at local position p, trilinear.
@@ -435,29 +390,30 @@ float il_gridTransmittance(int l, vec3 p)
   vec3 q = clamp(p, vec3(0.0), il_extent);
   if (l < 4)
   {
-    return (texture3D(in_volume[%(ta)d], q * il_taScale + il_taBias)[l] * il_taA[l] + il_taB[l])
-      * il_taQ[l];
+    return texture3D(in_volume[%(ta)d], q * il_taScale + il_taBias)[l] * il_taQ[l];
   }
   int c = l - 4;
-  return (texture3D(in_volume[%(tb)d], q * il_tbScale + il_tbBias)[c] * il_tbA[c] + il_tbB[c])
-    * il_tbQ[c];
+  return texture3D(in_volume[%(tb)d], q * il_tbScale + il_tbBias)[c] * il_tbQ[c];
 }
 
 // Scattered fluence phi_s (RGB) at local position p, trilinear.
 vec3 il_scatteredFluence(vec3 p)
 {
   vec3 tex = clamp(p, vec3(0.0), il_extent) * il_scScale + il_scBias;
-  return (texture3D(in_volume[%(sc)d], tex).xyz * il_scA.xyz + il_scB.xyz) * il_scQ.xyz;
+  return texture3D(in_volume[%(sc)d], tex).xyz * il_scQ.xyz;
 }
 
 // Occupancy: 1 where block b (of il_blockCount, il_blockSize each, covering the points of
 // its cells) holds a data value whose sigma_t may be > 0, 0 where every sample in it is
-// empty; stored after the optics table, entry i at x = i %% 256, y = IL_OCC_ROW + i / 256.
+// empty; stored after the optics table, four flags a texel: entry i in component i %% 4 of
+// x = (i / 4) %% OPTICS_ROW, y = IL_OCC_ROW + i / (4 OPTICS_ROW).
 bool il_blockEmpty(vec3 b)
 {
   int i = int(b.x) + int(il_blockCount.x) * (int(b.y) + int(il_blockCount.y) * int(b.z));
-  return texelFetch(in_volume[%(opt)d], ivec3(i & 255, IL_OCC_ROW + (i >> 8), 0), 0).r
-    * il_optA + il_optB < 0.5;
+  int j = i >> 2;
+  return texelFetch(in_volume[%(opt)d],
+                    ivec3(j & (IL_OPTICS_ROW - 1), IL_OCC_ROW + (j >> IL_OPTICS_SHIFT), 0),
+                    0)[i & 3] < 0.5;
 }
 """
 
@@ -468,7 +424,13 @@ GLSL_SHADING_DEC = """
 #define IL_PI 3.14159265358979
 vec3 il_dir;    // unit ray direction, local frame (set per ray)
 float il_step;  // sample spacing, world units (set per ray)
-float il_rayPhase[IL_MAX_LIGHTS];  // p_HG(w_l . d) of directional lights (set per ray)
+// Per ray (il_initRay): for directional lights the unit vector towards the light and
+// p_HG(w_l . d) E_l (the ray's and the light's directions are fixed); the block whose
+// occupancy was fetched last and whether it is empty.
+vec3 il_rayToLight[IL_MAX_LIGHTS];
+vec3 il_rayLight[IL_MAX_LIGHTS];
+vec3 il_lastBlock;
+bool il_lastEmpty;
 
 // Henyey-Greenstein, normalised to 1 over the sphere (warp_common.hg_phase).
 float il_hg(float cosTheta, float g)
@@ -553,32 +515,46 @@ float il_cachedTransmittance(int l, vec3 p, vec3 w, float dist)
   return t;
 }
 
-// Per ray: the phase of every directional light (its direction and the ray's are fixed).
+// Per ray: direction and p_HG(w_l . d) E_l of every directional light (fixed along the
+// ray), and no occupancy fetched yet.
 void il_initRay(vec3 d)
 {
   for (int l = 0; l < IL_MAX_LIGHTS; ++l)
   {
-    il_rayPhase[l] = 0.0;
+    il_rayToLight[l] = vec3(0.0);
+    il_rayLight[l] = vec3(0.0);
     if (l < il_numLights && il_lights[4 * l] < 0.5)
     {
-      vec3 v = vec3(il_lights[4 * l + 1], il_lights[4 * l + 2], il_lights[4 * l + 3]);
-      il_rayPhase[l] = il_hg(dot(-v, d), il_g);
+      vec3 w;
+      float dist;
+      vec3 e;
+      il_incidence(l, vec3(0.0), w, dist, e);
+      il_rayToLight[l] = w;
+      il_rayLight[l] = il_hg(dot(w, d), il_g) * e;
     }
   }
+  il_lastBlock = vec3(-1.0);
+  il_lastEmpty = false;
 }
 
 // sum_l p_HG(w_l . d) T_l(p) E_l(p) for a ray travelling along d (raycast.cached_direct_light).
+// One call of il_cachedTransmittance per light (software rasterisers run both sides of a
+// branch: the march must not be written twice).
 vec3 il_directLight(vec3 p, vec3 d)
 {
   vec3 acc = vec3(0.0);
   for (int l = 0; l < il_numDirect; ++l)
   {
-    vec3 w;
-    float dist;
-    vec3 e;
-    il_incidence(l, p, w, dist, e);
-    float phase = il_lights[4 * l] < 0.5 ? il_rayPhase[l] : il_hg(dot(w, d), il_g);
-    acc += (phase * il_cachedTransmittance(l, p, w, dist)) * e;
+    vec3 w = il_rayToLight[l];
+    float dist = 1.0e30;
+    vec3 light = il_rayLight[l];
+    if (il_lights[4 * l] >= 0.5)
+    {
+      vec3 e;
+      il_incidence(l, p, w, dist, e);
+      light = il_hg(dot(w, d), il_g) * e;
+    }
+    acc += il_cachedTransmittance(l, p, w, dist) * light;
   }
   return acc;
 }
@@ -623,10 +599,13 @@ float il_phong(vec3 p, vec3 d)
   float spec = 0.0;
   for (int l = 0; l < il_numLights; ++l)
   {
-    vec3 w;
-    float dist;
-    vec3 e;
-    il_incidence(l, p, w, dist, e);
+    vec3 w = il_rayToLight[l];
+    if (il_lights[4 * l] >= 0.5)
+    {
+      float dist;
+      vec3 e;
+      il_incidence(l, p, w, dist, e);
+    }
     diff += abs(dot(n, w));
     vec3 h = w - d;
     float hlen = length(h);
@@ -689,6 +668,8 @@ GLSL_RAY_INIT = """//VTK::Shading::Init
     vec3 il_stepWorld = (il_texToWorld * vec4(g_dirStep, 0.0)).xyz;
     il_step = length(il_stepWorld);
     il_dir = il_dirToLocal(il_stepWorld / il_step);
+    il_stepLocal = il_dir * il_step;
+    il_invBlock = 1.0 / il_blockSize;
     il_initRay(il_dir);
     float il_xi = 0.5;
     if (il_jitter != 0)
@@ -698,6 +679,7 @@ GLSL_RAY_INIT = """//VTK::Shading::Init
       il_xi = fract(il_ign + fract(float(il_frame) * 0.6180339887));
     }
     g_dataPos += il_xi * g_dirStep;
+    il_rayStart = (il_texToLocal * vec4(g_dataPos, 1.0)).xyz - g_currentT * il_stepLocal;
   }
 """
 
@@ -706,14 +688,20 @@ GLSL_RAY_INIT = """//VTK::Shading::Init
 GLSL_SAMPLE = """
     if (!g_skip)
     {
-      vec3 il_p = (il_texToLocal * vec4(g_dataPos, 1.0)).xyz;
+      // g_dataPos = its first value + g_currentT g_dirStep (leaps add to both)
+      vec3 il_p = il_rayStart + g_currentT * il_stepLocal;
       vec3 il_tol = 1.0e-5 * il_extent;
       bool il_inside = all(greaterThanEqual(il_p, -il_tol)) &&
         all(lessThanEqual(il_p, il_extent + il_tol));
       if (il_inside && il_skip != 0)
       {
-        vec3 il_b = clamp(floor(il_p / il_blockSize), vec3(0.0), il_blockCount - 1.0);
-        if (il_blockEmpty(il_b))
+        vec3 il_b = clamp(floor(il_p * il_invBlock), vec3(0.0), il_blockCount - 1.0);
+        if (any(notEqual(il_b, il_lastBlock)))  // one occupancy fetch per block on the ray
+        {
+          il_lastBlock = il_b;
+          il_lastEmpty = il_blockEmpty(il_b);
+        }
+        if (il_lastEmpty)
         {
           // every sample up to the block's exit is empty: leap over whole steps
           vec3 il_lo = il_b * il_blockSize;
@@ -729,12 +717,11 @@ GLSL_SAMPLE = """
           il_inside = false;
         }
       }
-      float il_s = il_inside ? il_scalar(il_p) : 0.0;
-      float il_sigma = il_inside ? il_sigmaT(il_s) : 0.0;
-      if (il_sigma > 0.0)
+      vec4 il_opt = il_inside ? il_optics(il_scalar(il_p)) : vec4(0.0);
+      if (il_opt.a > 0.0)
       {
-        float il_alpha = 1.0 - exp(-il_sigma * il_step);
-        vec3 il_src = il_exposure * il_source(il_p, il_dir, il_color(il_s));
+        float il_alpha = 1.0 - exp(-il_opt.a * il_step);
+        vec3 il_src = il_exposure * il_source(il_p, il_dir, il_opt.rgb);
         g_fragColor.rgb += ((1.0 - g_fragColor.a) * il_alpha) * il_src;
         g_fragColor.a += (1.0 - g_fragColor.a) * il_alpha;
       }
@@ -756,7 +743,8 @@ def glsl_layout_dec(max_lights: int = MAX_LIGHTS, phong: bool = True) -> str:
     values = {"max_lights": int(max_lights), "row": OPTICS_ROW, "shift": shift,
               "phong": int(bool(phong)), **ports}
     values.update({f"{k}4": 4 * v for k, v in ports.items()})
-    values["occ_row"] = -(-TABLE_SIZE // OPTICS_ROW)
+    values["sigma_row"] = -(-TABLE_SIZE // OPTICS_ROW)
+    values["occ_row"] = values["sigma_row"] + -(-TABLE_SIZE // (2 * OPTICS_ROW))
     return GLSL_LAYOUT_DEC % values
 
 
@@ -838,7 +826,7 @@ class IlluminatedVolume(vtkMultiVolume):
             volume = vtkVolume()
             prop = vtkVolumeProperty()
             # vtkMultiVolume takes 1-component inputs as independent, 4-component as not.
-            prop.SetIndependentComponents(port in (OPTICS_PORT, DATA_PORT))
+            prop.SetIndependentComponents(port == DATA_PORT)
             prop.SetInterpolationTypeToLinear()
             prop.ShadeOff()
             volume.SetProperty(prop)
@@ -1229,7 +1217,7 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
     def RequestInformation(self, request, inInfo, outInfo):
         info = outInfo.GetInformationObject(0)
         rows = -(-TABLE_SIZE // OPTICS_ROW)
-        info.Set(SDDP.WHOLE_EXTENT(), (0, 4 * OPTICS_ROW - 1, 0, rows - 1, 0, 1), 6)
+        info.Set(SDDP.WHOLE_EXTENT(), (0, OPTICS_ROW - 1, 0, rows - 1, 0, 1), 6)
         return 1
 
     def RequestUpdateExtent(self, request, inInfo, outInfo):
@@ -1306,7 +1294,7 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
             self._blocks = BlockRanges(volume)
         occupied = self._blocks.occupied(sigma, lo, hi)
         optics = optics_rows(color, sigma, occupied)
-        out.ShallowCopy(image_like(volume, shape=optics.shape))
+        out.ShallowCopy(image_like(volume, shape=optics.shape[:3]))
         add_point_array(out, "optics", optics, set_active=True)
         if self.uniforms is not None:
             values = shading_uniforms(volume, scene, lights, illumination, self.near_cells,
@@ -1432,28 +1420,41 @@ def set_uniforms(uniforms, values: dict) -> None:
 # --- host helpers ----------------------------------------------------------------------------------
 def optics_rows(color: np.ndarray, sigma_t: np.ndarray,
                 occupied: np.ndarray | None = None) -> np.ndarray:
-    """The colour and σt tables (and the occupancy) as a one-component float32 image.
+    """The colour and σt tables (and the occupancy) as a 4-component float32 image.
 
-    Component ``c`` (0–2 colour, 3 σt) of entry ``i`` sits at
-    ``(4 (i % OPTICS_ROW) + c, i // OPTICS_ROW)`` in both z slices; the shape is
-    ``(4 OPTICS_ROW, rows, 2)``. With ``occupied`` (one flag per block, x fastest:
-    :meth:`BlockRanges.occupied`), its entry ``j`` follows at ``(j % 256, rows + j // 256)``
-    (1 or 0). (One component: VTK's multi-volume normalises the textures of all inputs
-    only when input 0 has independent components, i.e. one component here.)
+    The shape is ``(OPTICS_ROW, rows, 2, 4)`` (both z slices alike), in three parts:
+
+    * entry ``i`` (colour RGB, σt) is the texel ``(i % OPTICS_ROW, i // OPTICS_ROW)``, so
+      the two entries around a value are two fetches;
+    * then σt alone: texel ``j`` holds ``(σt[2j], σt[2j+1], σt[2j+2], 0)``, so both ends of
+      the interval ``[i, i + 1]`` (``j = i // 2``) are one fetch (the shadow marches);
+    * with ``occupied`` (one flag per block, x fastest: :meth:`BlockRanges.occupied`), four
+      flags a texel: flag ``k`` in component ``k % 4`` of texel ``k // 4`` (1 or 0).
+
+    Each part starts on a new row; texel ``t`` of a part is ``(t % OPTICS_ROW, first row +
+    t // OPTICS_ROW)``.
     """
     n = int(sigma_t.shape[0])
-    rows = -(-n // OPTICS_ROW)
-    flat = np.zeros((rows * OPTICS_ROW, 4), dtype=np.float32)
-    flat[:n, :3] = color
-    flat[:n, 3] = sigma_t
-    grid = flat.reshape(rows, OPTICS_ROW * 4).T  # [4 * (i % row) + c, i // row]
+    entries = np.zeros((n, 4), dtype=np.float32)
+    entries[:, :3] = color
+    entries[:, 3] = sigma_t
+    pairs = np.zeros((-(-n // 2), 4), dtype=np.float32)
+    padded = np.concatenate([np.asarray(sigma_t, np.float32), np.zeros(2, np.float32)])
+    for c in range(3):
+        pairs[:, c] = padded[c: c + 2 * len(pairs): 2][: len(pairs)]
+    parts = [entries, pairs]
     if occupied is not None:
-        width = 4 * OPTICS_ROW
-        flags = np.asarray(occupied, bool).reshape(-1, order="F")
-        occ = np.zeros(-(-flags.size // width) * width, np.float32)
-        occ[: flags.size] = flags
-        grid = np.concatenate([grid, occ.reshape(-1, width).T], axis=1)
-    return np.ascontiguousarray(np.repeat(grid[:, :, None], 2, axis=2))
+        flags = np.asarray(occupied, bool).reshape(-1, order="F").astype(np.float32)
+        occ = np.zeros((-(-flags.size // 4), 4), np.float32)
+        occ.reshape(-1)[: flags.size] = flags
+        parts.append(occ)
+    rows = []
+    for part in parts:
+        grid = np.zeros((-(-len(part) // OPTICS_ROW) * OPTICS_ROW, 4), np.float32)
+        grid[: len(part)] = part
+        rows.append(grid.reshape(-1, OPTICS_ROW, 4).transpose(1, 0, 2))  # [t % row, t // row]
+    grid = np.concatenate(rows, axis=1)
+    return np.ascontiguousarray(np.repeat(grid[:, :, None, :], 2, axis=2))
 
 
 #: Most occupancy blocks (256 per image row; llvmpipe takes 3D textures up to 2048 rows).
@@ -1527,10 +1528,11 @@ def pack_channels(values: np.ndarray, sixteen_bit: bool, unit_range: bool = Fals
 
     Returns ``(image, q)``: ``image`` float32, or uint16 with ``sixteen_bit`` (half the
     bytes of float32: texture uploads and the texture unit's reads); ``q`` (4 floats) turns
-    a stored value back into the physical one. 16 bit: ``round(v / q)`` with
-    ``q = 1 / 65535`` for transmittances (``unit_range``, clipped to [0, 1]) and
-    ``q = max / 65535`` per channel otherwise (non-negative values): an absolute error of
-    at most ``q / 2``.
+    a texel as the shader reads it back into the physical value: 1 for float32; for 16 bit,
+    whose texels OpenGL normalises to ``stored / 65535``, the channel's top value, with
+    ``stored = round(65535 v / top)``, ``top = 1`` for transmittances (``unit_range``,
+    clipped to [0, 1]) and the channel's maximum otherwise (non-negative values): an
+    absolute error of at most ``top / 131070``.
     """
     values = np.asarray(values, np.float32)
     c = values.shape[-1]
@@ -1549,7 +1551,7 @@ def pack_channels(values: np.ndarray, sixteen_bit: bool, unit_range: bool = Fals
             top = float(np.max(channel)) if channel.size else 0.0
             channel = np.maximum(channel, 0.0)
         if top > 0:
-            q[k] = top / 65535.0
+            q[k] = top
             packed[..., k] = np.rint(channel * np.float32(65535.0 / top))
     return packed, q
 
