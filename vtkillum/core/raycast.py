@@ -51,6 +51,7 @@ from vtkillum.core.illumination import IlluminationVolume, gradient_threshold, s
 from vtkillum.core.raymarch import (
     RAY_OPTIONS,
     launch_tiles,
+    mean_samples,
     pixel_ray,
     pixel_work,
     ray_options,
@@ -315,7 +316,7 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
 
     rad = radiance.numpy().reshape(height, width, 3)  # float32 host copies already
     alp = alpha.numpy()
-    mean_samples = float(samples.numpy().mean())
+    samples_mean = mean_samples(samples)
     t_end = time.perf_counter()
     if progress is not None:
         progress(1.0)
@@ -326,7 +327,7 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
         "jitter": opts["jitter"],
         "textures": sources["textures"],
         "tiles": n_tiles,
-        "mean_samples_per_pixel": mean_samples,
+        "mean_samples_per_pixel": samples_mean,
         "setup_s": t_upload - t_start,
         "render_s": t_render - t_upload,
         "download_s": t_end - t_render,
@@ -573,7 +574,7 @@ def raycast_kernel(
                 continue
             last = wp.min(last, n - 1)
             while k <= last:
-                p = start + ((float(k) + xi) * step) * d
+                p = o + (t0 + (float(k) + xi) * step) * d  # as every caster places them
                 k += 1
                 s = fetch_scalar(scalars, m.inv_spacing, p)
                 opt = fetch_optics(optics, m, s)

@@ -147,3 +147,21 @@ def chord_kernel(cam: CameraParams, extent: wp.vec3, out: wp.array2d(dtype=wp.fl
 def sample_count(t0: float, t1: float, step: float, xi: float):
     """Samples at ``t0 + (k + xi) step`` strictly before ``t1`` (ties within 1e-4 step dropped)."""
     return int(wp.ceil((t1 - t0) / step - xi - 1.0e-4))
+
+
+def mean_samples(samples) -> float:
+    """Mean of a ``(H, W)`` int32 sample-count image, reduced on its device (row sums, then
+    ``H`` numbers to the host) instead of downloading the whole image."""
+    rows = wp.empty(samples.shape[0], dtype=wp.float64, device=samples.device)
+    wp.launch(row_sum_kernel, dim=samples.shape[0], inputs=[samples, rows], device=samples.device)
+    return float(rows.numpy().sum()) / max(int(samples.shape[0] * samples.shape[1]), 1)
+
+
+@wp.kernel
+def row_sum_kernel(samples: wp.array2d(dtype=wp.int32), out: wp.array(dtype=wp.float64)):
+    """``out[row] = sum of samples[row, :]``; ``wp.tid()`` is the row."""
+    row = wp.tid()
+    acc = wp.float64(0.0)
+    for c in range(samples.shape[1]):
+        acc += wp.float64(samples[row, c])
+    out[row] = acc

@@ -112,7 +112,7 @@ from vtkillum.core.ambient.textures import (
 from vtkillum.core.ambient.tube_march import RadianceGrid, radiance_unit, sample_radiance
 from vtkillum.core.device import resolve_device
 from vtkillum.core.empty_space import BLOCK
-from vtkillum.core.raymarch import pixel_ray, sample_count
+from vtkillum.core.raymarch import mean_samples, pixel_ray, sample_count
 from vtkillum.core.warp_common import (
     CameraParams,
     Lights,
@@ -219,7 +219,7 @@ def gather(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights, cam
         occupied, spacing, textures, mode)
     height, width = radiance.shape
     rad = radiance.numpy().astype(np.float32).reshape(height, width, 3)
-    return rad, alpha.numpy().astype(np.float32), float(samples.numpy().mean())
+    return rad, alpha.numpy().astype(np.float32), mean_samples(samples)
 
 
 def gather_device(medium: Medium, sigma_tilde, cache: RadianceGrid, lights: Lights,

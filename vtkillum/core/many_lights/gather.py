@@ -62,7 +62,7 @@ from vtkillum.core.many_lights.avsm import (
 )
 from vtkillum.core.many_lights.clamp import clamped_geometry
 from vtkillum.core.raycast import single_scatter_light
-from vtkillum.core.raymarch import pixel_ray, sample_count
+from vtkillum.core.raymarch import mean_samples, pixel_ray, sample_count
 from vtkillum.core.warp_common import (
     CameraParams,
     Lights,
@@ -194,7 +194,7 @@ def render_image(medium: Medium, cam: CameraParams, lights: Lights, vls: Virtual
     gather_device(medium, cam, lights, vls, maps, params, single, multiple, alpha, samples,
                   device, progress)
     return (single.numpy().reshape(height, width, 3), multiple.numpy().reshape(height, width, 3),
-            alpha.numpy(), float(samples.numpy().mean()))
+            alpha.numpy(), mean_samples(samples))
 
 
 def gather_device(medium: Medium, cam: CameraParams, lights: Lights, vls: VirtualLights,
