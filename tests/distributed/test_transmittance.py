@@ -57,7 +57,7 @@ def _compare(par, axis_name, lights, tf=TF, step=None, field=None, origin=ORIGIN
                                              tf, 1.0, lights, step_size=step, comm=par.comm,
                                              origin=origin)
     t_ref, phi_ref = light_transmittance(Volume(field, SPACING, ORIGIN), tf, 1.0, lights,
-                                         step_size=step)
+                                         step_size=step, segment_planes=0)
     cut = sub_slices(extent, whole)
     ref = t_ref[(slice(None), *cut)]
     err = [max_abs(t[li], ref[li]) for li in range(len(lights))]

@@ -108,36 +108,44 @@ def occupancy_kernel(m: Medium, ranges: wp.array4d(dtype=wp.float32),
     out[bi, bj, bk] = wp.where(nonzero[hi + 1] - nonzero[lo] > 0, 1, 0)
 
 
-def block_sigma_max(medium: Medium, ranges, sigma_table=None, device: str | None = None):
+def block_sigma_max(medium: Medium, ranges, device: str | None = None):
     """Largest σt that may occur in each block **or its 26 neighbours**: wp.array3d(float32).
 
     With post-classification every value of a block's data range can occur in it, so its
     largest σt is the table's maximum over that range (entries bracketing the range, as
     :func:`occupancy_kernel` counts them), found in O(1) per block by a sparse table of
-    range maxima (built on the host per transfer function). The neighbours' maximum is
-    taken as well, so the bound holds within one block of any point of the block: what
-    the ray caster needs to decide that the exact near-field march of a shadow ray (a few
-    voxels long) cannot change its transmittance by more than a set amount
-    (:func:`vtkillum.core.raycast.cached_transmittance`).
+    range maxima (``log2`` levels of the σt table, built on the device per transfer
+    function). The neighbours' maximum is taken as well, so the bound holds within one
+    block of any point of the block: what the ray caster needs to decide that the exact
+    near-field march of a shadow ray (a few voxels long) cannot change its transmittance
+    by more than a set amount (:func:`vtkillum.core.raycast.cached_transmittance`).
     """
     device = resolve_device(device)
-    sig = medium.sigma_table.numpy() if sigma_table is None else np.asarray(sigma_table)
-    levels = [np.asarray(sig, np.float32)]
-    while (1 << len(levels)) <= sig.shape[0]:
-        prev, half = levels[-1], 1 << (len(levels) - 1)
-        levels.append(np.maximum(prev[:-half], prev[half:]))
-    n = sig.shape[0]
-    sparse = np.zeros((len(levels), n), np.float32)  # sparse[j, i] = max(sig[i : i + 2**j])
-    for j, level in enumerate(levels):
-        sparse[j, :level.shape[0]] = level
-    table = wp.array(sparse, dtype=wp.float32, device=device)
+    n = int(medium.sigma_table.shape[0])
+    levels = max(1, int(n).bit_length())
+    sparse = wp.empty((levels, n), dtype=wp.float32, device=device)  # [j, i]: max over 2**j
+    wp.copy(sparse, medium.sigma_table, count=n)
+    for j in range(1, levels):
+        wp.launch(sparse_level_kernel, dim=n, inputs=[sparse, j], device=device)
     shape = tuple(ranges.shape[:3])
     own = wp.empty(shape, dtype=wp.float32, device=device)
-    wp.launch(block_sigma_max_kernel, dim=shape, inputs=[medium, ranges, table, own],
+    wp.launch(block_sigma_max_kernel, dim=shape, inputs=[medium, ranges, sparse, own],
               device=device)
     out = wp.empty(shape, dtype=wp.float32, device=device)
     wp.launch(dilate_max_kernel, dim=shape, inputs=[own, out], device=device)
     return out
+
+
+@wp.kernel
+def sparse_level_kernel(sparse: wp.array2d(dtype=wp.float32), j: int):
+    """``sparse[j, i] = max(sparse[j-1, i], sparse[j-1, i + 2**(j-1)])`` (the span of
+    ``2**j`` entries from ``i``; entries whose span leaves the table are never read)."""
+    i = wp.tid()
+    half = 1 << (j - 1)
+    v = sparse[j - 1, i]
+    if i + half < sparse.shape[1]:
+        v = wp.max(v, sparse[j - 1, i + half])
+    sparse[j, i] = v
 
 
 @wp.kernel

@@ -41,14 +41,23 @@ class LightTransmittanceFilter(IlluminationFilterBase):
     StepSize : float
         Longest step along shadow rays in world units; 0 (default) means half the
         smallest input spacing.
+    SegmentPlanes : int
+        0 (default): one exact shadow ray per output point (O(N⁴)), the reference that
+        the distributed mode reproduces bit for bit. ``L > 0``: directional lights chain
+        shadow-ray segments, interpolating every ``L`` output-grid planes (O(N³ L), what
+        the interactive ``transmittance`` render method uses with ``L = 16``; sharp
+        shadow edges blur by about ``sqrt(N/L)/2`` cells; see
+        :mod:`vtkillum.core.light_transmittance`). Under MPI this runs mode 1 (the whole
+        volume on every rank, the one-rank result): chaining has no distributed version.
     Device, OutputScale, OutputDimensions, InputComponent, NaNPolicy, PassInputArrays, CacheSizeMB
         As in the base class.
 
     Notes
     -----
     ``fluence`` has the lights' irradiance units (directional: irradiance as given;
-    point: intensity / world unit²). Cost: one shadow ray per light and output
-    point, each about (box size / StepSize) samples.
+    point: intensity / world unit²). Cost: point lights (and SegmentPlanes 0): one
+    shadow ray per light and output point, each about (box size / StepSize) samples;
+    directional lights: at most SegmentPlanes planes' worth of samples per point.
     """
 
     # Only the opacity shadows: a colour, albedo or anisotropy edit reuses the arrays.
@@ -60,6 +69,7 @@ class LightTransmittanceFilter(IlluminationFilterBase):
     def __init__(self) -> None:
         super().__init__()
         self._step_size = 0.0
+        self._segment_planes = 0
 
     def SetStepSize(self, step: float) -> None:
         step = float(step)
@@ -70,11 +80,29 @@ class LightTransmittanceFilter(IlluminationFilterBase):
     def GetStepSize(self) -> float:
         return self._step_size
 
+    def SetSegmentPlanes(self, planes: int) -> None:
+        planes = int(planes)
+        if planes < 0:
+            raise ValueError(f"SegmentPlanes must be >= 0 (0: exact shadow rays), got {planes}")
+        self.set_parameter("_segment_planes", planes)
+
+    def GetSegmentPlanes(self) -> int:
+        return self._segment_planes
+
+    def distributed_unsupported(self) -> str | None:
+        """Mode 1 with chained segments (they have no distributed version); else the
+        distributed exact march."""
+        if self._segment_planes > 0:
+            return (f"SegmentPlanes {self._segment_planes} (chained segments) has no "
+                    "distributed version; SegmentPlanes 0 marches exactly across the ranks")
+        return super().distributed_unsupported()
+
     def compute_piece(self, volume, params, piece):
         """Distributed under MPI: the one-rank shadow rays, marched across the ranks
         (:func:`vtkillum.core.parallel.transmittance.distributed_light_transmittance`), on
         this rank's piece; no ghost levels (neighbouring pieces share their planes). The
-        arrays equal the one-rank filter's bit for bit."""
+        arrays equal the one-rank filter's bit for bit (SegmentPlanes 0, the default;
+        chained segments run mode 1, :meth:`distributed_unsupported`)."""
         from vtkillum.core.parallel.transmittance import distributed_light_transmittance
 
         transmittance, _fluence = distributed_light_transmittance(
@@ -88,6 +116,7 @@ class LightTransmittanceFilter(IlluminationFilterBase):
         transmittance, _fluence = light_transmittance(
             volume, params.transfer_function, params.unit_distance, params.lights,
             shape=params.output_shape, step_size=params.units.to_length(self._step_size) or None,
-            device=params.device, progress=params.progress)
+            device=params.device, progress=params.progress,
+            segment_planes=self._segment_planes)
         illumination = IlluminationVolume.for_volume(volume, transmittance=transmittance)
         return illumination_arrays(illumination, volume, params.lights, params.output_shape)

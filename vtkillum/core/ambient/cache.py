@@ -6,9 +6,9 @@ exactly the stages each one needs:
 ==========================  ===============================================
 edit                        recomputed
 ==========================  ===============================================
-transfer function (or data) σt grid and its SAT (and the empty-space blocks),
+transfer function (or data) σt grid (and the empty-space blocks),
                             ``σ̃t`` and ``σ̂``, radiance cache
-ambient radius ``r``        ``σ̃t`` and the step field ``σ̂`` (from the kept SAT), radiance cache
+ambient radius ``r``        ``σ̃t`` and the step field ``σ̂`` (from the kept σt), radiance cache
 anisotropy ``g``, albedo,   radiance cache only
 lights, cache resolution
 camera, image size          nothing (only the gather runs)
@@ -17,7 +17,9 @@ camera, image size          nothing (only the gather runs)
 Each stage is keyed by everything it depends on; :attr:`AmbientScatteringCache.stats`
 counts how often each ran, and :attr:`AmbientState.recomputed` /
 :attr:`AmbientState.timings` say what the last update did and how long it took
-(milliseconds, device synchronised). The data is recognised by the array's
+(milliseconds, device synchronised); the transfer-function stage keeps its name
+``"sat"`` from when it built the paper's summed-area table, which ``σ̃t`` no longer needs
+(the same cube means by separable passes, :mod:`vtkillum.core.ambient.sat`). The data is recognised by the array's
 identity, shape, spacing and a strided sample of its values; a different
 array object is compared by a hash of all its values (so a filter's fresh
 conversion of unchanged data keeps the caches). After editing a volume's array
@@ -49,7 +51,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.ambient.device_table import DeviceTable
-from vtkillum.core.ambient.sat import ambient_extinction, sigma_t_grid, summed_area_table
+from vtkillum.core.ambient.sat import ambient_extinction, sigma_t_grid
 from vtkillum.core.ambient.table import PreintegrationTable, load_table
 from vtkillum.core.ambient.textures import (
     AmbientTextures,
@@ -113,7 +115,7 @@ class AmbientState:
         ``radiance_ms``; 0 for a stage that was kept).
     occupied : wp.array3d(int32)
         Blocks that may hold matter, for the gather's empty-space skipping (recomputed
-        with the SAT).
+        with the σt grid).
     textures : AmbientTextures or None
         With hardware filtering (after :meth:`~AmbientScatteringCache.update`): scalars,
         ``σ̃t`` and radiance cache as textures for the gather; with ``data_textures`` the
@@ -136,7 +138,7 @@ class AmbientState:
 
 
 class AmbientScatteringCache:
-    """SAT, ambient extinction and radiance cache, recomputed only when invalidated.
+    """σt grid, ambient extinction and radiance cache, recomputed only when invalidated.
 
     Parameters
     ----------
@@ -213,7 +215,6 @@ class AmbientScatteringCache:
         self._tf_key = None
         self._medium = None
         self._sigma_t = None
-        self._sat = None
         self._ext_key = None
         self._sigma_tilde = None
         self._step_field = None
@@ -336,7 +337,7 @@ class AmbientScatteringCache:
 
     def update_extinction(self, volume, transfer_function, unit_distance: float, radius: float,
                           radius_units: str = "voxels") -> AmbientState:
-        """Bring only the σt grid, its SAT and ``σ̃t`` up to date (no lights needed).
+        """Bring only the σt grid and ``σ̃t`` up to date (no lights needed).
 
         The returned state has ``radiance``, ``lights``, ``table`` and ``table_slice``
         set to ``None``; parameters as for :meth:`update`.
@@ -369,7 +370,6 @@ class AmbientScatteringCache:
             self._medium = make_medium(volume, transfer_function, unit_distance, device=device,
                                        scalars=self._scalars)
             self._sigma_t = sigma_t_grid(self._medium, device)
-            self._sat = summed_area_table(self._sigma_t, device)
             self._occupied = self._medium.occupied  # empty blocks (make_medium)
             if self._data_textured:  # the transfer function as one RGBA texture
                 self._optics_texture = optics_texture(self._medium, self._optics_texture)
@@ -382,8 +382,9 @@ class AmbientScatteringCache:
         ext_key = (tf_key, round(radius_world, 12))
         if ext_key != self._ext_key:
             t = time.perf_counter()
+            # the cube means by separable passes, no float64 SAT (vtkillum.core.ambient.sat)
             self._sigma_tilde = ambient_extinction(self._sigma_t, volume.spacing, radius_world,
-                                                   device, sat=self._sat)
+                                                   device)
             if self.tube_sampling == "field":
                 self._step_field = step_extinction_field(
                     self._sigma_tilde, volume.spacing, radius_world, device,
