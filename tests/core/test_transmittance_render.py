@@ -212,3 +212,19 @@ def test_near_field_skipped_only_where_thin(device):
     assert np.abs(grid_only - always).mean(-1).max() / ref > 5 * diff.max()
     with pytest.raises(ValueError, match="near_tolerance must be an optical depth"):
         img(fog, near_tolerance=-1.0)
+
+
+def test_segment_planes_option(device):
+    """Chained segments by default; ``segment_planes=0`` is the exact grid (a different
+    cache entry), and a bad value is refused in the option's words."""
+    volume, scene = _sharp_sphere()
+    chained = render(volume, scene, "transmittance", 32, 32, device, jitter=False)
+    exact = render(volume, scene, "transmittance", 32, 32, device, jitter=False,
+                   segment_planes=0)
+    assert chained.info["segment_planes"] == 16 and exact.info["segment_planes"] == 0
+    assert not np.array_equal(chained.radiance, exact.radiance)
+    ref = exact.radiance.max()
+    assert np.abs(chained.radiance - exact.radiance).mean() / ref < 0.01
+    for bad in (-1, 2.5, True):
+        with pytest.raises(ValueError, match="segment_planes must be a whole number"):
+            render(volume, scene, "transmittance", 8, 8, device, segment_planes=bad)
