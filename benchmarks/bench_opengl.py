@@ -40,11 +40,17 @@ taking turns frame by frame:
 ``--interactive`` (issue 35) times, per illumination kind (the textures each method hands
 ``IlluminatedVolume``: transmittance; transmittance + scattered fluence for
 convection-diffusion; scattered fluence alone for photon density and many-lights
-fluence) and volume size, a camera move (after, and before: float32 grids without
-empty-block leaps), the same move in an interactive window (``interactive_step`` 2),
-and a TF edit to the new frame from host arrays (16-bit and float32 grids; the method's
-own compute is not included), and counts 3D uploads per camera move. Measured on an
-NVIDIA H200 (EGL, VTK 9.7.2), 1024², CT phantom, 2 lights, grids at half the points:
+fluence; default transmittance and photon density) and volume size, with ``--data
+ct-like`` (default: ``bench_scaling.py``'s CT-like volume, made on the device, and its
+one-light scene, as the warp ray caster's figures) or ``--data phantom`` (the CT phantom
+upsampled from 256³, 2 lights), light grids at ``--grid-scale`` times the data's points
+(default 1, the methods' default): a camera move at full quality (still), the same move
+in an interactive window (``interactive_step`` 2), that with ``interactive_near_cells``
+0, a still move with ``near_cells`` 0, and with ``--history`` the move before issue 35's
+first changes (float32 grids, no leaps), with ``--tf-edit`` a TF edit to the new frame
+from host arrays (16-bit grids; the method's own compute is not included); and counts 3D
+uploads per camera move. One table. Measured before this session's shader changes on an
+NVIDIA H200 (EGL, VTK 9.7.2), 1024², ``--data phantom --grid-scale 0.5``:
 
 =====  ====================  ==========  ======  ==========  ===============
 data   illumination          before ms   after   moving      TF edit 16/32 b
@@ -57,6 +63,15 @@ data   illumination          before ms   after   moving      TF edit 16/32 b
 512³   photon density        161         64      37          963 / 1062
 =====  ====================  ==========  ======  ==========  ===============
 
+``--profile`` prints where the shader's time goes, as ratios to VTK's plain composite ray
+caster (``vtkGPUVolumeRayCastMapper``, no shading: the floor) on the same data, step and
+camera (CT phantom, ``--size``, default scene): ``IlluminatedVolume`` without
+illumination, with a scattered fluence only, with transmittance and ``near_cells`` 0 or 2,
+with Phong, without leaps, and moving (with and without ``interactive_near_cells`` 0).
+``--baseline FILE`` runs another version of ``illuminated_volume_mapper.py`` in the same
+rounds. Measured on llvmpipe (2 shared cores: ratios only), 96³, 256², 11 rounds,
+against the mapper before this change (the numbers are in that module's docstring).
+
 ``--interop`` (same run): a 256³ RGBA16 grid (134 MB) from a warp array through a
 registered pixel buffer into a 3D texture took 3.6 ms, through the host 137 ms (128³:
 0.9 / 17.6 ms).
@@ -67,7 +82,9 @@ VTK_DEFAULT_OPENGL_WINDOW=vtkOSOpenGLRenderWindow python benchmarks/bench_opengl
 python benchmarks/bench_opengl.py --size 128 --image 512 --frames 5 --reach 0.25 1.0
 python benchmarks/bench_opengl.py --quality --image 256 --datasets head mni mni-half
 VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow python benchmarks/bench_opengl.py --interactive \
-    --sizes 256 512 --image 1024 --interop
+    --sizes 512 --image 1024
+python benchmarks/bench_opengl.py --profile --size 96 --image 256 --frames 11 \
+    --baseline /tmp/old_mapper.py
 """
 
 from __future__ import annotations
@@ -95,6 +112,7 @@ from vtkillum.filters import ConvectionDiffusionLightFilter
 from vtkillum.io.convert import image_data_from_volume
 from vtkillum.mappers import IlluminatedVolume, apply_camera_to_vtk
 from vtkillum.mappers.camera_bridge import apply_scene_to_volume_property
+from vtkillum.mappers.illuminated_volume_mapper import NEAR_CELLS
 
 #: The light (travel direction, irradiance) of both renderers.
 LIGHT = ((1.0, -1.0, -1.0), (3.0, 3.0, 3.0))
@@ -471,7 +489,26 @@ def synthetic_illumination(volume, kind: str, lights: int = 1, scale: float = 0.
     return IlluminationVolume.for_volume(volume, transmittance=t, scattered=phi)
 
 
-def interactive(opts) -> int:
+def interactive_data(opts, size: int):
+    """``(volume, scene)`` of the ``--interactive`` run: ``ct-like`` is
+    ``bench_scaling.py``'s volume (made by a warp kernel on the device) and scene, the ones
+    the warp ray caster's figures in ``docs/benchmarks.md`` use; ``phantom`` the CT phantom
+    upsampled from 256³ and its default scene (the table of the module docstring)."""
+    if opts.data == "ct-like":
+        import bench_scaling
+        import warp as wp
+
+        from vtkillum.core.device import init_warp
+
+        init_warp()
+        device = opts.device or ("cuda:0" if wp.get_cuda_device_count() else "cpu")
+        volume, _ = bench_scaling.device_volume(size, device)
+        return volume, bench_scaling.make_scene(volume)
+    volume = upsampled_ct(size)
+    return volume, procedural.default_scene("ct", volume)
+
+
+def interactive(opts) -> tuple[list, str]:
     """The ``--interactive`` table (see the module docstring)."""
     from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
 
@@ -480,79 +517,82 @@ def interactive(opts) -> int:
     rows = []
     gpu = None
     for size in opts.sizes:
-        volume = upsampled_ct(size)
-        scene = procedural.default_scene("ct", volume)
+        volume, scene = interactive_data(opts, size)
+        image = image_data_from_volume(volume)
         for kind in opts.kinds:
             window, renderer = window_for(opts.image)
-            actor = IlluminatedVolume(image_data_from_volume(volume), scene,
-                                      illumination=synthetic_illumination(volume, kind,
-                                                                         len(scene.lights)),
-                                      exposure=4 * np.pi / 3)
+            light = synthetic_illumination(volume, kind, len(scene.lights), scale=opts.grid_scale)
+            actor = IlluminatedVolume(image, scene, illumination=light, exposure=4 * np.pi / 3)
             renderer.AddVolume(actor)
             apply_camera_to_vtk(scene.camera, renderer.GetActiveCamera())
             frames = Frames(window, renderer)
             gpu = gpu or gl_renderer(window)
 
             def timed(n, frames=frames):
+                frames.frame(record=False)  # a changed setting's first frame is not timed
                 frames.times = []
                 for _ in range(n):
                     frames.frame()
                 return statistics.median(frames.times)
 
             with GLCallCounter() as gl:
-                full = timed(opts.frames)
-            uploads = gl.volume_uploads / opts.frames
-            actor.skip_empty = False  # before issue 35: float32 grids, no leaps
-            actor.illumination_16bit = False
-            frames.frame(record=False)
-            no_skip = timed(opts.frames)
-            actor.skip_empty = True
-            actor.illumination_16bit = True
-            frames.frame(record=False)
-            # the same camera moves in an interactive window: interactive_step
+                still = timed(opts.frames)
+            uploads = gl.volume_uploads / (opts.frames + 1)
+            actor.near_cells = 0.0
+            still_near0 = timed(opts.frames)
+            actor.near_cells = NEAR_CELLS
+            before = float("nan")
+            if opts.history:  # before issue 35: float32 grids, no leaps
+                actor.skip_empty = False
+                actor.illumination_16bit = False
+                before = timed(opts.frames)
+                actor.skip_empty = True
+                actor.illumination_16bit = True
+            # the same camera moves in an interactive window: interactive_step (and
+            # interactive_near_cells 0)
             interactor = vtkGenericRenderWindowInteractor()
             interactor.SetRenderWindow(window)
             interactor.Initialize()
-            frames.frame(record=False)
             moving = timed(opts.frames)
+            actor.interactive_near_cells = 0.0
+            moving_near0 = timed(opts.frames)
+            actor.interactive_near_cells = None
             window.SetInteractor(None)
             frames.frame(record=False)
             # TF edit to new frame: a new light volume (as a method hands it over, host
-            # arrays) and a new transfer function, then the frame
-            tf_ms = {}
-            for bits in (True, False):
-                actor.illumination_16bit = bits
-                frames.frame(record=False)
-                edits = []
-                for k in range(3):
-                    light = synthetic_illumination(volume, kind, len(scene.lights),
-                                                   seed=k + 1)
-                    edited = scene.copy() if hasattr(scene, "copy") else scene
-                    t0 = time.perf_counter()
-                    actor.set_illumination(light)
-                    actor.set_scene(edited)
-                    window.Render()
-                    window.WaitForCompletion()
-                    edits.append(1000.0 * (time.perf_counter() - t0))
-                tf_ms[bits] = statistics.median(edits)
-            actor.illumination_16bit = True
-            row = (size, kind, full, no_skip, moving, tf_ms[True], tf_ms[False], uploads)
+            # arrays, 16-bit textures) and a new transfer function, then the frame
+            edits = []
+            for k in range(3 if opts.tf_edit else 0):
+                new_light = synthetic_illumination(volume, kind, len(scene.lights),
+                                                   scale=opts.grid_scale, seed=k + 1)
+                t0 = time.perf_counter()
+                actor.set_illumination(new_light)
+                actor.set_scene(scene.copy() if hasattr(scene, "copy") else scene)
+                window.Render()
+                window.WaitForCompletion()
+                edits.append(1000.0 * (time.perf_counter() - t0))
+            tf_ms = statistics.median(edits) if edits else float("nan")
+            row = (size, kind, still, moving, moving_near0, still_near0, before, tf_ms, uploads)
             rows.append(row)
-            print(f"| {size}^3 | {kind} | {full:.1f} | {no_skip:.1f} | {moving:.1f} | "
-                  f"{tf_ms[True]:.0f} | {tf_ms[False]:.0f} | {uploads:g} |", flush=True)
+            print(f"| {size}^3 | {kind} | {still:.1f} | {moving:.1f} | {moving_near0:.1f} | "
+                  f"{still_near0:.1f} | {before:.1f} | {tf_ms:.0f} | {uploads:g} |", flush=True)
             window.Finalize()
+            del actor, light
     return rows, gpu
 
 
 def interactive_main(opts) -> int:
-    print(f"window {vtkRenderWindow().GetClassName()}, image {opts.image}^2, CT phantom "
-          f"(upsampled from 256^3 above 256), default CT scene, median of {opts.frames} "
-          "camera moves of 1 degree; illumination grids at half the data's points, the "
-          "scene's 2 lights")
-    print("| data | illumination | camera move ms | before (float32 grids, no leaps) | "
-          "moving in an interactive window (step x2) | TF edit to new frame ms (16 bit) | "
-          "(float32) | 3D uploads per camera move |")
-    print("|---|---|---|---|---|---|---|---|")
+    data = ("CT-like volume of bench_scaling.py (made on the device) and its scene (1 light)"
+            if opts.data == "ct-like" else
+            "CT phantom (upsampled from 256^3 above 256), default CT scene (2 lights)")
+    print(f"window {vtkRenderWindow().GetClassName()}, image {opts.image}^2, {data}, median "
+          f"of {opts.frames} camera moves of 1 degree; illumination grids at "
+          f"{opts.grid_scale:g} x the data's points")
+    print("| data | illumination | camera move ms (still: full quality) | moving in an "
+          "interactive window (step x2) | moving, interactive_near_cells 0 | still, "
+          "near_cells 0 | before issue 35 (float32 grids, no leaps; --history) | TF edit to "
+          "new frame ms (--tf-edit) | 3D uploads per camera move |")
+    print("|---|---|---|---|---|---|---|---|---|")
     _, gpu = interactive(opts)
     print(f"GPU (GL_RENDERER): {gpu}")
     if opts.interop:
@@ -676,6 +716,8 @@ def profile_variants(scene):
         "transmittance, near_cells 2, no leaps": (scene, {"skip_empty": False},
                                                   "transmittance", False),
         "transmittance, moving (interactive)": (scene, {}, "transmittance", True),
+        "transmittance, moving, interactive_near_cells 0": (
+            scene, {"interactive_near_cells": 0.0}, "transmittance", True),
         "scattered only, moving (interactive)": (scene, {}, "photon density", True),
     }
 
@@ -707,13 +749,15 @@ def profile(opts) -> int:
     runs = {}
     for name, (sc, options, kind, moving) in profile_variants(scene).items():
         for label, cls in classes.items():
-            options = dict(options)
-            skip = options.pop("skip_empty", True)
+            kwargs = dict(options)
+            skip = kwargs.pop("skip_empty", True)
+            if "interactive_near_cells" in kwargs and label:
+                continue  # the baseline has no such option
             window, renderer = window_for(opts.image)
             light = None if kind is None else synthetic_illumination(
                 volume, kind, len(sc.lights), scale=opts.grid_scale)
             actor = cls(image_data_from_volume(volume), sc, illumination=light,
-                        exposure=4 * np.pi / 3, **options)
+                        exposure=4 * np.pi / 3, **kwargs)
             actor.skip_empty = skip
             renderer.AddVolume(actor)
             apply_camera_to_vtk(sc.camera, renderer.GetActiveCamera())
@@ -766,8 +810,18 @@ def main(argv=None) -> int:
                              "named (see the module docstring)")
     parser.add_argument("--sizes", type=int, nargs="+", default=[256, 512],
                         help="--interactive: volume points per axis")
-    parser.add_argument("--kinds", nargs="+", default=list(KINDS),
-                        help=f"--interactive: illumination kinds, of {list(KINDS)}")
+    parser.add_argument("--kinds", nargs="+", default=["transmittance", "photon density"],
+                        help=f"--interactive: illumination kinds, of {list(KINDS)} (default "
+                             "transmittance and photon density: a scattered fluence only)")
+    parser.add_argument("--data", choices=["ct-like", "phantom"], default="ct-like",
+                        help="--interactive: bench_scaling.py's CT-like volume and scene "
+                             "(default) or the upsampled CT phantom")
+    parser.add_argument("--device", help="--interactive --data ct-like: warp device making "
+                                         "the volume (default cuda:0 where there is one)")
+    parser.add_argument("--history", action="store_true",
+                        help="--interactive: also time float32 grids without leaps")
+    parser.add_argument("--tf-edit", action="store_true",
+                        help="--interactive: also time a TF edit to the new frame")
     parser.add_argument("--interop", action="store_true",
                         help="--interactive: also time CUDA->OpenGL through a registered "
                              "pixel buffer against the host path (warp on CUDA)")
@@ -776,7 +830,8 @@ def main(argv=None) -> int:
                         help="IlluminatedVolume with features toggled against VTK's plain "
                              "composite (ratios; see the module docstring)")
     parser.add_argument("--grid-scale", type=float, default=1.0,
-                        help="--profile: light grid points per data point")
+                        help="--profile, --interactive: light grid points per data point "
+                             "(1: the methods' default light_volume_scale)")
     parser.add_argument("--baseline",
                         help="--profile: another version of illuminated_volume_mapper.py "
                              "to time alongside")

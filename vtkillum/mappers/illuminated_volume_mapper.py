@@ -231,6 +231,9 @@ ACCUMULATE = 16
 #: Default sample-distance factor while the view moves in an interactive window.
 INTERACTIVE_STEP = 2.0
 
+#: Default near-field march while the view moves (None: ``near_cells``, as at rest).
+INTERACTIVE_NEAR_CELLS = None
+
 #: Ports of the mapper (= indices of ``in_volume[]`` in the shader).
 OPTICS_PORT, DATA_PORT, DIRECT_PORT_A, DIRECT_PORT_B, SCATTERED_PORT = range(5)
 
@@ -261,6 +264,8 @@ UNIFORMS = {
     "il_lightRadius": "float[MAX_LIGHTS]: source radius of point lights (irradiance "
                       "I / max(d, r)^2; vtkillum.core.lights.resolved_radius)",
     "il_near": "float: length of the exact near-field march (world units)",
+    "il_nearScale": "float: factor on il_near in this frame (1; interactive_near_cells / "
+                    "near_cells while the view moves in an interactive window)",
     "il_hasScattered": "int: 1 when a scattered fluence is bound",
     "il_jitter": "int: 0 samples at step midpoints; 1 offsets each pixel's first sample "
                  "(interleaved gradient noise, R1 sequence over frames)",
@@ -501,7 +506,7 @@ float il_shadowMarch(vec3 p, vec3 w, float dist, float xi)
 // (raycast.cached_transmittance).
 float il_cachedTransmittance(int l, vec3 p, vec3 w, float dist)
 {
-  float near = min(il_near, dist);
+  float near = min(il_near * il_nearScale, dist);
   float t = 1.0;
   if (near > 0.0)
   {
@@ -783,6 +788,12 @@ class IlluminatedVolume(vtkMultiVolume):
         sequence; any change starts again (:mod:`vtkillum.mappers.accumulation`). In a
         window with an interactor the frames are added by a timer; off screen, each
         ``Render()`` adds one, or :meth:`refine` renders until the mean has converged.
+    interactive_step : float
+        Sample-distance factor while the view moves in an interactive window (default
+        :data:`INTERACTIVE_STEP`; see :attr:`interactive_step`).
+    interactive_near_cells : float or None
+        Near-field march while the view moves in an interactive window (default
+        :data:`INTERACTIVE_NEAR_CELLS`: ``near_cells``; see :attr:`interactive_near_cells`).
 
     Notes
     -----
@@ -801,7 +812,8 @@ class IlluminatedVolume(vtkMultiVolume):
                  array_name: str | None = None, exposure: float = 1.0,
                  near_cells: float = NEAR_CELLS, jitter: bool = True,
                  accumulate: int = ACCUMULATE,
-                 interactive_step: float = INTERACTIVE_STEP) -> None:
+                 interactive_step: float = INTERACTIVE_STEP,
+                 interactive_near_cells: float | None = INTERACTIVE_NEAR_CELLS) -> None:
         super().__init__()
         self.inputs = IlluminationInputs()
         self.inputs.SetArrayName(array_name)
@@ -845,6 +857,8 @@ class IlluminatedVolume(vtkMultiVolume):
         self.accumulate = accumulate
         self._interactive_step = 1.0
         self.interactive_step = interactive_step
+        self._interactive_near_cells = None
+        self.interactive_near_cells = interactive_near_cells
         self.set_frame(0, False)
         # Attach the renderers that show this volume to their accumulator at each render
         # (a weak reference: the mapper must not keep its volume alive).
@@ -996,8 +1010,34 @@ class IlluminatedVolume(vtkMultiVolume):
         uniforms = self.GetShaderProperty().GetFragmentCustomUniforms()
         uniforms.SetUniformi("il_frame", int(index))
         uniforms.SetUniformi("il_hold", int(bool(hold)))
+        interactive = moving and self._jitter
         uniforms.SetUniformf("il_stepScale",
-                             float(self._interactive_step) if moving and self._jitter else 1.0)
+                             float(self._interactive_step) if interactive else 1.0)
+        near_scale = 1.0
+        if interactive and self._interactive_near_cells is not None and self.near_cells > 0:
+            near_scale = self._interactive_near_cells / self.near_cells
+        uniforms.SetUniformf("il_nearScale", float(near_scale))
+
+    @property
+    def interactive_near_cells(self) -> float | None:
+        """Near-field march of the frames drawn while the view moves, in transmittance-grid
+        cells (default ``None``: :attr:`near_cells`, as at rest; 0: read the grid at the
+        sample while moving).
+
+        Like :attr:`interactive_step`, it applies only to frame 0 of an accumulation in a
+        window with an initialised interactor; the frames added at rest march
+        :attr:`near_cells`. What it saves and costs is in the module docstring.
+        """
+        return self._interactive_near_cells
+
+    @interactive_near_cells.setter
+    def interactive_near_cells(self, value: float | None) -> None:
+        if value is not None:
+            value = float(value)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"interactive_near_cells must be None or a non-negative "
+                                 f"number of light-grid cells, got {value}")
+        self._interactive_near_cells = value
 
     @property
     def skip_empty(self) -> bool:
@@ -1590,6 +1630,7 @@ __all__ = [
     "GLSL_RAY_INIT",
     "GLSL_SAMPLE",
     "GLSL_SHADING_DEC",
+    "INTERACTIVE_NEAR_CELLS",
     "INTERACTIVE_STEP",
     "MAX_LIGHTS",
     "NEAR_CELLS",

@@ -1,0 +1,97 @@
+"""IlluminatedVolume while the view moves: ``interactive_near_cells`` (issue 35).
+
+In a window with an initialised interactor, frame 0 of an accumulation (a drag, or the
+still frame that ends it) may march a shorter near field than the frames added at rest.
+On the sharp sphere of ``test_mappers.py`` (one-voxel edge, light grid at half the data's
+resolution), where the near-field march changes the picture most:
+
+* a moving frame with ``interactive_near_cells = 0`` is, pixel for pixel, the still frame
+  of a volume with ``near_cells = 0`` (same sample offsets), and fails the comparison with
+  the still ``near_cells = 2`` frame that the default gives;
+* the frame added at rest marches ``near_cells`` again (equal to a still window's frame 1),
+  so the picture at rest does not depend on the setting;
+* the default (``None``) moves with the still picture's near field.
+"""
+
+import numpy as np
+import pytest
+from helpers import offscreen_window, rel_errors
+from test_mappers import HEIGHT, WIDTH, sharp_sphere, within
+
+pytest.importorskip("vtkmodules.vtkRenderingVolumeOpenGL2")
+from vtkmodules.util.numpy_support import vtk_to_numpy
+from vtkmodules.vtkRenderingCore import vtkRenderer, vtkWindowToImageFilter
+from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
+
+from vtkillum.io.convert import image_data_from_volume
+from vtkillum.mappers import IlluminatedVolume
+
+EXPOSURE = 3.0
+
+
+def shown(volume, scene, illumination, interactor: bool, **options):
+    """``(window, actor, keep)``: the volume in an offscreen window, showing frame 0 after a
+    camera change (a fresh window settles over its first renders)."""
+    actor = IlluminatedVolume(image_data_from_volume(volume), scene, illumination=illumination,
+                              exposure=EXPOSURE, interactive_step=1.0, **options)
+    renderer = vtkRenderer()
+    renderer.AddVolume(actor)
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
+    keep = [renderer]
+    if interactor:
+        iren = vtkGenericRenderWindowInteractor()
+        iren.SetRenderWindow(window)
+        iren.Initialize()
+        keep.append(iren)
+    window.Render()
+    window.Render()
+    renderer.GetActiveCamera().Azimuth(1.0)  # a camera move: frame 0
+    window.Render()
+    assert actor.frames == 0
+    return window, actor, keep
+
+
+def shown_rgb(window) -> np.ndarray:
+    """What the window shows now (no new render: a render would add a frame)."""
+    grab = vtkWindowToImageFilter()
+    grab.SetInput(window)
+    grab.SetInputBufferTypeToRGB()
+    grab.ReadFrontBufferOff()
+    grab.ShouldRerenderOff()
+    grab.Update()
+    w, h, _ = grab.GetOutput().GetDimensions()
+    rgb = vtk_to_numpy(grab.GetOutput().GetPointData().GetScalars()).reshape(h, w, 3)
+    return rgb[::-1].astype(np.float64) / 255.0
+
+
+def test_moving_frames_read_the_grid_with_interactive_near_cells_0():
+    volume, scene, illumination = sharp_sphere()
+    still_near0, _, _k1 = shown(volume, scene, illumination, False, near_cells=0.0)
+    still, _, _k2 = shown(volume, scene, illumination, False)
+    moving, actor, _k3 = shown(volume, scene, illumination, True, interactive_near_cells=0.0)
+    near0, full, drag = shown_rgb(still_near0), shown_rgb(still), shown_rgb(moving)
+    assert full.max() > 0.2  # the picture is lit
+    assert np.abs(drag - near0).max() == 0.0
+    dropped = rel_errors(drag, full)
+    print(f"moving frame (near field 0) vs still (near field 2): mean {dropped[0]:.2e}, "
+          f"p99 {dropped[1]:.2e}")
+    assert not within(dropped)
+    # At rest the added frame marches near_cells again: a still window's frame 1.
+    for window in (still, moving):
+        window.Render()
+    assert actor.frames == 1
+    assert np.abs(shown_rgb(moving) - shown_rgb(still)).max() == 0.0
+    for window in (still_near0, still, moving):
+        window.Finalize()
+
+
+def test_default_moves_with_the_still_near_field():
+    volume, scene, illumination = sharp_sphere()
+    still, _, _k1 = shown(volume, scene, illumination, False)
+    moving, actor, _k2 = shown(volume, scene, illumination, True)
+    assert actor.interactive_near_cells is None
+    assert np.abs(shown_rgb(moving) - shown_rgb(still)).max() == 0.0
+    with pytest.raises(ValueError, match="interactive_near_cells"):
+        actor.interactive_near_cells = -1.0
+    for window in (still, moving):
+        window.Finalize()
