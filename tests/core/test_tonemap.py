@@ -32,3 +32,40 @@ def test_special_values():
     radiance = np.array([[[np.nan, np.inf, -np.inf], [2.0, -1.0, 0.5]]], np.float32)
     out = tonemap(radiance, np.ones((1, 2), np.float32), (0.2, 0.2, 0.2), gamma=1.0)
     assert out.tolist() == [[[0, 255, 0], [255, 0, 128]]]
+
+
+def test_device_tone_map_equals_the_host_one():
+    """The device tone map (the compute mapper's, downloading 8-bit pixels only) gives the
+    host map's bytes, NaN / inf / negatives included, at gamma 1 and 2.2, and flips rows."""
+    import warp as wp
+
+    from vtkillum.core.tonemap import tonemap_device
+
+    rng = np.random.default_rng(1)
+    rad = (rng.random((37, 29, 3)) * 1.5).astype(np.float32)
+    rad[0, 0, 0], rad[0, 1, 1], rad[1, 1, 2] = np.nan, np.inf, -1.0
+    alpha = rng.random((37, 29)).astype(np.float32)
+    dev = (wp.array(rad, dtype=wp.vec3, device="cpu"), wp.array(alpha, device="cpu"))
+    for gamma in (1.0, 2.2):
+        host = tonemap(rad, alpha, (0.2, 0.1, 0.3), exposure=1.3, gamma=gamma)
+        np.testing.assert_array_equal(tonemap_device(*dev, (0.2, 0.1, 0.3), 1.3, gamma), host)
+        np.testing.assert_array_equal(
+            tonemap_device(*dev, (0.2, 0.1, 0.3), 1.3, gamma, flip=True), host[::-1])
+
+
+def test_render_result_reads_device_arrays_lazily():
+    import warp as wp
+
+    from vtkillum.core.render import RenderResult
+
+    rad = np.arange(24, dtype=np.float32).reshape(2, 4, 3)
+    alpha = np.full((2, 4), 0.5, np.float32)
+    result = RenderResult(info={"k": 1}, device=(wp.array(rad, dtype=wp.vec3, device="cpu"),
+                                                 wp.array(alpha, device="cpu")))
+    np.testing.assert_array_equal(result.radiance, rad)
+    np.testing.assert_array_equal(result.alpha, alpha)
+    np.testing.assert_array_equal(result.composite((1.0, 1.0, 1.0)), rad + 0.5)
+    result.radiance = rad * 2  # a host edit makes the host arrays the result
+    assert result.device is None
+    with pytest.raises(ValueError, match="needs radiance and alpha"):
+        RenderResult(rad, None)

@@ -314,8 +314,12 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
         None if progress is None else pixel_work(cam, volume.extent, width, height, device))
     t_render = time.perf_counter()
 
-    rad = radiance.numpy().reshape(height, width, 3)  # float32 host copies already
-    alp = alpha.numpy()
+    # On CUDA the image stays there until someone reads it (RenderResult.radiance/alpha): a
+    # tone map on the device (the compute mapper's) downloads 8-bit pixels only. On the CPU
+    # the arrays are host memory already (views, no copy).
+    on_host = not wp.get_device(device).is_cuda
+    host = (radiance.numpy().reshape(height, width, 3), alpha.numpy()) if on_host \
+        else (None, None)
     samples_mean = mean_samples(samples)
     t_end = time.perf_counter()
     if progress is not None:
@@ -330,10 +334,10 @@ def _render(mode, volume, scene, width, height, device, progress, illumination, 
         "mean_samples_per_pixel": samples_mean,
         "setup_s": t_upload - t_start,
         "render_s": t_render - t_upload,
-        "download_s": t_end - t_render,
+        "download_s": t_end - t_render,  # the sample count's (the image: when read)
         "total_s": t_end - t_start,
     }
-    return RenderResult(rad, alp, info)
+    return RenderResult(*host, info, device=None if on_host else (radiance, alpha))
 
 
 def _sources(mode, textures: bool, volume, medium, illum, direct, illumination, device) -> dict:

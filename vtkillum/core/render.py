@@ -20,7 +20,6 @@ them and come back as the method computes them.
 from __future__ import annotations
 
 import importlib
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -42,7 +41,6 @@ METHODS: dict[str, str] = {
 }
 
 
-@dataclass
 class RenderResult:
     """Linear radiance and alpha of a rendered image.
 
@@ -54,16 +52,54 @@ class RenderResult:
         ``1 - transmittance`` along each primary ray.
     info : dict
         Method-specific diagnostics (timings, sample counts, ...).
+    device : tuple or None
+        ``(radiance, alpha)`` as warp arrays (``array2d(vec3)``, ``array2d(float32)``) on
+        the device that rendered them, for a renderer that keeps its image there (the
+        ray caster): :attr:`radiance` and :attr:`alpha` are then downloaded on first
+        access (once), so a consumer on the device (the compute mapper's tone map,
+        :func:`vtkillum.core.tonemap.tonemap_device`) moves no float image to the host.
     """
 
-    radiance: np.ndarray
-    alpha: np.ndarray
-    info: dict = field(default_factory=dict)
+    def __init__(self, radiance=None, alpha=None, info: dict | None = None,
+                 device: tuple | None = None) -> None:
+        if device is None and (radiance is None or alpha is None):
+            raise ValueError("a RenderResult needs radiance and alpha arrays or device arrays")
+        self._radiance = radiance
+        self._alpha = alpha
+        self.info = {} if info is None else info
+        self.device = device
+
+    @property
+    def radiance(self) -> np.ndarray:
+        if self._radiance is None:
+            rad = self.device[0]
+            self._radiance = rad.numpy().reshape(rad.shape[0], rad.shape[1], 3)
+        return self._radiance
+
+    @radiance.setter
+    def radiance(self, value) -> None:
+        self._radiance = value
+        self.device = None  # the host arrays are the result now
+
+    @property
+    def alpha(self) -> np.ndarray:
+        if self._alpha is None:
+            self._alpha = self.device[1].numpy()
+        return self._alpha
+
+    @alpha.setter
+    def alpha(self, value) -> None:
+        self._alpha = value
+        self.device = None
 
     def composite(self, background=(0.0, 0.0, 0.0)) -> np.ndarray:
         """Radiance with ``background`` seen through the volume: ``L + (1 - alpha) * bg``."""
         bg = np.asarray(background, dtype=np.float32)
         return self.radiance + (1.0 - self.alpha)[..., None] * bg
+
+    def __repr__(self) -> str:
+        shape = tuple(self.device[1].shape) if self._alpha is None else self._alpha.shape
+        return f"RenderResult(shape={shape}, on_device={self._radiance is None}, info={self.info})"
 
 
 def render(volume, scene, method: str = "emission", width: int = 256, height: int = 256,

@@ -11,6 +11,11 @@ needs only its 8-bit result and one band of temporaries (not float64 copies of i
 from __future__ import annotations
 
 import numpy as np
+import warp as wp
+
+from vtkillum.core.device import init_warp
+
+init_warp()
 
 #: Pixels tone-mapped at a time (bounds the temporaries to a few MB).
 CHUNK_PIXELS = 1 << 18
@@ -43,6 +48,51 @@ def tonemap(radiance, alpha=None, background=(0.0, 0.0, 0.0), exposure: float = 
         np.rint(rgb, out=rgb)
         out[rows] = rgb
     return out
+
+
+def tonemap_device(radiance, alpha, background=(0.0, 0.0, 0.0), exposure: float = 1.0,
+                   gamma: float = 2.2, flip: bool = False) -> np.ndarray:
+    """:func:`tonemap` of an image on a warp device, downloading only its 8-bit result.
+
+    ``radiance`` and ``alpha`` are warp ``array2d(vec3)`` / ``array2d(float32)``
+    ``(H, W)`` (e.g. :attr:`vtkillum.core.render.RenderResult.device`); the map is the
+    module's formula in float32, the same values as :func:`tonemap` (rounding half to
+    even like ``np.rint``). ``flip``: rows bottom-up, as VTK images are. Returns uint8
+    ``(H, W, 3)``.
+    """
+    h, w = int(radiance.shape[0]), int(radiance.shape[1])
+    out = wp.empty((h, w, 3), dtype=wp.uint8, device=radiance.device)
+    bg = np.asarray(background, dtype=np.float32).reshape(3)
+    wp.launch(tonemap_kernel, dim=(h, w),
+              inputs=[radiance, alpha, wp.vec3(*bg), float(np.float32(exposure)),
+                      float(np.float32(1.0 / gamma)), int(gamma != 1.0), int(bool(flip)), out],
+              device=radiance.device)
+    return out.numpy()
+
+
+@wp.func
+def _tone(v: float, exposure: float, inv_gamma: float, power: int):
+    x = v * exposure
+    if not (x > 0.0):  # NaN and negatives (fmax(x, 0) in tonemap)
+        x = 0.0
+    x = wp.min(x, 1.0)
+    if power != 0:
+        x = wp.pow(x, inv_gamma)
+    return wp.uint8(int(wp.rint(x * 255.0)))
+
+
+@wp.kernel
+def tonemap_kernel(radiance: wp.array2d(dtype=wp.vec3), alpha: wp.array2d(dtype=wp.float32),
+                   background: wp.vec3, exposure: float, inv_gamma: float, power: int,
+                   flip: int, out: wp.array3d(dtype=wp.uint8)):
+    """One pixel of :func:`tonemap_device`; ``wp.tid()`` is ``(row, col)`` of the image."""
+    row, col = wp.tid()
+    rgb = radiance[row, col] + (1.0 - alpha[row, col]) * background
+    dst = row
+    if flip != 0:
+        dst = radiance.shape[0] - 1 - row
+    for c in range(3):
+        out[dst, col, c] = _tone(rgb[c], exposure, inv_gamma, power)
 
 
 def auto_exposure(radiance, percentile: float = 99.5, alpha=None,

@@ -34,7 +34,7 @@ from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import IlluminationVolume
 from vtkillum.core.render import METHODS, RenderResult, render
 from vtkillum.core.scene import Scene
-from vtkillum.core.tonemap import tonemap
+from vtkillum.core.tonemap import tonemap, tonemap_device
 from vtkillum.core.volume import Volume
 from vtkillum.io.convert import volume_from_image_data
 from vtkillum.io.illumination_arrays import illumination_from_image, lights_from_field
@@ -392,14 +392,24 @@ class ComputeVolumeRenderer:
             raise ValueError("nothing rendered yet: render the window or call update()")
         # exposure scales the volume's light, not the renderer's background: the background
         # goes in divided by it (no exposure * radiance temporary of the image's size)
+        return self._tone_mapped(flip=False)
+
+    def _tone_mapped(self, flip: bool) -> np.ndarray:
+        """The 8-bit image, rows bottom-up with ``flip`` (VTK's order). An image kept on its
+        device (:attr:`RenderResult.device`) is tone-mapped there: only the 8-bit pixels
+        come to the host."""
         background = np.asarray(self.renderer.GetBackground(), np.float32) / self.exposure
-        return tonemap(self.result.radiance, self.result.alpha, background,
-                       exposure=self.exposure, gamma=self.gamma)
+        if self.result.device is not None:
+            return tonemap_device(*self.result.device, background, exposure=self.exposure,
+                                  gamma=self.gamma, flip=flip)
+        rgb = tonemap(self.result.radiance, self.result.alpha, background,
+                      exposure=self.exposure, gamma=self.gamma)
+        return rgb[::-1] if flip else rgb
 
     def _show(self, result: RenderResult) -> None:
-        rgb = self.display_image()
+        rgb = self._tone_mapped(flip=True)
         h, w, _ = rgb.shape
-        pixels = numpy_to_vtk(np.ascontiguousarray(rgb[::-1]).reshape(-1, 3), deep=True)
+        pixels = numpy_to_vtk(np.ascontiguousarray(rgb).reshape(-1, 3), deep=True)
         pixels.SetName("display")
         self._image.SetDimensions(w, h, 1)
         self._image.GetPointData().SetScalars(pixels)
