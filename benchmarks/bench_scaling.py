@@ -11,7 +11,9 @@ once) at a ``--image``² image and times, with the same Volume object,
 * **TF edit** — the opacity transfer function changes (scaled by 0.8 then back);
 * **light move** — the light direction turns by 10°.
 
-Columns: the whole call (:func:`vtkillum.core.render.render`, median of ``--repeats``),
+Columns: the whole call (:func:`vtkillum.core.render.render` with the image on the host,
+median of ``--repeats``; the compute mapper tone-maps a kept image on the device instead,
+``bench_window.py``),
 the device time the method reports (:func:`_timing.kernel_seconds`, "–" where none),
 the peak device memory of the row (warp's memory pool on CUDA, reset per row; the CPU
 allocator's count on the CPU) beside :func:`vtkillum.core.memory.estimate_bytes`, and
@@ -225,6 +227,7 @@ def time_step(volume, scenes, method, image, device, repeats, probe, options):
         scene = scenes[r % len(scenes)]
         t0 = time.perf_counter()
         result = render_row(volume, scene, method, image, image, device, **options)
+        _ = result.radiance, result.alpha  # the image on the host (a kept one downloads now)
         total.append(time.perf_counter() - t0)
         kernel.append(kernel_seconds(result.info))
     k = None if any(x is None for x in kernel) else float(np.median(kernel))

@@ -54,13 +54,14 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import warp as wp
 
 from vtkillum.core.ambient.cache import AmbientScatteringCache
-from vtkillum.core.ambient.gather import GATHER_MODES, gather
+from vtkillum.core.ambient.gather import GATHER_MODES, gather_device
 from vtkillum.core.device import resolve_device
 from vtkillum.core.illumination import gradient_threshold
 from vtkillum.core.raymarch import RAY_OPTIONS as MARCH_OPTIONS
-from vtkillum.core.raymarch import ray_options
+from vtkillum.core.raymarch import mean_samples, ray_options
 from vtkillum.core.render import RenderResult
 from vtkillum.core.warp_common import make_camera
 
@@ -111,12 +112,13 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
     grad_eps = gradient_threshold(volume)
     t_gather = time.perf_counter()
     table = state.scattered_slice if opts["gather"] == "centred" else state.table_slice
-    radiance, alpha, mean_samples = gather(
+    radiance, alpha, samples = gather_device(
         state.medium, state.sigma_tilde, state.radiance.grid, state.lights, cam,
         table, state.table.sigma_max, state.radius, opts["step_size"],
         opts["jitter"], opts["seed"], opts["early_termination"], opts["specular"],
         float(scene.shading["shininess"]), grad_eps, opts["ambient_occlusion"], device, progress,
         state.occupied, volume.spacing, state.textures, opts["gather"])
+    samples_mean = mean_samples(samples)
     t_end = time.perf_counter()
     if progress is not None:
         progress(1.0)
@@ -136,13 +138,15 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
                        "extinction": state.timings["extinction_ms"],
                        "radiance": state.timings["radiance_ms"],
                        "gather": 1e3 * (t_end - t_gather)},
-        "mean_samples_per_pixel": mean_samples,
+        "mean_samples_per_pixel": samples_mean,
         "total_s": t_end - t_start,
     }
     if not (state.table.g[0] <= scene.anisotropy <= state.table.g[-1]):
         info["warning"] = (f"anisotropy {scene.anisotropy} is outside the table's g range "
                            f"[{state.table.g[0]:g}, {state.table.g[-1]:g}]; clamped")
-    return RenderResult(radiance, alpha, info)
+    if wp.get_device(device).is_cuda:  # kept there until read (RenderResult.device)
+        return RenderResult(info=info, device=(radiance, alpha))
+    return RenderResult(radiance.numpy().reshape(int(height), int(width), 3), alpha.numpy(), info)
 
 
 def default_cache(device: str, hardware_filtering: bool = False,
