@@ -294,6 +294,8 @@ GLSL_LAYOUT_DEC = """//VTK::Shading::Dec
 #define IL_OPTICS_ROW %(row)d
 #define IL_OPTICS_SHIFT %(shift)d
 #define IL_PHONG %(phong)d
+#define IL_DIRECT %(direct)d
+#define IL_SCATTERED %(scattered)d
 #define IL_SIGMA_ROW %(sigma_row)d
 #define IL_OCC_ROW %(occ_row)d
 
@@ -627,13 +629,22 @@ float il_phong(vec3 p, vec3 d)
 
 // J / sigma_t at p for a ray along d:
 // albedo color [sum_l p T_l E_l + phi_s / 4 pi] S.
+// IL_DIRECT, IL_SCATTERED (0 or 1; host defines): compile the direct light (il_numDirect > 0)
+// and the scattered fluence (il_hasScattered) only where the illumination has them: llvmpipe
+// runs a loop's body once even for 0 iterations (the direct light's is most of the frame
+// of a scattered-only volume there).
 vec3 il_source(vec3 p, vec3 d, vec3 color)
 {
-  vec3 light = il_directLight(p, d);
+  vec3 light = vec3(0.0);
+#if IL_DIRECT
+  light = il_directLight(p, d);
+#endif
+#if IL_SCATTERED
   if (il_hasScattered != 0)
   {
     light += il_scatteredFluence(p) / (4.0 * IL_PI);
   }
+#endif
   return (il_albedo * il_phong(p, d)) * color * light;
 }
 """
@@ -734,11 +745,14 @@ GLSL_SAMPLE = """
 """
 
 
-def glsl_layout_dec(max_lights: int = MAX_LIGHTS, phong: bool = True) -> str:
+def glsl_layout_dec(max_lights: int = MAX_LIGHTS, phong: bool = True, direct: bool = True,
+                    scattered: bool = True) -> str:
     """:data:`GLSL_LAYOUT_DEC` with this mapper's port numbers filled in.
 
     ``phong``: compile the diffuse and specular terms (``IL_PHONG``; without them the
-    shader takes ``S = ka`` and never computes a gradient).
+    shader takes ``S = ka`` and never computes a gradient). ``direct``, ``scattered``:
+    compile the direct light (``IL_DIRECT``) and the scattered fluence (``IL_SCATTERED``);
+    without them the source has no such term.
     """
     ports = {"data": DATA_PORT, "opt": OPTICS_PORT, "ta": DIRECT_PORT_A, "tb": DIRECT_PORT_B,
              "sc": SCATTERED_PORT}
@@ -746,7 +760,8 @@ def glsl_layout_dec(max_lights: int = MAX_LIGHTS, phong: bool = True) -> str:
     if 1 << shift != OPTICS_ROW:
         raise ValueError("OPTICS_ROW must be a power of two")
     values = {"max_lights": int(max_lights), "row": OPTICS_ROW, "shift": shift,
-              "phong": int(bool(phong)), **ports}
+              "phong": int(bool(phong)), "direct": int(bool(direct)),
+              "scattered": int(bool(scattered)), **ports}
     values.update({f"{k}4": 4 * v for k, v in ports.items()})
     values["sigma_row"] = -(-TABLE_SIZE // OPTICS_ROW)
     values["occ_row"] = values["sigma_row"] + -(-TABLE_SIZE // (2 * OPTICS_ROW))
@@ -845,8 +860,8 @@ class IlluminatedVolume(vtkMultiVolume):
             self.SetVolume(volume, port)
             self.volumes.append(volume)
         shader = self.GetShaderProperty()
-        self._phong = None
-        self._set_shader_declarations(phong=False)
+        self.inputs.shader_property = shader
+        self.inputs.declare((False, True, False))
         shader.AddFragmentShaderReplacement("//VTK::Shading::Init", True, GLSL_RAY_INIT, False)
         shader.AddFragmentShaderReplacement("//VTK::Shading::Impl", True, GLSL_SAMPLE, False)
         self.inputs.uniforms = shader.GetFragmentCustomUniforms()
@@ -893,8 +908,6 @@ class IlluminatedVolume(vtkMultiVolume):
                 f"the OpenGL mapper takes at most {MAX_LIGHTS} lights, the scene has "
                 f"{len(scene.lights)}; render with the compute path (ComputeVolumeRenderer)"
             )
-        _, kd, ks, _ = shading_terms(scene.shading)
-        self._set_shader_declarations(phong=kd > 0 or ks > 0)
         grid = self._grid_summary()
         apply_scene_to_volume_property(scene, grid, self.volumes[DATA_PORT].GetProperty())
         self.mapper.SetSampleDistance(scene.resolved_step_size(grid))
@@ -903,14 +916,6 @@ class IlluminatedVolume(vtkMultiVolume):
         self.Modified()
         if self._ready:
             self.check()
-
-    def _set_shader_declarations(self, phong: bool) -> None:
-        """(Re)declare the shader functions; a change of ``phong`` recompiles the shader."""
-        if phong == self._phong:
-            return
-        self._phong = bool(phong)
-        self.GetShaderProperty().AddFragmentShaderReplacement(
-            "//VTK::Shading::Dec", True, glsl_layout_dec(phong=phong) + GLSL_SHADING_DEC, False)
 
     @property
     def lights(self) -> list:
@@ -1193,6 +1198,10 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
             _empty_start_image(image)
         #: vtkUniforms receiving the parameters (set by the volume).
         self.uniforms = None
+        #: vtkShaderProperty whose declarations follow the variant (set by the volume).
+        self.shader_property = None
+        #: (phong, direct, scattered) the declarations were compiled for.
+        self.variant = None
         #: The error of the last RequestData, or None.
         self.last_error = None
         #: Lights of the last update (the illumination's or the scene's).
@@ -1342,6 +1351,23 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
             values.update(self._blocks.uniforms(self.skip_empty))
             values.update(self._quantisation)
             set_uniforms(self.uniforms, values)
+            _, kd, ks, _ = shading_terms(scene.shading)
+            self.declare((kd > 0 or ks > 0, values["il_numDirect"] > 0,
+                          values["il_hasScattered"] != 0))
+
+    def declare(self, variant: tuple) -> None:
+        """(Re)declare the shader functions for ``(phong, direct, scattered)`` (see
+        :func:`glsl_layout_dec`); a new variant recompiles the shader (VTK keeps the
+        programs it built, so switching back is a cache hit)."""
+        variant = tuple(bool(v) for v in variant)
+        if variant == self.variant or self.shader_property is None:
+            return
+        self.variant = variant
+        phong, direct, scattered = variant
+        self.shader_property.AddFragmentShaderReplacement(
+            "//VTK::Shading::Dec", True,
+            glsl_layout_dec(phong=phong, direct=direct, scattered=scattered) + GLSL_SHADING_DEC,
+            False)
 
     def _set_light_images(self, volume, illumination, n_lights: int) -> None:
         if illumination is None:  # unshadowed: T = 1 for every light
