@@ -38,9 +38,12 @@ texture coordinate itself from the sample's position in the volume's local frame
 ====  ============================  ======================================================
 port  image                         contents
 ====  ============================  ======================================================
-0     ``256 × m × 2``, 1 component  the warp kernels' colour and σt tables (4096 entries,
-                                    4 texels each, interpolated linearly as they do); σt
-                                    lets the shader attenuate segments of any length
+0     ``64 × m × 2``, 4 components  the warp kernels' colour and σt tables (4096 entries,
+                                    one texel each, interpolated linearly as they do); σt
+                                    again as pairs (both ends of an interval in one
+                                    texel, for the shadow march); the occupancy
+                                    (:func:`optics_rows`). σt lets the shader attenuate
+                                    segments of any length
 1     data grid, 1 component        the rendered scalar (float32)
 2     transmittance grid, 4 comp.   ``T_0 .. T_3``
 3     transmittance grid, 4 comp.   ``T_4 .. T_7`` (a 2×2×2 placeholder for ≤ 4 lights)
@@ -155,17 +158,63 @@ radiance); the per-case values are in that module's docstring.
 Performance (software OpenGL included)
 --------------------------------------
 The shader is written for GPUs and for Mesa's llvmpipe (OSMesa), which runs it on the
-CPU and pays for much of the code behind a branch not taken:
+CPU and pays for much of the code behind a branch not taken, and for the body of a loop
+once even when it has no iteration:
 
-* per ray (``il_initLayout``, ``il_initRay``): the texture-to-local matrix, every grid's
-  texture scale and bias and every texture's unpacking ``texel * A + B`` (no
-  ``textureSize``, branch or matrix product per sample), the phase of each directional
-  light (the ray's and the light's directions are fixed);
-* per sample: the data value and σt first; the colour (six more table fetches) only
-  where σt > 0; table entries found with a mask and a shift, not integer division;
-* the gradient (six more data fetches) is compiled only when the scene's shading has a
-  diffuse or specular term (``IL_PHONG``); a scene that adds or removes one rebuilds
-  the shader.
+* per ray (``il_initLayout``, ``il_initRay``, ``GLSL_RAY_INIT``): every grid's texture
+  scale and bias, the sample position's start and step in the local frame (a sample's
+  position is ``start + g_currentT step``: no matrix product per sample), the direction
+  and ``p_HG(w_l · d) E_l`` of each directional light (the ray's and the light's
+  directions are fixed);
+* texels are read as uploaded (float32 data and tables; 16-bit grids, normalised by
+  OpenGL, times a factor the host knows: ``il_taQ``...), not through VTK's
+  ``in_volume_scale``/``in_volume_bias``, which a multi-volume sets only when input 0 has
+  one component;
+* per sample: the data value, then colour and σt together (two fetches of the
+  4-component table, entries found with a mask and a shift); in the shadow marches σt
+  alone, one fetch (the pairs); the occupancy fetched once per block a ray enters;
+  ``il_cachedTransmittance`` called once per light (not once per light kind);
+* compiled only where needed (``IL_PHONG``, ``IL_DIRECT``, ``IL_SCATTERED``; a change
+  rebuilds the shader, VTK keeps the programs built): the gradient (six more data
+  fetches) where shading has a diffuse or specular term, the direct light where the
+  illumination has transmittance (or none: unshadowed), the scattered fluence where it
+  has one.
+
+Measured with ``benchmarks/bench_opengl.py --profile --size 96 --image 256 --frames 11``
+(llvmpipe on 2 shared cores: ratios to VTK's plain composite ray caster on the same data,
+step and camera, the two versions taking turns in the same rounds; CT phantom, default
+scene with 2 directional lights, light grids at full resolution):
+
+=============================================  ======================  =====
+IlluminatedVolume                              before (commit bc9ccad)  after
+=============================================  ======================  =====
+no illumination (T = 1)                        2.32                    1.98
+scattered fluence only (photon density)        1.71                    0.75
+transmittance, ``near_cells`` 0                2.41                    2.06
+transmittance, ``near_cells`` 2 (default)      3.32                    2.83
+transmittance, Phong                           4.19                    3.77
+transmittance, moving (``interactive_step`` 2)  1.77                    1.48
+the same, ``interactive_near_cells`` 0         --                      1.26
+scattered only, moving                         1.10                    0.51
+=============================================  ======================  =====
+
+With light grids at half resolution (``--grid-scale 0.5``: a 4-voxel near field, 8
+samples per light) the default transmittance frame went from 4.07 to 3.47 and a moving
+one from 2.12 to 1.64 (1.19 with ``interactive_near_cells`` 0). On a GPU the balance
+differs (empty loops cost nothing there, texture fetches and registers more); the
+H200 figures are ``bench_opengl.py --interactive``'s.
+
+The near-field march: its segments are no longer than the sample distance, as the warp
+caster's (``raycast.near_transmittance``). Voxel-long segments would halve its samples
+at rest, but left rings of 3.7 % of the image on a one-voxel-sharp sphere instead of
+1.1 % (``tests/core/test_transmittance_render.py::test_no_rings_on_a_sharp_sphere``), so
+both keep the step; while the view moves, ``interactive_step`` 2 makes them voxel-long
+anyway. ``interactive_near_cells = 0`` (default ``None``: as at rest) skips the march
+while the view moves and reads the grid at the sample: a further 15-25 % on llvmpipe,
+but the grid's bands on sharp surfaces show while dragging (on the sharp sphere of
+``tests/rendering/test_interactive_near_field.py``: mean 2.7e-2, 99th percentile 0.38
+of the still frame's maximum); the frames added at rest march ``near_cells`` again.
+Off by default until a GPU measurement makes the case.
 
 ``benchmarks/bench_opengl.py`` compares the frame time with VTK's own volumetric shadows
 (``docs/benchmarks.md``).
@@ -184,8 +233,9 @@ Simplifications and limits
   must stay the identity: place the data with the image's origin, spacing and
   direction. Cropping, clipping planes and depth peeling are not supported
   (``vtkMultiVolume`` restrictions).
-* Memory (GPU and CPU): 4 bytes per data point (the float32 scalar), 16 per
-  transmittance-grid point per 4 lights, 16 per scattered-grid point.
+* Memory (GPU and CPU): 4 bytes per data point (the float32 scalar), 8 per
+  transmittance-grid point per 4 lights and 8 per scattered-grid point (16-bit; 16 with
+  ``illumination_16bit = False``).
 * Texture units: 5 volumes plus VTK's colour and opacity tables of each and the depth
   buffer (16); implementations with fewer fragment texture units cannot draw it.
 """
