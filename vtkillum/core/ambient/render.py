@@ -137,7 +137,10 @@ def render_ambient_scattering(volume, scene, width: int, height: int, device: st
         "timings_ms": {"sat": state.timings["sat_ms"],
                        "extinction": state.timings["extinction_ms"],
                        "radiance": state.timings["radiance_ms"],
-                       "gather": 1e3 * (t_end - t_gather)},
+                       "gather": 1e3 * (t_end - t_gather),
+                       # the extinction stage's parts, when it ran
+                       **{k[:-3]: v for k, v in state.timings.items()
+                          if k in ("sigma_tilde_ms", "step_field_ms", "textures_ms")}},
         "mean_samples_per_pixel": samples_mean,
         "total_s": t_end - t_start,
     }

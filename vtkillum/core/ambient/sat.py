@@ -101,9 +101,19 @@ def box_pass(src, dst, axis: int, half: float, scale: float, device: str) -> Non
     One thread per line along ``axis``; ``src`` and ``dst`` may not be the same array.
     """
     shape = tuple(int(n) for n in src.shape)
+    if axis == 2 and 2.0 * half + 2.0 <= WINDOW_READS:
+        # Along the contiguous axis a thread per line reads a different line per warp lane
+        # (uncoalesced); a thread per point summing its short window reads neighbours.
+        wp.launch(box_window_kernel, dim=shape, inputs=[src, dst, float(half), float(scale)],
+                  device=device)
+        return
     lines = tuple(n for a, n in enumerate(shape) if a != axis)
     wp.launch(box_pass_kernel, dim=lines,
               inputs=[src, dst, int(axis), float(half), float(scale)], device=device)
+
+
+#: Longest window (cells) summed point by point along the contiguous axis (:func:`box_pass`).
+WINDOW_READS = 64
 
 
 def cube_half_width(radius: float, spacing) -> np.ndarray:
@@ -279,6 +289,26 @@ def box_pass_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.
         m_lo += 1
         o = line_point(axis, u, v, i)
         dst[o[0], o[1], o[2]] = wp.float32(wp.max(a - b, wp.float64(0.0)) * wp.float64(scale))
+
+
+@wp.kernel
+def box_window_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.float32),
+                      half: float, scale: float):
+    """:func:`box_pass` along the last axis, one thread per point ``wp.tid() = (i, j, k)``:
+    the cells ``m`` overlapping the window ``[k + 1/2 - half, k + 1/2 + half]`` (cell ``m``
+    spans ``[m, m + 1]``), each weighted by its overlap, summed in float64."""
+    i, j, k = wp.tid()
+    n = src.shape[2]
+    lo = wp.float64(k) + wp.float64(0.5) - wp.float64(half)
+    hi = wp.float64(k) + wp.float64(0.5) + wp.float64(half)
+    first = wp.max(int(wp.floor(lo)), 0)
+    last = wp.min(int(wp.ceil(hi)) - 1, n - 1)
+    acc = wp.float64(0.0)
+    for m in range(first, last + 1):
+        w = wp.min(wp.float64(m + 1), hi) - wp.max(wp.float64(m), lo)
+        if w > wp.float64(0.0):
+            acc += w * wp.float64(src[i, j, m])
+    dst[i, j, k] = wp.float32(acc * wp.float64(scale))
 
 
 @wp.func
