@@ -70,3 +70,18 @@ def test_convection_diffusion_through_textures(device):
     fast = render_convection_diffusion(vol, scene, 48, 40, device, jitter=False)
     mean, worst = _compare(fast.radiance, exact.radiance)
     assert mean < MEAN_TOL and worst < MAX_TOL, (mean, worst)
+
+
+def test_chained_light_grid_through_textures(device):
+    """The chained segments of the light grid read textures on CUDA: within the texture
+    units' rounding of the exact sampling."""
+    if not textures_available(device):
+        pytest.skip("texture units need a CUDA device")
+    from vtkillum.core.light_transmittance import light_transmittance
+
+    vol, tf, scene = blobby()
+    lights = [scene.lights[0]]  # the directional one: chained
+    exact, _ = light_transmittance(vol, tf, 1.0, lights, device=device, textures=False)
+    fast, _ = light_transmittance(vol, tf, 1.0, lights, device=device)
+    diff = np.abs(fast - exact)
+    assert diff.mean() < MEAN_TOL and diff.max() < MAX_TOL, (diff.mean(), diff.max())

@@ -86,6 +86,8 @@ march on the CPU within about a second.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import warp as wp
 
@@ -105,6 +107,7 @@ from vtkillum.core.warp_common import (
     make_lights,
     make_medium,
     ray_box,
+    shadow_march,
     shadow_transmittance,
 )
 
@@ -121,7 +124,7 @@ SEGMENT_PLANES = 16
 def light_transmittance(volume, transfer_function, unit_distance: float, lights, shape=None,
                         step_size: float | None = None, device: str | None = None,
                         progress=None, on_device: bool = False,
-                        segment_planes: int | None = SEGMENT_PLANES):
+                        segment_planes: int | None = SEGMENT_PLANES, textures: bool = True):
     """Transmittance towards each light and the unscattered RGB fluence on a light grid.
 
     Parameters
@@ -152,6 +155,12 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
         Directional lights: grid planes ``L`` between the chained segments' bilinear
         interpolations (module docstring); default :data:`SEGMENT_PLANES`. ``0`` or None:
         one exact shadow ray per grid point, as for point lights (which always get them).
+    textures : bool
+        On CUDA the chained segments read the data and the transfer function through
+        hardware-filtered textures (:mod:`vtkillum.core.textures`; each sample within
+        about 1/256 of a neighbour difference of the exact one). The exact rays
+        (``segment_planes=0``, point lights) always read the arrays: they are the
+        reference the distributed march reproduces bit for bit. Ignored on the CPU.
 
     Returns
     -------
@@ -198,10 +207,15 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
                                     segment_planes, step_size, steps_per_ray, budget)
         else:
             plan += _ray_launches(li, shape, steps_per_ray, budget)
+    sources = _chain_sources(volume, medium, device, textures)
     for done, (kernel, inputs, count) in enumerate(plan, 1):
+        head = [medium, packed] if kernel is transmittance_kernel else \
+            [medium, *sources, packed]
+        if kernel is not transmittance_kernel:
+            kernel = chained_overload(sources[0] is not medium.scalars)
         wp.launch(kernel, dim=count,
-                  inputs=[medium, packed, *inputs, grid_spacing, float(step_size),
-                          transmittance], device=device)
+                  inputs=[*head, *inputs, grid_spacing, float(step_size), transmittance],
+                  device=device)
         if progress is not None or (device == "cpu" and len(plan) > 1):
             wp.synchronize_device(device)  # the launch ends here: Ctrl-C lands after it
         if progress is not None:
@@ -213,6 +227,23 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
     if on_device:
         return transmittance, fluence
     return download(transmittance), download(fluence).reshape(*shape, 3)
+
+
+def _chain_sources(volume, medium, device: str, textures: bool) -> tuple:
+    """What the chained segments sample: the medium's arrays, or on CUDA with ``textures``
+    their textures (kept with the volume like the ray caster's; the arrays where a grid
+    does not fit a texture)."""
+    from vtkillum.core.textures import optics_texture, scalar_texture, textures_available
+
+    if not (textures and textures_available(device)):
+        return medium.scalars, medium.sigma_table
+    scalars = volume.derived(f"scalars_texture@{device}", id(medium.scalars),
+                             lambda: (medium.scalars, scalar_texture(medium.scalars)))[1]
+    if scalars is None:
+        return medium.scalars, medium.sigma_table
+    optics = volume.derived(f"optics_texture@{device}", id(medium.sigma_table),
+                            lambda: (medium.sigma_table, optics_texture(medium)))[1]
+    return scalars, optics
 
 
 def _segment_planes(value) -> int:
@@ -326,7 +357,8 @@ def transmittance_kernel(medium: Medium, lights: Lights, li: int, first_point: i
 
 
 @wp.kernel
-def chained_kernel(medium: Medium, lights: Lights, li: int, axis: int, first_plane: int,
+def chained_kernel(medium: Medium, scalars: Any, optics: Any, lights: Lights, li: int,
+                   axis: int, first_plane: int,
                    direction: int, r0: int, first_point: int, look_back: int,
                    shape: wp.vec3i, grid_spacing: wp.vec3, step_size: float,
                    out: wp.array4d(dtype=wp.float32)):
@@ -336,7 +368,8 @@ def chained_kernel(medium: Medium, lights: Lights, li: int, axis: int, first_pla
     is ``r0`` (planes counted from the light-side face: plane ``r`` has index
     ``first_plane + direction * r`` along ``axis``); ``n`` runs over the planes, then the
     in-plane axes ``(axis + 1) % 3`` and ``(axis + 2) % 3`` in that order. ``shape`` is the
-    grid's ``(nx, ny, nz)`` and ``grid_spacing`` its spacing (world units).
+    grid's ``(nx, ny, nz)`` and ``grid_spacing`` its spacing (world units). ``scalars`` and
+    ``optics`` are the medium's arrays or their textures (:func:`chained_overload`).
     ``look_back`` is the plane (counted as ``r``) whose transmittance the segments end on;
     -1 marches exactly to the box exit. Writes the transmittance (unitless) to
     ``out[li, i, j, k]``.
@@ -355,8 +388,8 @@ def chained_kernel(medium: Medium, lights: Lights, li: int, axis: int, first_pla
     p = grid_point(idx[0], idx[1], idx[2], grid_spacing)
     w, dist, _irradiance = light_incidence(lights, li, p)
     if look_back < 0:
-        out[li, idx[0], idx[1], idx[2]] = shadow_transmittance(medium, p, w, dist, step_size,
-                                                               0.5, SHADOW_STOP_T)
+        out[li, idx[0], idx[1], idx[2]] = shadow_march(medium, scalars, optics, p, w, dist,
+                                                       step_size, 0.5, SHADOW_STOP_T)
         return
     back = first_plane + direction * look_back
     ha = component(grid_spacing, axis)
@@ -388,8 +421,17 @@ def chained_kernel(medium: Medium, lights: Lights, li: int, axis: int, first_pla
             out[li, idx[0], idx[1], idx[2]] = t_far
             return
         stop = SHADOW_STOP_T / t_far
-    out[li, idx[0], idx[1], idx[2]] = t_far * shadow_transmittance(medium, p, w, length,
-                                                                   step_size, 0.5, stop)
+    out[li, idx[0], idx[1], idx[2]] = t_far * shadow_march(medium, scalars, optics, p, w,
+                                                           length, step_size, 0.5, stop)
+
+
+def chained_overload(textures: bool):
+    """:func:`chained_kernel` sampling the medium's arrays (exact) or, on CUDA, their
+    hardware-filtered textures (:mod:`vtkillum.core.textures`)."""
+    if textures:
+        return wp.overload(chained_kernel, {"scalars": wp.Texture3D, "optics": wp.Texture1D})
+    return wp.overload(chained_kernel, {"scalars": wp.array3d(dtype=wp.float32),
+                                        "optics": wp.array(dtype=wp.float32)})
 
 
 @wp.kernel

@@ -150,18 +150,16 @@ def sample_count(t0: float, t1: float, step: float, xi: float):
 
 
 def mean_samples(samples) -> float:
-    """Mean of a ``(H, W)`` int32 sample-count image, reduced on its device (row sums, then
-    ``H`` numbers to the host) instead of downloading the whole image."""
-    rows = wp.empty(samples.shape[0], dtype=wp.float64, device=samples.device)
-    wp.launch(row_sum_kernel, dim=samples.shape[0], inputs=[samples, rows], device=samples.device)
+    """Mean of a ``(H, W)`` int32 sample-count image, reduced on its device (a float64 sum
+    per row by atomic adds, then ``H`` numbers to the host) instead of downloading the
+    whole image."""
+    rows = wp.zeros(samples.shape[0], dtype=wp.float64, device=samples.device)
+    wp.launch(row_sum_kernel, dim=samples.shape, inputs=[samples, rows], device=samples.device)
     return float(rows.numpy().sum()) / max(int(samples.shape[0] * samples.shape[1]), 1)
 
 
 @wp.kernel
 def row_sum_kernel(samples: wp.array2d(dtype=wp.int32), out: wp.array(dtype=wp.float64)):
-    """``out[row] = sum of samples[row, :]``; ``wp.tid()`` is the row."""
-    row = wp.tid()
-    acc = wp.float64(0.0)
-    for c in range(samples.shape[1]):
-        acc += wp.float64(samples[row, c])
-    out[row] = acc
+    """``out[row] += samples[row, col]``; ``wp.tid()`` is ``(row, col)``."""
+    row, col = wp.tid()
+    wp.atomic_add(out, row, wp.float64(samples[row, col]))

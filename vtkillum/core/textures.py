@@ -40,17 +40,16 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp
-from vtkillum.core.warp_common import (
+from vtkillum.core.warp_common import (  # noqa: F401 (fetch_*: the overloads' home)
     LightGrid,
     Medium,
     RGBGrid,
+    fetch_optics,
+    fetch_scalar,
     fits_texture,
-    lookup_color,
-    lookup_sigma_t,
+    optics_color,
     sample_light_grid,
     sample_rgb,
-    sample_scalar,
-    table_coord,
     texture_from,
 )
 
@@ -63,45 +62,8 @@ def textures_available(device: str) -> bool:
 
 
 # --- device functions: one name, an array overload (exact) and a texture overload ----------------
-@wp.func
-def fetch_scalar(src: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.vec3):
-    """Software trilinear sample of a point-centred scalar grid at local position ``p``."""
-    return sample_scalar(src, inv_spacing, p)
-
-
-@wp.func
-def fetch_scalar(src: wp.Texture3D, inv_spacing: wp.vec3, p: wp.vec3):  # noqa: F811
-    """Hardware-filtered sample of a point-centred scalar grid at local position ``p``."""
-    u = wp.cw_mul(p, inv_spacing)
-    return wp.texture_sample(src, wp.vec3(u[2] + 0.5, u[1] + 0.5, u[0] + 0.5), dtype=float)
-
-
-@wp.func
-def fetch_optics(src: wp.array(dtype=wp.float32), m: Medium, s: float):
-    """``σt`` of data value ``s`` in the fourth component (software lerp of ``m.sigma_table``;
-    ``src`` is that table); the colour comes from :func:`optics_color`."""
-    return wp.vec4(0.0, 0.0, 0.0, lookup_sigma_t(m, s))
-
-
-@wp.func
-def fetch_optics(src: wp.Texture1D, m: Medium, s: float):  # noqa: F811
-    """Colour (xyz) and ``σt`` (w) of data value ``s`` by one hardware-filtered fetch of the
-    :func:`optics_texture` (same table coordinate as the software lerps)."""
-    return wp.texture_sample(src, table_coord(m, s) + 0.5, dtype=wp.vec4f)
-
-
-@wp.func
-def optics_color(src: wp.array(dtype=wp.float32), m: Medium, s: float, optics: wp.vec4):
-    """Scattering colour of data value ``s`` (software lerp of ``m.color_table``)."""
-    return lookup_color(m, s)
-
-
-@wp.func
-def optics_color(src: wp.Texture1D, m: Medium, s: float, optics: wp.vec4):  # noqa: F811
-    """Scattering colour from the :func:`fetch_optics` result (already fetched)."""
-    return wp.vec3(optics[0], optics[1], optics[2])
-
-
+# (fetch_scalar, fetch_optics and optics_color live in vtkillum.core.warp_common, whose
+# generic shadow march uses them; they are re-exported here)
 @wp.func
 def fetch_light(src: wp.array4d(dtype=wp.float32), grid: LightGrid, li: int, p: wp.vec3):
     """Software trilinear sample of light ``li``'s channel of ``grid`` (``src`` is its data)."""

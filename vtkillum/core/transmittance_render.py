@@ -53,14 +53,16 @@ def render_transmittance(volume, scene, width, height, device=None, progress=Non
     # The light volume does not depend on the camera: kept with the volume until an input
     # it depends on changes.
     key = (device, shape, tf.scalars.tobytes(), tf.opacity.tobytes(), float(u),
-           repr([light.to_dict() for light in scene.lights]), int(segment_planes))
+           repr([light.to_dict() for light in scene.lights]), int(segment_planes),
+           options.get("textures", True) is not False)
     # It stays on the device, checked there once: a camera move moves no volume-sized data.
     t0 = time.perf_counter()
     illumination = volume.derived(
         "light_transmittance", key,
         lambda: IlluminationVolume.for_volume(volume, transmittance=light_transmittance(
             volume, tf, u, scene.lights, shape=shape, device=device, on_device=True,
-            segment_planes=int(segment_planes))[0]))
+            segment_planes=int(segment_planes),
+            textures=options.get("textures", True) is not False)[0]))
     t1 = time.perf_counter()
     result = render_illuminated(volume, scene, width, height, device, progress,
                                 illumination=illumination, **options)

@@ -457,6 +457,46 @@ def block_run(m: Medium, o: wp.vec3, d: wp.vec3, h: float, k: int, frac: float):
     return 1 - wp.min(m.occupied[bi, bj, bk], 1), last
 
 
+# --- sources: one name, an array overload (exact) and a texture overload (vtkillum.core.textures)
+@wp.func
+def fetch_scalar(src: wp.array3d(dtype=wp.float32), inv_spacing: wp.vec3, p: wp.vec3):
+    """Software trilinear sample of a point-centred scalar grid at local position ``p``."""
+    return sample_scalar(src, inv_spacing, p)
+
+
+@wp.func
+def fetch_scalar(src: wp.Texture3D, inv_spacing: wp.vec3, p: wp.vec3):  # noqa: F811
+    """Hardware-filtered sample of a point-centred scalar grid at local position ``p``."""
+    u = wp.cw_mul(p, inv_spacing)
+    return wp.texture_sample(src, wp.vec3(u[2] + 0.5, u[1] + 0.5, u[0] + 0.5), dtype=float)
+
+
+@wp.func
+def fetch_optics(src: wp.array(dtype=wp.float32), m: Medium, s: float):
+    """``σt`` of data value ``s`` in the fourth component (software lerp of ``m.sigma_table``;
+    ``src`` is that table); the colour comes from :func:`optics_color`."""
+    return wp.vec4(0.0, 0.0, 0.0, lookup_sigma_t(m, s))
+
+
+@wp.func
+def fetch_optics(src: wp.Texture1D, m: Medium, s: float):  # noqa: F811
+    """Colour (xyz) and ``σt`` (w) of data value ``s`` by one hardware-filtered fetch of the
+    :func:`optics_texture` (same table coordinate as the software lerps)."""
+    return wp.texture_sample(src, table_coord(m, s) + 0.5, dtype=wp.vec4f)
+
+
+@wp.func
+def optics_color(src: wp.array(dtype=wp.float32), m: Medium, s: float, optics: wp.vec4):
+    """Scattering colour of data value ``s`` (software lerp of ``m.color_table``)."""
+    return lookup_color(m, s)
+
+
+@wp.func
+def optics_color(src: wp.Texture1D, m: Medium, s: float, optics: wp.vec4):  # noqa: F811
+    """Scattering colour from the :func:`fetch_optics` result (already fetched)."""
+    return wp.vec3(optics[0], optics[1], optics[2])
+
+
 #: Shadow rays (``single``'s, the light grids') stop once the transmittance is below this:
 #: light 10⁻⁶ of its source is invisible in any picture, while marching on through dense
 #: data to the box exit is most of a light grid's cost. (A stop at the primary ray's
@@ -467,6 +507,13 @@ SHADOW_STOP_T = wp.constant(1.0e-6)
 @wp.func
 def shadow_transmittance(m: Medium, p: wp.vec3, w: wp.vec3, dist: float, step: float,
                          xi: float, stop_t: float):
+    """:func:`shadow_march` reading ``m``'s own arrays (exact software interpolation)."""
+    return shadow_march(m, m.scalars, m.sigma_table, p, w, dist, step, xi, stop_t)
+
+
+@wp.func
+def shadow_march(m: Medium, scalars: Any, optics: Any, p: wp.vec3, w: wp.vec3, dist: float,
+                 step: float, xi: float, stop_t: float):
     """Transmittance from ``p`` along unit ``w`` to the box exit or ``dist``, whichever is nearer.
 
     The length is split into equal segments no longer than ``step`` (world units), each
@@ -475,6 +522,8 @@ def shadow_transmittance(m: Medium, p: wp.vec3, w: wp.vec3, dist: float, step: f
     ``stop_t`` (0: never), returning the transmittance reached: at most ``stop_t`` too
     bright (:data:`SHADOW_STOP_T` makes that invisible). Samples in exactly empty blocks
     of the volume are skipped (:func:`block_run`): they add 0, so the result is the same.
+    ``scalars`` and ``optics`` are ``m``'s arrays (exact) or their textures
+    (:mod:`vtkillum.core.textures`).
     """
     tt = ray_box(p, w, m.extent)
     length = wp.min(tt[1], dist)
@@ -494,7 +543,7 @@ def shadow_transmittance(m: Medium, p: wp.vec3, w: wp.vec3, dist: float, step: f
         else:
             while k <= last and k < n:
                 q = p + ((float(k) + xi) * h) * w
-                tau += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, q))
+                tau += fetch_optics(optics, m, fetch_scalar(scalars, m.inv_spacing, q))[3]
                 k += 1
                 if tau > tau_stop:
                     return wp.exp(-tau * h)
