@@ -1,4 +1,5 @@
-"""pyvista integration: the ``grid.illum`` accessor and :func:`add_illuminated_volume`.
+"""pyvista integration: the ``grid.illum`` accessor, :func:`add_illuminated_volume` and
+:func:`add_computed_volume`.
 
 Importing this module registers the accessor (pyvista >= 0.48) on
 ``pyvista.ImageData``::
@@ -12,6 +13,13 @@ Importing this module registers the accessor (pyvista >= 0.48) on
     pl = pv.Plotter()
     vtkillum.pyvista_accessor.add_illuminated_volume(pl, grid, illumination=lit,
                                                      cmap="bone", opacity="sigmoid")
+
+or, on the compute path (any method of :data:`vtkillum.METHODS` rendered by warp at the
+plotter's camera each time it moves: the fast interactive path with CUDA)::
+
+    pl = pv.Plotter()
+    grid.illum.add_computed(pl, "transmittance", cmap="bone", opacity="sigmoid")
+    pl.show()
 
 The methods run the filters of :mod:`vtkillum.filters` and return new
 ``pyvista.ImageData`` holding their arrays; each is also a plain function of this
@@ -86,6 +94,7 @@ ACCESSOR = "illum"
 
 __all__ = [
     "IllumAccessor",
+    "add_computed_volume",
     "add_illuminated_volume",
     "ambient_extinction",
     "convection_diffusion",
@@ -780,20 +789,15 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
     """
     import warnings
 
-    from vtkillum.core.defaults import camera_inside_warning, default_scene, picture
+    from vtkillum.core.defaults import camera_inside_warning, picture
     from vtkillum.core.device import resolve_device
 
     inputs = _parse_inputs(grid, locals())
     volume = inputs.volume
-    core_lights = lights_from_pyvista(lights) if lights is not None else None
-    illumination = _check_unmasked(options.get("illumination"), "illumination")
-    if isinstance(illumination, vtkImageData):
-        from vtkillum.io.illumination_arrays import illumination_from_image
-        from vtkillum.mappers.inputs import check_covers
-
-        check_covers(illumination, volume)
-        options["illumination"] = illumination_from_image(illumination, volume)
-        core_lights = _illumination_lights(illumination, lights, core_lights)
+    core_lights, illumination = _lights_and_illumination(volume, lights,
+                                                         options.get("illumination"))
+    if "illumination" in options:
+        options["illumination"] = illumination
     if isinstance(exposure, str) and exposure.lower() != "auto":
         raise ValueError(f"exposure must be a positive number or 'auto', got {_short(exposure)}")
     device = resolve_device(device)
@@ -802,15 +806,8 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
         from vtkillum.mappers.camera_bridge import camera_from_vtk
 
         camera = camera_from_vtk(camera, aspect=width / height)
-    scene = Scene(transfer_function=transfer_function_from_vtk(inputs.ctf, inputs.otf),
-                  opacity_unit_distance=inputs.unit_distance, albedo=albedo,
-                  anisotropy=anisotropy, lights=core_lights or lights_from_pyvista(None),
-                  camera=camera, background=background)
-    # The command line's camera and key light (one function for both): the same data and
-    # transfer function look the same from Python and from the shell.
-    fill = {name for name, given in (("camera", camera), ("lights", core_lights))
-            if given is None}
-    scene = default_scene(volume, frame, base=scene, fill=fill, aspect=width / height)
+    scene = _scene(inputs, core_lights, camera, albedo=albedo, anisotropy=anisotropy,
+                   background=background, frame=frame, aspect=width / height)
     warning = camera_inside_warning(scene.resolved_camera(volume), volume)
     if warning:
         warnings.warn(warning, UserWarning, stacklevel=3)
@@ -822,6 +819,48 @@ def render(grid, method="single", scalars=None, *, lights=None, cmap=None, opaci
         # Under its final name, old picture kept and nothing hidden left on any failure.
         write_atomically([(filename, lambda f: write_png(f, rgb8))])
     return result
+
+
+def _lights_and_illumination(volume, lights, illumination):
+    """``(core lights or None, illumination)`` of :func:`render` and :func:`add_computed_volume`.
+
+    ``lights`` as given (None: the caller's default light); an ``illumination`` image (a
+    light filter's output) is checked to cover ``volume`` and read as an
+    ``IlluminationVolume``, and the lights it was computed with replace ``lights``
+    (other ``lights`` given are an error, :func:`_illumination_lights`). Other
+    ``illumination`` values (None, an ``IlluminationVolume``, an array) pass unchanged.
+    """
+    core_lights = lights_from_pyvista(lights) if lights is not None else None
+    illumination = _check_unmasked(illumination, "illumination")
+    if isinstance(illumination, vtkImageData):
+        from vtkillum.io.illumination_arrays import illumination_from_image
+        from vtkillum.mappers.inputs import check_covers
+
+        check_covers(illumination, volume)
+        core_lights = _illumination_lights(illumination, lights, core_lights)
+        illumination = illumination_from_image(illumination, volume)
+    return core_lights, illumination
+
+
+def _scene(inputs: _Inputs, core_lights, camera, *, albedo, anisotropy,
+           background=(0.0, 0.0, 0.0), frame=None, aspect=1.0) -> Scene:
+    """The :class:`Scene` of :func:`render` and :func:`add_computed_volume`.
+
+    The transfer function of ``inputs`` (:func:`_parse_inputs`); the command line's
+    defaults (:func:`vtkillum.core.defaults.default_scene`, one function for both: the
+    same data and transfer function look the same from Python and from the shell) where
+    ``camera`` or ``core_lights`` is None: the data-aware camera, and the key light from
+    the upper front-left of the (given or default) camera.
+    """
+    from vtkillum.core.defaults import default_scene
+
+    scene = Scene(transfer_function=transfer_function_from_vtk(inputs.ctf, inputs.otf),
+                  opacity_unit_distance=inputs.unit_distance, albedo=albedo,
+                  anisotropy=anisotropy, lights=core_lights or lights_from_pyvista(None),
+                  camera=camera, background=background)
+    fill = {name for name, given in (("camera", camera), ("lights", core_lights))
+            if given is None}
+    return default_scene(inputs.volume, frame, base=scene, fill=fill, aspect=aspect)
 
 
 def _image_size(width, height, device) -> tuple[int, int]:
@@ -978,6 +1017,219 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     return volume
 
 
+def add_computed_volume(plotter, grid, method="transmittance", scalars=None, *, lights=None,
+                        cmap=None, opacity="linear", clim=None, n_colors=256, flip_scalars=False,
+                        transfer_function=None, opacity_unit_distance=None, albedo=0.9,
+                        anisotropy=0.0, device=None, exposure=1.0, gamma=1.0,
+                        resolution_scale=1.0, component=None, nan_policy="raise", **options):
+    """Show ``grid`` rendered by a warp method in a pyvista plotter: the compute path.
+
+    Builds a :class:`~vtkillum.mappers.ComputeVolumeRenderer` on ``plotter.renderer``:
+    ``method`` (any of :data:`vtkillum.METHODS`) renders the grid at the plotter's
+    camera and window size, and the tone-mapped picture becomes the renderer's textured
+    background. It re-renders whenever the camera (the user's mouse) or the window size
+    has changed, in the same frame (the renderer's ``StartEvent``). With CUDA this is
+    the fast interactive path (issue 35: a 512³ CT volume orbits at 30-64 frames per
+    second on an H200 in a 1024² window, depending on the method); on a CPU use a small
+    grid or ``resolution_scale < 1``.
+
+    The scene is built as :func:`render` builds it (same arguments, same transfer
+    function, :func:`vtkillum.core.defaults.default_scene` for the lights), except the
+    camera: the plotter's, which follows the mouse.
+
+    Parameters
+    ----------
+    plotter : pyvista.Plotter
+    grid : pyvista.ImageData
+        The data (``scalars``, ``component``, ``nan_policy`` as in :func:`transmittance`).
+    method : str
+        ``"emission"``, ``"single"``, ``"transmittance"`` (default), ``"ambient-scattering"``,
+        ``"convection-diffusion"``, ``"illumination"`` (give ``illumination=`` the output
+        of a light filter such as ``grid.illum.transmittance(...)``, or an
+        ``IlluminationVolume``), progressive ``"path"`` and ``"many-lights"``, ...
+    lights : optional
+        See the module docstring. Default: one white key light from the upper front-left
+        of the plotter's camera at the time of this call (fixed in the world afterwards;
+        :func:`vtkillum.core.defaults.key_light`). With ``illumination=`` a filter output,
+        default: the lights it was computed with; other lights are an error.
+    cmap, opacity, clim, n_colors, flip_scalars, transfer_function, opacity_unit_distance
+        The transfer function, as in :func:`transmittance`.
+    albedo, anisotropy : float
+        Scattering albedo and Henyey–Greenstein ``g``, as in :func:`render`.
+    device : str, optional
+        Warp device (``"cpu"``, ``"cuda"``); default CUDA when present.
+    exposure, gamma : float
+        Display: ``tonemap(exposure * radiance, alpha, background, gamma=gamma)`` over the
+        plotter's background colour (``gamma = 1``: linear, as VTK's ray caster writes).
+    resolution_scale : float
+        Render at this fraction of the window size, in (0, 1] (interpolated up).
+    **options
+        Method options (``illumination`` for ``"illumination"``; ``step_size``,
+        ``jitter``; ``spp``, ``max_bounces``, ``seed`` for ``"path"`` ...).
+
+    Returns
+    -------
+    vtkillum.mappers.ComputeVolumeRenderer
+        Its ``display_image()`` is the 8-bit picture shown, ``result`` the last
+        :class:`vtkillum.RenderResult`; ``set_method``, ``set_scene`` change what it
+        shows; ``detach()`` removes it from the plotter (the plotter's own background
+        comes back); the progressive methods ``"path"`` and
+        ``"many-lights"`` start with one pass per camera change and refine while the
+        camera rests after ``start_refinement()`` (a repeating interactor timer; or call
+        ``refine()``).
+
+    Notes
+    -----
+    Nothing is depth-composited: the picture is the background, and other actors of the
+    plotter are drawn over it. So that the camera frames the grid (pyvista's first
+    view, ``reset_camera``, the ``r`` key), a fully transparent actor of the grid's eight
+    corners is added to the plotter, and ``detach()``
+    removes it again; a plotter whose camera has not been set yet is given pyvista's
+    default view of the grid before the key light is placed. The first picture is
+    rendered by this call, so that a bad method option is reported here rather than
+    from inside a window render (the cost: one frame, which the window's first render
+    then reuses when the camera and size are unchanged).
+
+    Examples
+    --------
+    >>> import numpy as np, pyvista as pv
+    >>> import vtkillum.pyvista_accessor  # noqa: F401  (registers grid.illum)
+    >>> grid = pv.ImageData(dimensions=(12, 12, 12), spacing=(0.2, 0.2, 0.2))
+    >>> grid["density"] = np.linspace(0.0, 1.0, grid.n_points)
+    >>> pl = pv.Plotter(off_screen=True, window_size=(48, 48))
+    >>> shown = grid.illum.add_computed(pl, "emission", cmap="bone", device="cpu")
+    >>> pl.camera.azimuth += 30              # the next render follows the camera
+    >>> image = pl.screenshot()
+    >>> bool(np.abs(image.astype(int) - shown.display_image()).max() <= 1)
+    True
+    >>> pl.close()
+    """
+    inputs_given = dict(locals())
+    renderer = _plotter_renderer(plotter)
+    if not isinstance(grid, vtkImageData):
+        raise TypeError(f"grid must be a pyvista.ImageData (uniform grid), got "
+                        f"{type(grid).__name__}; resample other meshes first, e.g. "
+                        "pv.ImageData(...).sample(mesh)")
+    method = _check_method(method)
+    exposure = _check_positive(exposure, "exposure")
+    gamma = _check_positive(gamma, "gamma")
+    resolution_scale = _check_positive(resolution_scale, "resolution_scale")
+    if resolution_scale > 1.0:
+        raise ValueError(f"resolution_scale must lie in (0, 1] (a fraction of the window "
+                         f"size), got {_short(resolution_scale)}")
+    inputs = _parse_inputs(grid, inputs_given)
+    illumination = options.pop("illumination", None)
+    if illumination is not None and method != "illumination":
+        raise ValueError(f"illumination= is for method='illumination', not {method!r}")
+    from vtkillum.core.device import resolve_device
+    from vtkillum.mappers.camera_bridge import camera_from_vtk
+
+    try:
+        device = resolve_device(device)
+        core_lights, illumination = _lights_and_illumination(inputs.volume, lights,
+                                                             illumination)
+    except (TypeError, ValueError) as err:
+        raise _in_accessor_words(err) from None
+    camera_was_set = plotter.renderer.camera_set
+    bounds = _add_bounds_actor(plotter, grid)
+    shown = None
+    try:
+        width, height = (max(1, n) for n in renderer.GetSize())
+        # plotter.camera gives an unset camera pyvista's default view of the bounds
+        camera = camera_from_vtk(plotter.camera, aspect=width / height)
+        scene = _scene(inputs, core_lights, camera, albedo=albedo, anisotropy=anisotropy)
+        shown = _plotter_compute_class()(
+            renderer, inputs.volume, scene, method=method, illumination=illumination,
+            device=device, exposure=exposure, gamma=gamma, resolution_scale=resolution_scale,
+            **options)
+        shown._bounds_actor = (plotter, bounds)
+        shown.update()  # the first picture: a bad option fails here, not inside a render
+    except (TypeError, ValueError) as err:
+        # leave the plotter as it was: no background, no bounds, the camera still unset
+        if shown is not None:
+            shown.detach()
+        else:
+            plotter.remove_actor(bounds, reset_camera=False, render=False)
+        plotter.renderer.camera_set = camera_was_set
+        raise _in_accessor_words(err) from None
+    return shown
+
+
+def _plotter_renderer(plotter):
+    """``plotter.renderer`` (a vtkRenderer), or a TypeError/ValueError naming ``plotter``."""
+    from vtkmodules.vtkRenderingCore import vtkRenderer
+
+    renderer = getattr(plotter, "renderer", None) if isinstance(plotter, pv.BasePlotter) \
+        else None
+    if not isinstance(renderer, vtkRenderer):
+        raise TypeError(f"plotter must be a pyvista.Plotter, got {type(plotter).__name__}")
+    if getattr(plotter, "render_window", None) is None:
+        raise ValueError("plotter is closed: make a new pyvista.Plotter")
+    return renderer
+
+
+def _check_method(method) -> str:
+    """``method``, a registered name, or a ValueError listing them (and the spelling meant)."""
+    from vtkillum.core.render import METHODS
+
+    if isinstance(method, str) and method in METHODS:
+        return method
+    hint = ""
+    if isinstance(method, str) and method.replace("_", "-") in METHODS:
+        hint = f" (did you mean {method.replace('_', '-')!r}?)"
+    raise ValueError(f"method={_short(method)} is not a rendering method{hint}; choose one "
+                     f"of {sorted(METHODS)}")
+
+
+def _check_positive(value, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not (np.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {_short(value)}")
+    return float(value)
+
+
+def _add_bounds_actor(plotter, grid):
+    """A fully transparent actor of the grid's 8 corners: it draws nothing visible but gives
+    the plotter the grid's bounds (camera framing, ``reset_camera``, the ``r`` key).
+
+    VTK counts only points that belong to cells in a mapper's bounds, so the corners are
+    vertices, and opacity 0 hides them (blending leaves the frame buffer unchanged).
+    """
+    corners = pv.PolyData(np.array([[x, y, z] for x in grid.bounds[0:2]
+                                    for y in grid.bounds[2:4] for z in grid.bounds[4:6]],
+                                   dtype=np.float64))
+    actor = pv.Actor(mapper=pv.DataSetMapper(corners))
+    actor.prop.opacity = 0.0
+    plotter.add_actor(actor, reset_camera=None, render=False, pickable=False)
+    return actor
+
+
+_PLOTTER_COMPUTE_CLASS = []
+
+
+def _plotter_compute_class():
+    """``ComputeVolumeRenderer`` whose ``detach`` also removes the bounds actor (imported
+    here: the mappers need VTK's rendering modules, which importing this module does not)."""
+    if not _PLOTTER_COMPUTE_CLASS:
+        from vtkillum.mappers.compute_mapper import ComputeVolumeRenderer
+
+        class PlotterComputeVolume(ComputeVolumeRenderer):
+            __doc__ = ComputeVolumeRenderer.__doc__
+            _bounds_actor = None
+
+            def detach(self) -> None:
+                super().detach()
+                if self._bounds_actor is not None:
+                    plotter, actor = self._bounds_actor
+                    self._bounds_actor = None
+                    if getattr(plotter, "render_window", None) is not None:
+                        plotter.remove_actor(actor, reset_camera=False, render=False)
+
+        PlotterComputeVolume.__module__ = __name__
+        _PLOTTER_COMPUTE_CLASS.append(PlotterComputeVolume)
+    return _PLOTTER_COMPUTE_CLASS[0]
+
+
 #: Field data of an :func:`ambient_extinction` output: ``(radius, units)``, units 0 voxels,
 #: 1 world (what the mapper needs to show it as the filter computed it).
 AMBIENT_FIELD = "vtkillum_ambient"
@@ -1082,6 +1334,10 @@ class IllumAccessor:
     def add_to(self, plotter, *args, **kwargs):
         """:func:`add_illuminated_volume` of this grid."""
         return add_illuminated_volume(plotter, self._grid, *args, **kwargs)
+
+    def add_computed(self, plotter, *args, **kwargs):
+        """:func:`add_computed_volume` of this grid."""
+        return add_computed_volume(plotter, self._grid, *args, **kwargs)
 
 
 for _method in ("optical_properties", "transmittance", "convection_diffusion",
