@@ -96,7 +96,7 @@ def test_every_function_takes_the_common_arguments_with_the_same_defaults():
     """The parser reads them from each function's own arguments: each must have them all."""
     functions = [pva.optical_properties, pva.transmittance, pva.convection_diffusion,
                  pva.photon_density, pva.many_lights, pva.ambient_extinction, pva.render,
-                 pva.add_illuminated_volume]
+                 pva.add_illuminated_volume, pva.add_computed_volume]
     reference = inspect.signature(pva.transmittance).parameters
     for function in functions:
         parameters = inspect.signature(function).parameters

@@ -47,7 +47,7 @@ PARAVIEW = ("LoadPlugin(", "pvbatch_env.py", "pvpython", "pvbatch ")
 OUTPUTS = {"demo.png": True, "head.nii.gz": False, "head.png": True, "head.json": False,
            "head_exposure1.png": True, "plume.png": True, "head.npy": False,
            "head.alpha.npy": False, "vtk.png": True, "head.vti": False, "pyvista.png": True,
-           "head_scene.json": False, "head_scene.png": True}
+           "head_scene.json": False, "head_scene.png": True, "pyvista_computed.png": True}
 
 
 def blocks(text: str):

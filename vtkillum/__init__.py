@@ -17,14 +17,15 @@ from vtkillum.core.volume import Volume
 
 def __getattr__(name: str):
     # Lazy, so that importing vtkillum loads neither pyvista nor vtk.
-    if name == "add_illuminated_volume":
-        from vtkillum.pyvista_accessor import add_illuminated_volume
+    if name in ("add_illuminated_volume", "add_computed_volume"):
+        import vtkillum.pyvista_accessor as accessor
 
-        return add_illuminated_volume
+        return getattr(accessor, name)
     raise AttributeError(f"module 'vtkillum' has no attribute {name!r}")
 
 
 __all__ = [
+    "add_computed_volume",
     "add_illuminated_volume",
     "Camera",
     "DirectionalLight",
