@@ -350,6 +350,16 @@ def _texture_shape(texture) -> tuple:
 
 
 @wp.func
+def grid_index(primary: int, p: int, a: int, b: int):
+    """Point index with ``p`` on the primary axis and ``a, b`` on the other two in order."""
+    if primary == 0:
+        return wp.vec3i(p, a, b)
+    if primary == 1:
+        return wp.vec3i(a, p, b)
+    return wp.vec3i(a, b, p)
+
+
+@wp.func
 def axis_offset(axis: int, value: int):
     """``value`` times the unit index vector of ``axis``.
 

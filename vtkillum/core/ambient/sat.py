@@ -47,7 +47,7 @@ import numpy as np
 import warp as wp
 
 from vtkillum.core.device import init_warp, resolve_device
-from vtkillum.core.warp_common import Medium, lookup_sigma_t
+from vtkillum.core.warp_common import Medium, grid_index, lookup_sigma_t
 
 init_warp()
 
@@ -232,14 +232,13 @@ def sat_prefix_z_kernel(sat: wp.array3d(dtype=wp.float64)):
 
 
 @wp.func
-def line_point(axis: int, u: int, v: int, t: int):
-    """Grid index of point ``t`` of the line ``(u, v)`` along ``axis`` (the other two axes
-    in order)."""
-    if axis == 0:
-        return wp.vec3i(t, u, v)
-    if axis == 1:
-        return wp.vec3i(u, t, v)
-    return wp.vec3i(u, v, t)
+def line_sum(src: wp.array3d(dtype=wp.float32), axis: int, u: int, v: int, count: int):
+    """Sum (float64) of the first ``count`` points of the line ``(u, v)`` along ``axis``."""
+    acc = wp.float64(0.0)
+    for j in range(count):
+        p = grid_index(axis, j, u, v)
+        acc += wp.float64(src[p[0], p[1], p[2]])
+    return acc
 
 
 @wp.kernel
@@ -264,30 +263,24 @@ def box_pass_kernel(src: wp.array3d(dtype=wp.float32), dst: wp.array3d(dtype=wp.
     f_lo = ends[0] - lo_floor
     f_hi = ends[1] - hi_floor
     # running sums of the cells before each end, at point 0
-    s_lo = wp.float64(0.0)
-    s_hi = wp.float64(0.0)
-    for j in range(wp.min(wp.max(m_hi, 0), n)):
-        p = line_point(axis, u, v, j)
-        s_hi += wp.float64(src[p[0], p[1], p[2]])
-    for j in range(wp.min(wp.max(m_lo, 0), n)):
-        p = line_point(axis, u, v, j)
-        s_lo += wp.float64(src[p[0], p[1], p[2]])
+    s_lo = line_sum(src, axis, u, v, wp.min(wp.max(m_lo, 0), n))
+    s_hi = line_sum(src, axis, u, v, wp.min(wp.max(m_hi, 0), n))
     for i in range(n):
         a = s_hi
         if m_hi >= 0 and m_hi < n:
-            q = line_point(axis, u, v, m_hi)
+            q = grid_index(axis, m_hi, u, v)
             c = wp.float64(src[q[0], q[1], q[2]])
             a += f_hi * c
             s_hi += c
         b = s_lo
         if m_lo >= 0 and m_lo < n:
-            q = line_point(axis, u, v, m_lo)
+            q = grid_index(axis, m_lo, u, v)
             c = wp.float64(src[q[0], q[1], q[2]])
             b += f_lo * c
             s_lo += c
         m_hi += 1
         m_lo += 1
-        o = line_point(axis, u, v, i)
+        o = grid_index(axis, i, u, v)
         dst[o[0], o[1], o[2]] = wp.float32(wp.max(a - b, wp.float64(0.0)) * wp.float64(scale))
 
 

@@ -118,6 +118,7 @@ from vtkillum.core.warp_common import (
     cached_tables,
     capped_kernel,
     component,
+    grid_index,
     grid_point,
 )
 
@@ -431,16 +432,6 @@ def _scheme_id(scheme: str) -> int:
 def wavefront_distance(i: int, lo: int, hi: int):
     """Index distance from the no-upwind range ``[lo, hi]`` along one axis."""
     return wp.max(wp.max(i - hi, lo - i), 0)
-
-
-@wp.func
-def grid_index(primary: int, p: int, a: int, b: int):
-    """Point index with ``p`` on the primary axis and ``a, b`` on the other two in order."""
-    if primary == 0:
-        return wp.vec3i(p, a, b)
-    if primary == 1:
-        return wp.vec3i(a, p, b)
-    return wp.vec3i(a, b, p)
 
 
 @wp.func
