@@ -16,11 +16,11 @@ resolution), where the near-field march changes the picture most:
 import numpy as np
 import pytest
 from helpers import offscreen_window, rel_errors
+from test_accumulation import shown as window_levels
 from test_mappers import HEIGHT, WIDTH, sharp_sphere, within
 
 pytest.importorskip("vtkmodules.vtkRenderingVolumeOpenGL2")
-from vtkmodules.util.numpy_support import vtk_to_numpy
-from vtkmodules.vtkRenderingCore import vtkRenderer, vtkWindowToImageFilter
+from vtkmodules.vtkRenderingCore import vtkRenderer
 from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
 
 from vtkillum.io.convert import image_data_from_volume
@@ -52,16 +52,8 @@ def shown(volume, scene, illumination, interactor: bool, **options):
 
 
 def shown_rgb(window) -> np.ndarray:
-    """What the window shows now (no new render: a render would add a frame)."""
-    grab = vtkWindowToImageFilter()
-    grab.SetInput(window)
-    grab.SetInputBufferTypeToRGB()
-    grab.ReadFrontBufferOff()
-    grab.ShouldRerenderOff()
-    grab.Update()
-    w, h, _ = grab.GetOutput().GetDimensions()
-    rgb = vtk_to_numpy(grab.GetOutput().GetPointData().GetScalars()).reshape(h, w, 3)
-    return rgb[::-1].astype(np.float64) / 255.0
+    """What the window shows now, in [0, 1] (no new render: a render would add a frame)."""
+    return window_levels(window) / 255.0
 
 
 def test_moving_frames_read_the_grid_with_interactive_near_cells_0():
