@@ -185,15 +185,21 @@ def illuminated_volume(volume, scene, image_size, **options):
     return frames, light_ms
 
 
-def vtk_shadows(volume, scene, image_size, reach, blending):
-    """:class:`Frames` for vtkGPUVolumeRayCastMapper with VTK's volumetric shadows."""
-    image = image_data_from_volume(volume)
+def vtk_mapper(volume, scene):
+    """A composite ``vtkGPUVolumeRayCastMapper`` of ``volume`` at the scene's step, unjittered
+    (what VTK's own renderers here share)."""
     mapper = vtkOpenGLGPUVolumeRayCastMapper()
-    mapper.SetInputData(image)
+    mapper.SetInputData(image_data_from_volume(volume))
     mapper.SetBlendModeToComposite()
     mapper.AutoAdjustSampleDistancesOff()
     mapper.SetSampleDistance(scene.resolved_step_size(volume))
     mapper.SetUseJittering(0)
+    return mapper
+
+
+def vtk_shadows(volume, scene, image_size, reach, blending):
+    """:class:`Frames` for vtkGPUVolumeRayCastMapper with VTK's volumetric shadows."""
+    mapper = vtk_mapper(volume, scene)
     mapper.SetVolumetricScatteringBlending(blending)
     mapper.SetGlobalIlluminationReach(reach)
     prop = vtkVolumeProperty()
@@ -220,7 +226,7 @@ def vtk_shadows(volume, scene, image_size, reach, blending):
     renderer.AddLight(light)
     apply_camera_to_vtk(scene.camera, renderer.GetActiveCamera())
     frames = Frames(window, renderer)
-    frames.keep = (actor, mapper, image, light)
+    frames.keep = (actor, mapper, light)  # the mapper holds its input image
     return frames
 
 
@@ -680,13 +686,7 @@ def interop_probe(opts) -> None:
 def plain_composite(volume, scene, image_size):
     """:class:`Frames` for a plain ``vtkGPUVolumeRayCastMapper`` composite render of the same
     data, transfer function and step (no shading, no light): the floor of a frame."""
-    image = image_data_from_volume(volume)
-    mapper = vtkOpenGLGPUVolumeRayCastMapper()
-    mapper.SetInputData(image)
-    mapper.SetBlendModeToComposite()
-    mapper.AutoAdjustSampleDistancesOff()
-    mapper.SetSampleDistance(scene.resolved_step_size(volume))
-    mapper.SetUseJittering(0)
+    mapper = vtk_mapper(volume, scene)
     prop = vtkVolumeProperty()
     apply_scene_to_volume_property(scene, volume, prop)
     prop.ShadeOff()
@@ -697,7 +697,7 @@ def plain_composite(volume, scene, image_size):
     renderer.AddVolume(actor)
     apply_camera_to_vtk(scene.camera, renderer.GetActiveCamera())
     frames = Frames(window, renderer)
-    frames.keep = (actor, mapper, image)
+    frames.keep = (actor, mapper)  # the mapper holds its input image
     return frames
 
 
