@@ -168,6 +168,29 @@ for label, (name, cls) in sorted(entries.items()):
     summary["filters"][label] = record
     simple.Delete(view)
 
+# --- 2. Light Transmittance's SegmentPlanes: exact rays by default, chained segments on request ----
+def transmittance_values(proxy):
+    from vtkmodules.util.numpy_support import vtk_to_numpy as to_numpy
+
+    proxy.UpdatePipeline()
+    data = servermanager.Fetch(proxy)
+    return to_numpy(data.GetPointData().GetArray("transmittance")).astype(float)
+
+
+segmented = vtkIllumLightTransmittance(Input=reader)  # noqa: F821 (from LoadPlugin)
+configure(segmented)
+segmented.Lights = LIGHT_A
+record = {"default": int(segmented.SegmentPlanes)}
+exact_t = transmittance_values(segmented)
+segmented.SegmentPlanes = 4
+chained_t = transmittance_values(segmented)
+record["mean_change"] = float(abs(chained_t - exact_t).mean())
+record["max_change"] = float(abs(chained_t - exact_t).max())
+segmented.SegmentPlanes = 0
+record["back_to_exact"] = float(abs(transmittance_values(segmented) - exact_t).max())
+summary["segment_planes"] = record
+simple.Delete(segmented)
+
 # --- 3. the RGBA path agrees with ParaView's own volume rendering -----------------------------------
 for rgba_type in ("uint8", "float32"):
     unlit = vtkIllumLightTransmittance(Input=reader)  # noqa: F821 (from LoadPlugin)

@@ -118,6 +118,17 @@ def test_time_series_animation_and_cache(run):
     assert [s["misses"] for s in replay] == [3, 3, 3]
 
 
+def test_segment_planes_property(run):
+    """Light Transmittance's advanced SegmentPlanes: 0 (exact rays) by default; chained
+    segments change the grid a little (a blur at shadow edges); back to 0 gives the exact
+    arrays again."""
+    _, summary = run
+    record = summary["segment_planes"]
+    assert record["default"] == 0
+    assert 0 < record["mean_change"] < 0.05 and record["max_change"] < 0.5
+    assert record["back_to_exact"] == 0.0
+
+
 def test_cache_statistics_information_property(run):
     _, summary = run
     for label, record in summary["filters"].items():
