@@ -5,6 +5,7 @@ the path tracer."""
 import numpy as np
 import pytest
 
+from vtkillum.core.light_transmittance import SEGMENT_PLANES
 from vtkillum.core.raycast import render_illuminated
 from vtkillum.core.render import render
 from vtkillum.data.accuracy_suite import _medium_scene, _side_light, smooth_ball
@@ -54,6 +55,7 @@ def test_outputs_and_transmittance():
     t.SetScalarOpacityUnitDistance(scene.opacity_unit_distance)
     t.RemoveAllLights()
     t.AddDirectionalLight(scene.lights[0].direction, scene.lights[0].irradiance)
+    t.SetSegmentPlanes(SEGMENT_PLANES)  # the photon filter's grid: light_transmittance's default
     t.Update()
     np.testing.assert_allclose(point_array(out, "transmittance"),
                                point_array(t.GetOutputDataObject(0), "transmittance"), atol=1e-6)

@@ -113,55 +113,61 @@ def block_sigma_max(medium: Medium, ranges, device: str | None = None):
 
     With post-classification every value of a block's data range can occur in it, so its
     largest σt is the table's maximum over that range (entries bracketing the range, as
-    :func:`occupancy_kernel` counts them), found in O(1) per block by a sparse table of
-    range maxima (``log2`` levels of the σt table, built on the device per transfer
-    function). The neighbours' maximum is taken as well, so the bound holds within one
-    block of any point of the block: what the ray caster needs to decide that the exact
+    :func:`occupancy_kernel` counts them): the maxima of the whole :data:`CHUNK`-entry
+    chunks inside the range (kept per transfer function, one small array) and the entries
+    of the partial chunks at its ends, so a block reads at most ``2 CHUNK + n / CHUNK``
+    values. The neighbours' maximum is taken as well, so the bound holds within one block
+    of any point of the block: what the ray caster needs to decide that the exact
     near-field march of a shadow ray (a few voxels long) cannot change its transmittance
     by more than a set amount (:func:`vtkillum.core.raycast.cached_transmittance`).
     """
     device = resolve_device(device)
     n = int(medium.sigma_table.shape[0])
-    levels = max(1, int(n).bit_length())
-    sparse = wp.empty((levels, n), dtype=wp.float32, device=device)  # [j, i]: max over 2**j
-    wp.copy(sparse, medium.sigma_table, count=n)
-    for j in range(1, levels):
-        wp.launch(sparse_level_kernel, dim=n, inputs=[sparse, j], device=device)
+    chunks = wp.empty(max(1, -(-n // CHUNK)), dtype=wp.float32, device=device)
+    wp.launch(chunk_max_kernel, dim=chunks.shape[0], inputs=[medium.sigma_table, chunks],
+              device=device)
     shape = tuple(ranges.shape[:3])
     own = wp.empty(shape, dtype=wp.float32, device=device)
-    wp.launch(block_sigma_max_kernel, dim=shape, inputs=[medium, ranges, sparse, own],
+    wp.launch(block_sigma_max_kernel, dim=shape, inputs=[medium, ranges, chunks, own],
               device=device)
     out = wp.empty(shape, dtype=wp.float32, device=device)
     wp.launch(dilate_max_kernel, dim=shape, inputs=[own, out], device=device)
     return out
 
 
+#: Table entries per chunk of :func:`block_sigma_max`'s chunk maxima.
+CHUNK = wp.constant(64)
+
+
 @wp.kernel
-def sparse_level_kernel(sparse: wp.array2d(dtype=wp.float32), j: int):
-    """``sparse[j, i] = max(sparse[j-1, i], sparse[j-1, i + 2**(j-1)])`` (the span of
-    ``2**j`` entries from ``i``; entries whose span leaves the table are never read)."""
-    i = wp.tid()
-    half = 1 << (j - 1)
-    v = sparse[j - 1, i]
-    if i + half < sparse.shape[1]:
-        v = wp.max(v, sparse[j - 1, i + half])
-    sparse[j, i] = v
+def chunk_max_kernel(table: wp.array(dtype=wp.float32), out: wp.array(dtype=wp.float32)):
+    """``out[c] = max(table[c CHUNK : (c + 1) CHUNK])``; ``wp.tid()`` is the chunk."""
+    c = wp.tid()
+    v = float(0.0)
+    for i in range(c * CHUNK, wp.min((c + 1) * CHUNK, table.shape[0])):
+        v = wp.max(v, table[i])
+    out[c] = v
 
 
 @wp.kernel
 def block_sigma_max_kernel(m: Medium, ranges: wp.array4d(dtype=wp.float32),
-                           sparse: wp.array2d(dtype=wp.float32),
+                           chunks: wp.array(dtype=wp.float32),
                            out: wp.array3d(dtype=wp.float32)):
     """``wp.tid()`` = block; the σt table's maximum over the entries bracketing its range
-    (1/world units), from two overlapping power-of-two spans of the sparse table."""
+    (1/world units): whole chunks from ``chunks``, partial ones entry by entry."""
     bi, bj, bk = wp.tid()
     lo = int(wp.floor(table_coord(m, ranges[bi, bj, bk, 0])))
     hi = wp.min(int(wp.ceil(table_coord(m, ranges[bi, bj, bk, 1]))), m.sigma_table.shape[0] - 1)
-    count = hi - lo + 1
-    j = int(0)
-    while (2 << j) <= count:
-        j += 1
-    out[bi, bj, bk] = wp.max(sparse[j, lo], sparse[j, hi + 1 - (1 << j)])
+    v = float(0.0)
+    i = lo
+    while i <= hi:
+        if i % CHUNK == 0 and i + CHUNK - 1 <= hi:
+            v = wp.max(v, chunks[i // CHUNK])
+            i += CHUNK
+        else:
+            v = wp.max(v, m.sigma_table[i])
+            i += 1
+    out[bi, bj, bk] = v
 
 
 @wp.kernel

@@ -25,7 +25,10 @@ emission, single            scalars (4); block ranges and occupancy (2 floats + 
 path                        as above plus the accumulation buffers (56 B/pixel measured)
 transmittance               scalars (4); per light a float32 transmittance grid (4 per
                             light-grid point); the RGB fluence grid (vec3, 12) that the
-                            light pass writes alongside
+                            light pass writes alongside; on CUDA the ray caster's
+                            textures of the scalars (4) and the light grids (4 per
+                            light-grid point and light; convection-diffusion's RGBA-half
+                            fluence: 8 more)
 convection-diffusion        scalars (4); the solver's grids of the light-grid shape:
                             σt and σ·colour (4 + 12), the convection and diffusion
                             sources, solution, residual and estimate (vec3), the
@@ -34,8 +37,8 @@ convection-diffusion        scalars (4); the solver's grids of the light-grid sh
                             point with one light (that sum is measured, see below),
                             plus a transmittance grid per light (12 B: T and its
                             composed RGB)
-ambient-scattering          scalars, σt, σ̃t (4 each), the float64 summed-area table
-                            ((n+1)³ × 8), a σ work grid (4): 24; per light an RGB
+ambient-scattering          scalars, σt, σ̃t, a temporary of the separable passes and
+                            a σ work grid (4 each): 20; per light an RGB
                             radiance cache (12 per cache point); on CUDA the two-channel
                             data texture and its staging array (8 + 8); the
                             preintegration table (~2.7 MB)
@@ -126,7 +129,7 @@ FOOTPRINTS = {
     "path": Footprint(4.0, pixel=56.0),
     "transmittance": Footprint(4.0, light=12.0, per_light=4.0),
     "convection-diffusion": Footprint(4.0, light=352.0, per_light=12.0),
-    "ambient-scattering": Footprint(24.0, per_light=12.0, fixed=2.7e6),
+    "ambient-scattering": Footprint(20.0, per_light=12.0, fixed=2.7e6),
     "photon": Footprint(16.0, pixel=20.0 + 8 * 40.0, fixed=146e6),
     "many-lights": Footprint(4.0, pixel=20.0 + 4 * 24.0, fixed=220e6),
     "refraction": Footprint(4.0, pixel=92.0, fixed=0.4e6),
@@ -204,6 +207,12 @@ def estimate_bytes(method: str, dims, n_lights: int = 1, light_volume_scale: flo
                 else float(light_volume_scale)
         nl = _scaled_points(dims, scale)
         total += (f.light + f.per_light * lights) * nl
+        if method != "ambient-scattering":  # the illumination ray caster's textures
+            if cuda and opts.get("textures", True) is not False:
+                # textures of the scalars and the light grids (and the RGBA-half fluence)
+                total += 4.0 * n + 4.0 * lights * nl
+                if method == "convection-diffusion":
+                    total += 8.0 * nl
     if method == "photon":
         photons = int(opts.get("photons", 0) or 0)
         if photons:  # the fixed part was measured at the automatic count's ceiling

@@ -41,7 +41,9 @@ class ManyLightsFilter(IlluminationFilterBase):
         ``sum_l T_l E_l + phi_s``, for display.
     ``transmittance`` (one component per light)
         ``T_l`` towards each real light: the direct light the mappers shade with the
-        phase function (:mod:`vtkillum.core.illumination`).
+        phase function (:mod:`vtkillum.core.illumination`); the grid of
+        :func:`~vtkillum.core.light_transmittance.light_transmittance`'s default (chained
+        segments for directional lights, exact rays for point lights).
     ``scattered_fluence`` (RGB)
         ``phi_s``: the fluence of the VLs' light, ``sum_j I_j(w) T(x_j, x) K_j(x)``
         (the light that scattered at least once, taken as isotropic by the mappers).

@@ -24,7 +24,9 @@ class PhotonDensityFilter(IlluminationFilterBase):
         ``Σ_l T_l E_l + φ_s``, the total light for display.
     ``transmittance`` (one component per light; ``DirectLight`` "exact" only)
         ``T_l`` towards each light: the direct light, shaded with the phase function by
-        the mappers.
+        the mappers (:func:`~vtkillum.core.light_transmittance.light_transmittance`'s
+        default grid: chained shadow-ray segments for directional lights, exact rays for
+        point lights; Light Transmittance's ``SegmentPlanes`` 16).
     ``scattered_fluence`` (RGB)
         ``φ_s``: the photon estimate of light that has scattered at least once (with
         ``DirectLight`` "photons": of all light).
