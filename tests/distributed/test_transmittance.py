@@ -48,16 +48,16 @@ DIAGONAL_LIGHTS = [DirectionalLight((1, 1, 1), (1, 1, 1)),
                    DirectionalLight((0.3, -1.0, 0.7), (0.4, 0.4, 1.0))]
 
 
-def _compare(par, axis_name, lights, tf=TF, step=None, field=None, origin=ORIGIN):
+def _compare(par, axis_name, lights, tf=TF, step=None, field=None, origin=ORIGIN, planes=0):
     shape = SHAPES[axis_name]
     whole = whole_extent(shape)
     field = blobs(shape) if field is None else field
     extent = Decomposition.of(whole, par.size).extents[par.rank]
     t, phi = distributed_light_transmittance(piece_volume(field, extent, whole), extent, whole,
                                              tf, 1.0, lights, step_size=step, comm=par.comm,
-                                             origin=origin)
+                                             origin=origin, segment_planes=planes)
     t_ref, phi_ref = light_transmittance(Volume(field, SPACING, ORIGIN), tf, 1.0, lights,
-                                         step_size=step, segment_planes=0)
+                                         step_size=step, segment_planes=planes, textures=False)
     cut = sub_slices(extent, whole)
     ref = t_ref[(slice(None), *cut)]
     err = [max_abs(t[li], ref[li]) for li in range(len(lights))]
@@ -173,3 +173,15 @@ def test_wrong_piece_is_refused(par):
         distributed_light_transmittance(piece_volume(field, whole, whole), whole,
                                         (0, 30, 0, 12, 0, 10), TF, 1.0, AXIS_LIGHTS[:1],
                                         comm=par.comm)
+
+
+@pytest.mark.parametrize("axis_name", sorted(SHAPES))
+@pytest.mark.parametrize("planes", [3, 16])
+def test_chained_segments_equal_one_rank(par, axis_name, planes):
+    """Chained segments slab by slab across the ranks (:mod:`vtkillum.core.parallel.chained`)
+    equal the one-rank chained grid, for axis, diagonal and point lights together (the point
+    light keeps its exact ray), early stops included; short slabs (3 planes) cross the cuts
+    often."""
+    lights = [AXIS_LIGHTS[1], *DIAGONAL_LIGHTS, PointLight((1.0, -2.0, 3.0), (20.0, 20.0, 20.0))]
+    _compare(par, axis_name, lights, planes=planes)
+    _compare(par, axis_name, DIAGONAL_LIGHTS[:1], tf=DENSE_TF, planes=planes)

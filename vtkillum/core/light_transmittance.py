@@ -265,36 +265,50 @@ def _ray_launches(li: int, shape, steps_per_ray: int, budget: int) -> list:
             for first in range(0, n_points, chunk)]
 
 
-def _chain_launches(li: int, toward, shape, spacing, planes: int, step_size: float,
-                    steps_per_ray: int, budget: int) -> list:
-    """Launches of :func:`chained_kernel` for directional light ``li``, slab after slab.
+def chain_slabs(toward, shape, planes: int) -> tuple[int, int, int, list]:
+    """The slabs of chained segments for a directional light (the module docstring).
 
-    ``toward`` is the unit direction towards the light in the local frame; the slabs
-    are those of the module docstring, each launch a run of points of one slab (plane
-    after plane from the light side, C order within a plane).
+    ``toward`` is the unit direction towards the light in the local frame. Returns
+    ``(axis, first, direction, slabs)``: plane ``r`` (counted from the light-side face) has
+    index ``first + direction * r`` along ``axis``; each slab is ``(r0, r1, look_back)``,
+    its planes ``r0 <= r < r1`` and the plane its segments end on (-1: exact rays to the
+    box exit, the first slab). Shared by the one-rank launches and the distributed march
+    (:mod:`vtkillum.core.parallel.chained`), so both take the same slabs.
     """
     axis = int(np.argmax(np.abs(toward)))
     n_a = int(shape[axis])
-    b, c = (axis + 1) % 3, (axis + 2) % 3
-    plane_points = int(shape[b]) * int(shape[c])
     # Planes numbered from the light-side face: r -> index first + direction * r.
     first, direction = (n_a - 1, -1) if toward[axis] > 0 else (0, 1)
+    slabs = []
+    r0, look_back = 0, -1  # the first slab: planes 0..planes, exact to the box exit
+    while r0 < n_a:
+        r1 = min(n_a, (planes + 1 if look_back < 0 else r0 + planes))
+        slabs.append((r0, r1, look_back))
+        look_back = r1 - 1
+        r0 = r1
+    return axis, first, direction, slabs
+
+
+def _chain_launches(li: int, toward, shape, spacing, planes: int, step_size: float,
+                    steps_per_ray: int, budget: int) -> list:
+    """Launches of :func:`chained_kernel` for directional light ``li``, slab after slab
+    (:func:`chain_slabs`), each a run of points of one slab (plane after plane from the
+    light side, C order within a plane)."""
+    axis, first, direction, slabs = chain_slabs(toward, shape, planes)
+    b, c = (axis + 1) % 3, (axis + 2) % 3
+    plane_points = int(shape[b]) * int(shape[c])
     # A segment spans at most `planes` planes, and so does an exact ray from r <= planes.
     segment = planes * float(spacing[axis]) / abs(float(toward[axis]))
     steps = int(min(steps_per_ray, np.ceil(segment / step_size) + 1))
     chunk = int(max(1, budget // steps))
     launches = []
-    r0, look_back = 0, -1  # the first slab: planes 0..planes, exact to the box exit
-    while r0 < n_a:
-        r1 = min(n_a, (planes + 1 if look_back < 0 else r0 + planes))
+    for r0, r1, look_back in slabs:
         n_points = (r1 - r0) * plane_points
         for start in range(0, n_points, chunk):
             launches.append((chained_kernel,
                              [li, axis, first, direction, r0, start, look_back,
                               wp.vec3i(*(int(n) for n in shape))],
                              min(chunk, n_points - start)))
-        look_back = r1 - 1
-        r0 = r1
     return launches
 
 
@@ -391,38 +405,92 @@ def chained_kernel(medium: Medium, scalars: Any, optics: Any, lights: Lights, li
         out[li, idx[0], idx[1], idx[2]] = shadow_march(medium, scalars, optics, p, w, dist,
                                                        step_size, 0.5, SHADOW_STOP_T)
         return
+    length, inside, back, jb, jc, fb, fc = chain_link(medium.extent, grid_spacing, shape, axis,
+                                                      first_plane, direction, look_back, p, w)
+    corners = wp.vec4(0.0)
+    if inside != 0:
+        corners = grid_corners(out, li, axis, back, jb, jc)
+    t_far, stop, done = link_transmittance(inside, corners, fb, fc)
+    if done != 0:  # T(q) < SHADOW_STOP_T: at most SHADOW_STOP_T too bright, as a stopped ray
+        out[li, idx[0], idx[1], idx[2]] = t_far
+        return
+    out[li, idx[0], idx[1], idx[2]] = t_far * shadow_march(medium, scalars, optics, p, w,
+                                                           length, step_size, 0.5, stop)
+
+
+@wp.func
+def chain_link(extent: wp.vec3, grid_spacing: wp.vec3, shape: wp.vec3i, axis: int,
+               first_plane: int, direction: int, look_back: int, p: wp.vec3, w: wp.vec3):
+    """Where grid point ``p``'s chain meets plane ``look_back`` (module docstring).
+
+    Returns ``(length, inside, back, jb, jc, fb, fc)``: the segment's length from ``p``
+    along the unit direction ``w`` to the plane (world units); ``inside = 1`` where the ray
+    meets the plane inside the box (else it leaves through a side first and is exact);
+    the plane's index ``back`` along ``axis``; the in-plane cell ``(jb, jc)`` (along axes
+    ``(axis + 1) % 3`` and ``(axis + 2) % 3``) and fractions of the meeting point ``q``.
+    :func:`link_transmittance` turns the cell's corner values into ``T(q)``. Shared by the
+    one-rank kernel and the distributed one (:mod:`vtkillum.core.parallel.chained`), which
+    read the corners from their own stores: the same float32 operations.
+    """
+    b = (axis + 1) % 3
+    c = (axis + 2) % 3
+    nb = component(shape, b)
+    nc = component(shape, c)
     back = first_plane + direction * look_back
     ha = component(grid_spacing, axis)
     length = (float(back) * ha - component(p, axis)) / component(w, axis)
-    t_far = 1.0
-    stop = SHADOW_STOP_T
-    if ray_box(p, w, medium.extent)[1] >= length * (1.0 - 1.0e-5):
-        # The ray meets plane `back` inside the box, at q: T(q) bilinearly in that plane.
+    inside = int(0)
+    jb = int(0)
+    jc = int(0)
+    fb = float(0.0)
+    fc = float(0.0)
+    if ray_box(p, w, extent)[1] >= length * (1.0 - 1.0e-5):
         q = p + length * w
-        hb = component(grid_spacing, b)
-        hc = component(grid_spacing, c)
-        ub = wp.clamp(component(q, b) / hb, 0.0, float(nb - 1))
-        uc = wp.clamp(component(q, c) / hc, 0.0, float(nc - 1))
+        ub = wp.clamp(component(q, b) / component(grid_spacing, b), 0.0, float(nb - 1))
+        uc = wp.clamp(component(q, c) / component(grid_spacing, c), 0.0, float(nc - 1))
         jb = wp.min(int(wp.floor(ub)), nb - 2)
         jc = wp.min(int(wp.floor(uc)), nc - 2)
         fb = ub - float(jb)
         fc = uc - float(jc)
-        base = axis_offset(axis, back) + axis_offset(b, jb) + axis_offset(c, jc)
-        db = axis_offset(b, 1)
-        dc = axis_offset(c, 1)
-        v00 = out[li, base[0], base[1], base[2]]
-        v10 = out[li, base[0] + db[0], base[1] + db[1], base[2] + db[2]]
-        v01 = out[li, base[0] + dc[0], base[1] + dc[1], base[2] + dc[2]]
-        v11 = out[li, base[0] + db[0] + dc[0], base[1] + db[1] + dc[1],
-                  base[2] + db[2] + dc[2]]
-        t_far = (1.0 - fc) * ((1.0 - fb) * v00 + fb * v10) + fc * ((1.0 - fb) * v01
-                                                                    + fb * v11)
-        if t_far < SHADOW_STOP_T:  # at most SHADOW_STOP_T too bright, as a stopped ray
-            out[li, idx[0], idx[1], idx[2]] = t_far
-            return
-        stop = SHADOW_STOP_T / t_far
-    out[li, idx[0], idx[1], idx[2]] = t_far * shadow_march(medium, scalars, optics, p, w,
-                                                           length, step_size, 0.5, stop)
+        inside = 1
+    return length, inside, back, jb, jc, fb, fc
+
+
+@wp.func
+def link_transmittance(inside: int, v: wp.vec4, fb: float, fc: float):
+    """``(t_far, stop, done)`` of a chain link: ``T(q)`` bilinearly from the corners ``v``
+    (``(jb, jc)``, ``(jb+1, jc)``, ``(jb, jc+1)``, ``(jb+1, jc+1)``; 1 where the ray does not
+    meet the plane inside the box), the stop level of the segment's march
+    (``SHADOW_STOP_T / T(q)``) and ``done = 1`` where ``T(q) < SHADOW_STOP_T`` (the point
+    takes ``T(q)``)."""
+    t_far = float(1.0)
+    stop = float(SHADOW_STOP_T)
+    done = int(0)
+    if inside != 0:
+        t_far = (1.0 - fc) * ((1.0 - fb) * v[0] + fb * v[1]) + fc * ((1.0 - fb) * v[2]
+                                                                      + fb * v[3])
+        if t_far < SHADOW_STOP_T:
+            done = 1
+        else:
+            stop = SHADOW_STOP_T / t_far
+    return t_far, stop, done
+
+
+@wp.func
+def grid_corners(out: wp.array4d(dtype=wp.float32), li: int, axis: int, back: int, jb: int,
+                 jc: int):
+    """``T`` of light ``li`` at in-plane points ``(jb, jc)``, ``(jb+1, jc)``, ``(jb, jc+1)``,
+    ``(jb+1, jc+1)`` of plane ``back`` along ``axis`` of the grid being filled."""
+    b = (axis + 1) % 3
+    c = (axis + 2) % 3
+    base = axis_offset(axis, back) + axis_offset(b, jb) + axis_offset(c, jc)
+    db = axis_offset(b, 1)
+    dc = axis_offset(c, 1)
+    return wp.vec4(out[li, base[0], base[1], base[2]],
+                   out[li, base[0] + db[0], base[1] + db[1], base[2] + db[2]],
+                   out[li, base[0] + dc[0], base[1] + dc[1], base[2] + dc[2]],
+                   out[li, base[0] + db[0] + dc[0], base[1] + db[1] + dc[1],
+                       base[2] + db[2] + dc[2]])
 
 
 def chained_overload(textures: bool):

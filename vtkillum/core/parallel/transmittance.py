@@ -180,7 +180,7 @@ def cell_owners(decomposition: Decomposition) -> tuple[list[np.ndarray], np.ndar
 def distributed_light_transmittance(volume, piece_extent, whole_extent, transfer_function,
                                     unit_distance: float, lights, step_size: float | None = None,
                                     comm=None, device: str | None = None, progress=None,
-                                    origin=None):
+                                    origin=None, segment_planes: int = 0):
     """Transmittance towards each light and the unscattered fluence on this rank's piece.
 
     Collective over ``comm``: rank ``r`` holds piece ``r`` of the decomposition of
@@ -209,6 +209,11 @@ def distributed_light_transmittance(volume, piece_extent, whole_extent, transfer
         World position of the whole volume's first point (the one-rank volume's
         ``origin``); default computed from the piece (:func:`whole_origin`, which may
         differ in the last bit and move point lights by that much).
+    segment_planes : int
+        Directional lights: chained segments every ``segment_planes`` planes, slab by slab
+        across the ranks (:mod:`vtkillum.core.parallel.chained`), equal to the one-rank
+        chained grid read from arrays (``light_transmittance(..., segment_planes=L,
+        textures=False)``); 0 (default): the exact rays for every light.
 
     Returns
     -------
@@ -254,7 +259,13 @@ def distributed_light_transmittance(volume, piece_extent, whole_extent, transfer
     medium = block_medium(volume, transfer_function, unit_distance, value_range, dev)
     if origin is None:
         origin = whole_origin(volume, piece_extent, whole_extent)
-    packed, _kinds, _vecs = frame_lights(lights, volume, np.asarray(origin, np.float64), dev)
+    packed, kinds, vecs = frame_lights(lights, volume, np.asarray(origin, np.float64), dev)
+    from vtkillum.core.light_transmittance import _segment_planes
+    from vtkillum.core.lights import DIRECTIONAL
+
+    segment_planes = _segment_planes(segment_planes)
+    chained = [li for li in range(len(lights))
+               if segment_planes and int(kinds[li]) == DIRECTIONAL]
 
     bricks, owner = cell_owners(decomposition)
     lo_idx = np.asarray(piece_extent[0::2]) - np.asarray(whole_extent[0::2])
@@ -274,6 +285,8 @@ def distributed_light_transmittance(volume, piece_extent, whole_extent, transfer
     tau = np.zeros((n_lights, *shape), np.float32)
     outgoing = []
     for li in range(n_lights):
+        if li in chained:
+            continue  # slab by slab below
         k_out = wp.zeros(shape, dtype=wp.int32, device=dev)
         tau_out = wp.zeros(shape, dtype=wp.float32, device=dev)
         dest = wp.zeros(shape, dtype=wp.int32, device=dev)
@@ -334,6 +347,16 @@ def distributed_light_transmittance(volume, piece_extent, whole_extent, transfer
     fluence = wp.zeros(shape, dtype=wp.vec3, device=dev)
     wp.launch(finish_kernel, dim=shape, inputs=[g, packed, t_dev, transmittance, fluence],
               device=dev)
+    if chained:
+        from vtkillum.core.parallel.chained import chained_light, piece_fluence_kernel
+
+        values = transmittance.numpy()
+        for li in chained:
+            chained_light(par, medium, g, packed, li, -vecs[li].astype(np.float64), whole_dims,
+                          lo_idx, shape, segment_planes, values)
+        transmittance = wp.array(values, dtype=wp.float32, device=dev)
+        wp.launch(piece_fluence_kernel, dim=shape, inputs=[g, packed, transmittance, fluence],
+                  device=dev)
     if progress is not None:
         progress(1.0)
     return transmittance.numpy(), fluence.numpy().reshape(*shape, 3)
