@@ -312,11 +312,11 @@ class OpticalProperties(ParaViewGlue, OpticalPropertiesFilter):
         _number("double", "StepSize", "SetStepSize", 0.0,
                 "Longest step along shadow rays (world units); 0: half the smallest spacing.",
                 lo=0.0, advanced=True),
-        _number("int", "SegmentPlanes", "SetSegmentPlanes", 0,
-                "0: one exact shadow ray per point (the reference; what Distributed "
-                "marches across ranks). L > 0: directional lights chain segments, "
-                "interpolating every L planes (cost N^3 L instead of N^4; sharp shadows "
-                "blur by about sqrt(N/L)/2 cells; under MPI the whole volume on every rank).",
+        _number("int", "SegmentPlanes", "SetSegmentPlanes", 16,
+                "Directional lights: chained shadow-ray segments, T interpolated every "
+                "this many grid planes (cost N^3 L instead of N^4; sharp shadows blur by "
+                "about sqrt(N/L)/2 cells). 0: one exact shadow ray per point. Distributed "
+                "runs give the one-rank result either way.",
                 lo=0, advanced=True),
         distributed_xml(),
         output_xml())

@@ -103,22 +103,22 @@ def test_lights_field_keeps_the_source_radius(make_image):
 
 
 def test_segment_planes(make_image):
-    """Exact rays by default (the reference the distributed mode reproduces); chained
-    segments on request: a different (blurred) grid, and mode 1 under MPI, said why."""
+    """Chained segments by default (16 planes), exact rays with 0: a different (blurred)
+    grid; both run distributed under MPI (nothing to refuse)."""
     dims = (24, 20, 18)
     rng = np.random.default_rng(5)
     img = make_image(dims=dims, spacing=(0.5, 0.5, 0.5), origin=(0.0, 0.0, 0.0),
                      values=(rng.random(dims) > 0.7).astype(float))
     f = make_filter(0.6)
     f.AddDirectionalLight((0.5, -0.3, -1.0), (1.0, 1.0, 1.0))
-    assert f.GetSegmentPlanes() == 0 and f.distributed_unsupported() is None
-    exact = point_array(f.execute(img), "transmittance")
+    assert f.GetSegmentPlanes() == 16 and f.distributed_unsupported() is None
     f.SetSegmentPlanes(4)
-    assert "SegmentPlanes 4 (chained segments) has no distributed version" in \
-        f.distributed_unsupported()
     chained = point_array(f.execute(img), "transmittance")
+    f.SetSegmentPlanes(0)
+    assert f.distributed_unsupported() is None
+    exact = point_array(f.execute(img), "transmittance")
     diff = np.abs(chained - exact)
     assert 0 < diff.mean() < 0.05
     with pytest.raises(ValueError, match="SegmentPlanes must be >= 0"):
         f.SetSegmentPlanes(-1)
-    assert f.GetSegmentPlanes() == 4
+    assert f.GetSegmentPlanes() == 0

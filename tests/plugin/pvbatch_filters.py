@@ -168,7 +168,7 @@ for label, (name, cls) in sorted(entries.items()):
     summary["filters"][label] = record
     simple.Delete(view)
 
-# --- 2. Light Transmittance's SegmentPlanes: exact rays by default, chained segments on request ----
+# --- 2. Light Transmittance's SegmentPlanes: chained segments by default, exact rays with 0 ------
 def transmittance_values(proxy):
     from vtkmodules.util.numpy_support import vtk_to_numpy as to_numpy
 
@@ -181,6 +181,7 @@ segmented = vtkIllumLightTransmittance(Input=reader)  # noqa: F821 (from LoadPlu
 configure(segmented)
 segmented.Lights = LIGHT_A
 record = {"default": int(segmented.SegmentPlanes)}
+segmented.SegmentPlanes = 0
 exact_t = transmittance_values(segmented)
 segmented.SegmentPlanes = 4
 chained_t = transmittance_values(segmented)

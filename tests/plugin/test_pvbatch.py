@@ -119,12 +119,12 @@ def test_time_series_animation_and_cache(run):
 
 
 def test_segment_planes_property(run):
-    """Light Transmittance's advanced SegmentPlanes: 0 (exact rays) by default; chained
-    segments change the grid a little (a blur at shadow edges); back to 0 gives the exact
-    arrays again."""
+    """Light Transmittance's advanced SegmentPlanes: 16 (chained segments) by default; 4
+    planes change the exact grid a little (a blur at shadow edges); back to 0 gives the
+    exact arrays again."""
     _, summary = run
     record = summary["segment_planes"]
-    assert record["default"] == 0
+    assert record["default"] == 16
     assert 0 < record["mean_change"] < 0.05 and record["max_change"] < 0.5
     assert record["back_to_exact"] == 0.0
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from vtkillum.core.illumination import IlluminationVolume
-from vtkillum.core.light_transmittance import light_transmittance
+from vtkillum.core.light_transmittance import SEGMENT_PLANES, light_transmittance
 from vtkillum.filters.base import IlluminationFilterBase
 from vtkillum.io.illumination_arrays import illumination_arrays
 
@@ -42,13 +42,13 @@ class LightTransmittanceFilter(IlluminationFilterBase):
         Longest step along shadow rays in world units; 0 (default) means half the
         smallest input spacing.
     SegmentPlanes : int
-        0 (default): one exact shadow ray per output point (O(N⁴)), the reference that
-        the distributed mode reproduces bit for bit. ``L > 0``: directional lights chain
-        shadow-ray segments, interpolating every ``L`` output-grid planes (O(N³ L), what
-        the interactive ``transmittance`` render method uses with ``L = 16``; sharp
-        shadow edges blur by about ``sqrt(N/L)/2`` cells; see
-        :mod:`vtkillum.core.light_transmittance`). Under MPI this runs mode 1 (the whole
-        volume on every rank, the one-rank result): chaining has no distributed version.
+        Directional lights: chained shadow-ray segments, interpolating ``T`` every ``L``
+        output-grid planes (default 16: O(N³ L) instead of O(N⁴); sharp shadow edges blur
+        by about ``sqrt(N/L)/2`` cells; see :mod:`vtkillum.core.light_transmittance`).
+        0: one exact shadow ray per point. Point lights always get exact rays. Either way
+        the distributed mode gives the one-rank arrays (chained: slab by slab across the
+        ranks, :mod:`vtkillum.core.parallel.chained`). The grid samples the data from
+        arrays, not CUDA textures, so that one rank and N ranks agree on a GPU too.
     Device, OutputScale, OutputDimensions, InputComponent, NaNPolicy, PassInputArrays, CacheSizeMB
         As in the base class.
 
@@ -69,7 +69,7 @@ class LightTransmittanceFilter(IlluminationFilterBase):
     def __init__(self) -> None:
         super().__init__()
         self._step_size = 0.0
-        self._segment_planes = 0
+        self._segment_planes = SEGMENT_PLANES
 
     def SetStepSize(self, step: float) -> None:
         step = float(step)
@@ -89,26 +89,19 @@ class LightTransmittanceFilter(IlluminationFilterBase):
     def GetSegmentPlanes(self) -> int:
         return self._segment_planes
 
-    def distributed_unsupported(self) -> str | None:
-        """Mode 1 with chained segments (they have no distributed version); else the
-        distributed exact march."""
-        if self._segment_planes > 0:
-            return (f"SegmentPlanes {self._segment_planes} (chained segments) has no "
-                    "distributed version; SegmentPlanes 0 marches exactly across the ranks")
-        return super().distributed_unsupported()
-
     def compute_piece(self, volume, params, piece):
         """Distributed under MPI: the one-rank shadow rays, marched across the ranks
         (:func:`vtkillum.core.parallel.transmittance.distributed_light_transmittance`), on
         this rank's piece; no ghost levels (neighbouring pieces share their planes). The
-        arrays equal the one-rank filter's bit for bit (SegmentPlanes 0, the default;
-        chained segments run mode 1, :meth:`distributed_unsupported`)."""
+        arrays equal the one-rank filter's bit for bit (chained segments too:
+        :mod:`vtkillum.core.parallel.chained`)."""
         from vtkillum.core.parallel.transmittance import distributed_light_transmittance
 
         transmittance, _fluence = distributed_light_transmittance(
             volume, piece.extent, piece.whole, params.transfer_function, params.unit_distance,
             params.lights, step_size=params.units.to_length(self._step_size) or None,
-            device=params.device, progress=params.progress, origin=piece.origin)
+            device=params.device, progress=params.progress, origin=piece.origin,
+            segment_planes=self._segment_planes)
         illumination = IlluminationVolume.for_volume(volume, transmittance=transmittance)
         return illumination_arrays(illumination, volume, params.lights, params.output_shape)
 
@@ -117,6 +110,6 @@ class LightTransmittanceFilter(IlluminationFilterBase):
             volume, params.transfer_function, params.unit_distance, params.lights,
             shape=params.output_shape, step_size=params.units.to_length(self._step_size) or None,
             device=params.device, progress=params.progress,
-            segment_planes=self._segment_planes)
+            segment_planes=self._segment_planes, textures=False)
         illumination = IlluminationVolume.for_volume(volume, transmittance=transmittance)
         return illumination_arrays(illumination, volume, params.lights, params.output_shape)
