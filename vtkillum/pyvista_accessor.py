@@ -1029,8 +1029,9 @@ def add_computed_volume(plotter, grid, method="transmittance", scalars=None, *, 
     camera and window size, and the tone-mapped picture becomes the renderer's textured
     background. It re-renders whenever the camera (the user's mouse) or the window size
     has changed, in the same frame (the renderer's ``StartEvent``). With CUDA this is
-    the fast interactive path (issue 35: a 512³ CT volume orbits at 30-64 frames per
-    second on an H200 in a 1024² window, depending on the method); on a CPU use a small
+    the fast interactive path (a 512³ CT-like volume orbits at 46-92 frames per second on
+    an H200 in a 1024² window, depending on the method; ``docs/benchmarks.md``); on a CPU
+    use a small
     grid or ``resolution_scale < 1``.
 
     The scene is built as :func:`render` builds it (same arguments, same transfer

@@ -189,7 +189,23 @@ record["mean_change"] = float(abs(chained_t - exact_t).mean())
 record["max_change"] = float(abs(chained_t - exact_t).max())
 segmented.SegmentPlanes = 0
 record["back_to_exact"] = float(abs(transmittance_values(segmented) - exact_t).max())
+# a bad value, then good ones: the view must follow again (a failed request once left
+# ParaView's representation stuck on its last data)
+segmented.SegmentPlanes = 16
+seg_view = new_view()
+plugin.ShowIlluminated(segmented, seg_view)
+frame(seg_view)
+simple.SaveScreenshot(str(OUT / "recover_before.png"), seg_view, ImageResolution=SIZE)
+segmented.SegmentPlanes = -1
+simple.Render(seg_view)
+record["bad_value_error"] = segmented.GetClientSideObject().GetLastError()
+segmented.SegmentPlanes = 16
+segmented.Lights = LIGHT_B
+simple.Render(seg_view)
+simple.SaveScreenshot(str(OUT / "recover_after.png"), seg_view, ImageResolution=SIZE)
+record["recover_screenshots"] = ["recover_before.png", "recover_after.png"]
 summary["segment_planes"] = record
+simple.Delete(seg_view)
 simple.Delete(segmented)
 
 # --- 3. the RGBA path agrees with ParaView's own volume rendering -----------------------------------

@@ -129,6 +129,17 @@ def test_segment_planes_property(run):
     assert record["back_to_exact"] == 0.0
 
 
+def test_view_recovers_after_a_bad_value(run):
+    """A bad property value is an error naming the property; corrected, and with the light
+    moved to the other side, the view shows the new illumination (a failed request once
+    left ParaView's representation on its last data for good)."""
+    out, summary = run
+    record = summary["segment_planes"]
+    assert "SegmentPlanes must be >= 0" in record["bad_value_error"]
+    before, after = (image(out, name) for name in record["recover_screenshots"])
+    assert np.abs(before - after).mean() > 1.0
+
+
 def test_cache_statistics_information_property(run):
     _, summary = run
     for label, record in summary["filters"].items():

@@ -718,11 +718,16 @@ class IlluminationFilterBase(VTKPythonAlgorithmBase):
             self._last_error = RuntimeError("interrupted (KeyboardInterrupt); the output is "
                                             "empty until the next update")
             self._show_error(str(self._last_error))
-            return 0
+            return 0  # a failed request: the next update executes again
         except Exception as err:  # reported through VTK, see _report
             output.Initialize()
             self._report(err)
-            return 0
+            # The error is reported (ErrorEvent / output window, GetLastError, execute()
+            # raises it) and the output is empty; the request itself succeeds. A failed
+            # request (0) left ParaView's representation stuck on its last data: after a bad
+            # property value was corrected the view never showed new illumination again
+            # (tests/plugin/test_pvbatch.py::test_view_recovers_after_a_bad_value).
+            return 1
 
     # === internals ==============================================================================
     def _deliver(self, output, whole, out_info) -> None:
