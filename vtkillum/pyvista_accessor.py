@@ -1031,8 +1031,7 @@ def add_computed_volume(plotter, grid, method="transmittance", scalars=None, *, 
     has changed, in the same frame (the renderer's ``StartEvent``). With CUDA this is
     the fast interactive path (a 512³ CT-like volume orbits at 46-92 frames per second on
     an H200 in a 1024² window, depending on the method; ``docs/benchmarks.md``); on a CPU
-    use a small
-    grid or ``resolution_scale < 1``.
+    use a small grid or ``resolution_scale < 1``.
 
     The scene is built as :func:`render` builds it (same arguments, same transfer
     function, :func:`vtkillum.core.defaults.default_scene` for the lights), except the
