@@ -35,8 +35,7 @@ from vtkillum.core.parallel.transmittance import (
     _NCOL,
     FINISHED,
     Blocks,
-    _store,
-    exchange_records,
+    forward_records,
     march_segment,
     ray_setup,
 )
@@ -114,41 +113,23 @@ def chained_light(par, medium: Medium, g: Blocks, lights: Lights, li: int, towar
 
 def _forward(par, medium, g, lights, li, slab, look_back, dims, plane, tau, lo_idx,
              outgoing) -> None:
-    """Rounds of record forwarding until every segment of the slab is finished (the exact
-    rays' protocol, :func:`~vtkillum.core.parallel.transmittance.distributed_light_transmittance`)."""
+    """The slab's segments forwarded until finished (the exact rays' protocol,
+    :func:`~vtkillum.core.parallel.transmittance.forward_records`)."""
     dev = par.device
-    comm = par.comm
-    while par.size > 1:
-        rows = np.concatenate([r for r, _ in outgoing]) if outgoing else \
-            np.empty((0, _NCOL), np.int32)
-        dest = np.concatenate([d for _, d in outgoing]) if outgoing else np.empty(0, np.int32)
-        if comm.allreduce(len(rows)) == 0:
-            return
-        got = exchange_records(comm, rows, dest, par.size)
-        outgoing = []
-        finished = got[:, 5] == FINISHED
-        _store(tau, got[finished], lo_idx)
-        marching = np.ascontiguousarray(got[~finished])
-        if len(marching):
-            count = len(marching)
-            k_out = wp.zeros(count, dtype=wp.int32, device=dev)
-            tau_out = wp.zeros(count, dtype=wp.float32, device=dev)
-            dest_out = wp.zeros(count, dtype=wp.int32, device=dev)
-            wp.launch(chain_continue_kernel, dim=count,
-                      inputs=[medium, g, lights, li, slab, look_back, dims, plane,
-                              wp.array(marching, dtype=wp.int32, device=dev),
-                              wp.array(marching[:, 6].view(np.float32), dtype=wp.float32,
-                                       device=dev), k_out, tau_out, dest_out], device=dev)
-            marching[:, 5] = k_out.numpy()
-            marching[:, 6] = tau_out.numpy().view(np.int32)
-            d = dest_out.numpy()
-            done = d == FINISHED
-            marching[done, 5] = FINISHED  # returns to its owner as a result
-            mine = done & (marching[:, 0] == par.rank)
-            _store(tau, marching[mine], lo_idx)
-            d = np.where(done, marching[:, 0], d)
-            keep = ~mine
-            outgoing.append((marching[keep], d[keep]))
+
+    def march(marching):
+        count = len(marching)
+        k_out = wp.zeros(count, dtype=wp.int32, device=dev)
+        tau_out = wp.zeros(count, dtype=wp.float32, device=dev)
+        dest_out = wp.zeros(count, dtype=wp.int32, device=dev)
+        wp.launch(chain_continue_kernel, dim=count,
+                  inputs=[medium, g, lights, li, slab, look_back, dims, plane,
+                          wp.array(marching, dtype=wp.int32, device=dev),
+                          wp.array(marching[:, 6].view(np.float32), dtype=wp.float32,
+                                   device=dev), k_out, tau_out, dest_out], device=dev)
+        return k_out.numpy(), tau_out.numpy(), dest_out.numpy()
+
+    forward_records(par, tau, lo_idx, outgoing, march)
 
 
 def _mpi_max():

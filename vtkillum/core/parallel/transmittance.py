@@ -306,41 +306,18 @@ def distributed_light_transmittance(volume, piece_extent, whole_extent, transfer
             rows[:, 6] = tau_np[ijk].view(np.int32)
             outgoing.append((rows, dest_np[ijk]))
 
-    rounds = 0
-    while par.size > 1:
-        rows = np.concatenate([r for r, _ in outgoing]) if outgoing else \
-            np.empty((0, _NCOL), np.int32)
-        dest = np.concatenate([d for _, d in outgoing]) if outgoing else np.empty(0, np.int32)
-        if comm.allreduce(len(rows)) == 0:
-            break
-        got = exchange_records(comm, rows, dest, par.size)
-        rounds += 1
-        outgoing = []
-        finished = got[:, 5] == FINISHED
-        _store(tau, got[finished], lo_idx)
-        marching = np.ascontiguousarray(got[~finished])
-        if len(marching):
-            count = len(marching)
-            k_out = wp.zeros(count, dtype=wp.int32, device=dev)
-            tau_out = wp.zeros(count, dtype=wp.float32, device=dev)
-            dest_out = wp.zeros(count, dtype=wp.int32, device=dev)
-            wp.launch(continue_kernel, dim=count,
-                      inputs=[medium, g, packed,
-                              wp.array(marching, dtype=wp.int32, device=dev),
-                              wp.array(marching[:, 6].view(np.float32), dtype=wp.float32,
-                                       device=dev), k_out, tau_out, dest_out], device=dev)
-            marching[:, 5] = k_out.numpy()
-            marching[:, 6] = tau_out.numpy().view(np.int32)
-            d = dest_out.numpy()
-            done = d == FINISHED
-            marching[done, 5] = FINISHED  # returns to its owner as a result, not a march
-            mine = done & (marching[:, 0] == me)
-            _store(tau, marching[mine], lo_idx)
-            d = np.where(done, marching[:, 0], d)
-            keep = ~mine
-            outgoing.append((marching[keep], d[keep]))
-        if progress is not None:
-            progress(min(1.0, rounds / (2.0 * par.size)))
+    def march(marching):
+        count = len(marching)
+        k_out = wp.zeros(count, dtype=wp.int32, device=dev)
+        tau_out = wp.zeros(count, dtype=wp.float32, device=dev)
+        dest_out = wp.zeros(count, dtype=wp.int32, device=dev)
+        wp.launch(continue_kernel, dim=count,
+                  inputs=[medium, g, packed, wp.array(marching, dtype=wp.int32, device=dev),
+                          wp.array(marching[:, 6].view(np.float32), dtype=wp.float32,
+                                   device=dev), k_out, tau_out, dest_out], device=dev)
+        return k_out.numpy(), tau_out.numpy(), dest_out.numpy()
+
+    forward_records(par, tau, lo_idx, outgoing, march, progress)
 
     t_dev = wp.array(tau, dtype=wp.float32, device=dev)
     transmittance = wp.zeros((n_lights, *shape), dtype=wp.float32, device=dev)
@@ -360,6 +337,44 @@ def distributed_light_transmittance(volume, piece_extent, whole_extent, transfer
     if progress is not None:
         progress(1.0)
     return transmittance.numpy(), fluence.numpy().reshape(*shape, 3)
+
+
+def forward_records(par, tau: np.ndarray, lo_idx, outgoing: list, march, progress=None) -> int:
+    """Rounds of record forwarding until no ray is in flight (collective); returns the rounds.
+
+    ``outgoing`` holds ``(records, destination ranks)`` to send; each round exchanges them
+    (:func:`exchange_records`), stores the finished records of this rank's points in
+    ``tau[light, i, j, k]`` and goes on with the others by ``march(records) -> (next
+    sample, sum, destination)`` (numpy, one row per record; destination -1: finished,
+    returned to its owner).
+    """
+    rounds = 0
+    while par.size > 1:
+        rows = np.concatenate([r for r, _ in outgoing]) if outgoing else \
+            np.empty((0, _NCOL), np.int32)
+        dest = np.concatenate([d for _, d in outgoing]) if outgoing else np.empty(0, np.int32)
+        if par.comm.allreduce(len(rows)) == 0:
+            break
+        got = exchange_records(par.comm, rows, dest, par.size)
+        rounds += 1
+        outgoing = []
+        finished = got[:, 5] == FINISHED
+        _store(tau, got[finished], lo_idx)
+        marching = np.ascontiguousarray(got[~finished])
+        if len(marching):
+            k, t, d = march(marching)
+            marching[:, 5] = k
+            marching[:, 6] = t.view(np.int32)
+            done = d == FINISHED
+            marching[done, 5] = FINISHED  # returns to its owner as a result, not a march
+            mine = done & (marching[:, 0] == par.rank)
+            _store(tau, marching[mine], lo_idx)
+            d = np.where(done, marching[:, 0], d)
+            keep = ~mine
+            outgoing.append((marching[keep], d[keep]))
+        if progress is not None:
+            progress(min(1.0, rounds / (2.0 * par.size)))
+    return rounds
 
 
 def _store(tau: np.ndarray, rows: np.ndarray, lo_idx) -> None:
