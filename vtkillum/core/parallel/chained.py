@@ -35,6 +35,7 @@ from vtkillum.core.parallel.transmittance import (
     _NCOL,
     FINISHED,
     Blocks,
+    continue_records,
     forward_records,
     march_segment,
     ray_setup,
@@ -115,21 +116,9 @@ def _forward(par, medium, g, lights, li, slab, look_back, dims, plane, tau, lo_i
              outgoing) -> None:
     """The slab's segments forwarded until finished (the exact rays' protocol,
     :func:`~vtkillum.core.parallel.transmittance.forward_records`)."""
-    dev = par.device
-
-    def march(marching):
-        count = len(marching)
-        k_out = wp.zeros(count, dtype=wp.int32, device=dev)
-        tau_out = wp.zeros(count, dtype=wp.float32, device=dev)
-        dest_out = wp.zeros(count, dtype=wp.int32, device=dev)
-        wp.launch(chain_continue_kernel, dim=count,
-                  inputs=[medium, g, lights, li, slab, look_back, dims, plane,
-                          wp.array(marching, dtype=wp.int32, device=dev),
-                          wp.array(marching[:, 6].view(np.float32), dtype=wp.float32,
-                                   device=dev), k_out, tau_out, dest_out], device=dev)
-        return k_out.numpy(), tau_out.numpy(), dest_out.numpy()
-
-    forward_records(par, tau, lo_idx, outgoing, march)
+    head = [medium, g, lights, li, slab, look_back, dims, plane]
+    forward_records(par, tau, lo_idx, outgoing,
+                    lambda rows: continue_records(chain_continue_kernel, head, rows, par.device))
 
 
 def _mpi_max():

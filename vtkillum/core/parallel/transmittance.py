@@ -306,18 +306,9 @@ def distributed_light_transmittance(volume, piece_extent, whole_extent, transfer
             rows[:, 6] = tau_np[ijk].view(np.int32)
             outgoing.append((rows, dest_np[ijk]))
 
-    def march(marching):
-        count = len(marching)
-        k_out = wp.zeros(count, dtype=wp.int32, device=dev)
-        tau_out = wp.zeros(count, dtype=wp.float32, device=dev)
-        dest_out = wp.zeros(count, dtype=wp.int32, device=dev)
-        wp.launch(continue_kernel, dim=count,
-                  inputs=[medium, g, packed, wp.array(marching, dtype=wp.int32, device=dev),
-                          wp.array(marching[:, 6].view(np.float32), dtype=wp.float32,
-                                   device=dev), k_out, tau_out, dest_out], device=dev)
-        return k_out.numpy(), tau_out.numpy(), dest_out.numpy()
-
-    forward_records(par, tau, lo_idx, outgoing, march, progress)
+    forward_records(par, tau, lo_idx, outgoing,
+                    lambda rows: continue_records(continue_kernel, [medium, g, packed], rows, dev),
+                    progress)
 
     t_dev = wp.array(tau, dtype=wp.float32, device=dev)
     transmittance = wp.zeros((n_lights, *shape), dtype=wp.float32, device=dev)
@@ -337,6 +328,21 @@ def distributed_light_transmittance(volume, piece_extent, whole_extent, transfer
     if progress is not None:
         progress(1.0)
     return transmittance.numpy(), fluence.numpy().reshape(*shape, 3)
+
+
+def continue_records(kernel, head: list, marching: np.ndarray, device: str) -> tuple:
+    """Go on with received records (rows of :data:`RECORD_COLUMNS`) by ``kernel``, whose
+    inputs are ``head`` then the records, their sums and the three outputs; returns the
+    next sample, the sum and the destination per record (numpy)."""
+    count = len(marching)
+    k_out = wp.zeros(count, dtype=wp.int32, device=device)
+    tau_out = wp.zeros(count, dtype=wp.float32, device=device)
+    dest_out = wp.zeros(count, dtype=wp.int32, device=device)
+    wp.launch(kernel, dim=count,
+              inputs=[*head, wp.array(marching, dtype=wp.int32, device=device),
+                      wp.array(marching[:, 6].view(np.float32), dtype=wp.float32,
+                               device=device), k_out, tau_out, dest_out], device=device)
+    return k_out.numpy(), tau_out.numpy(), dest_out.numpy()
 
 
 def forward_records(par, tau: np.ndarray, lo_idx, outgoing: list, march, progress=None) -> int:
