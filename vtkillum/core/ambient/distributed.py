@@ -34,7 +34,7 @@ import warp as wp
 
 from vtkillum.core.ambient.sat import ambient_extinction, cube_half_width, sigma_t_grid
 from vtkillum.core.parallel.comm import Parallel
-from vtkillum.core.parallel.decomposition import Decomposition, extent_shape, sub_slices
+from vtkillum.core.parallel.decomposition import Decomposition, sub_slices
 from vtkillum.core.parallel.halo import halo_exchange
 from vtkillum.core.parallel.transmittance import block_medium, global_value_range
 
@@ -108,15 +108,9 @@ def ghosted_ambient_extinction(volume, piece_extent, whole_extent, transfer_func
     """
     whole_extent = tuple(int(v) for v in whole_extent)
     piece_extent = tuple(int(v) for v in piece_extent)
-    decomposition = Decomposition.of(whole_extent, par.size)
-    if decomposition.extents[par.rank] != piece_extent:
-        raise ValueError(f"rank {par.rank} of {par.size} holds extent {piece_extent}, but VTK's "
-                         f"piece {par.rank} of {whole_extent} is "
-                         f"{decomposition.extents[par.rank]}")
     data_extent = piece_extent if data_extent is None else tuple(int(v) for v in data_extent)
-    if tuple(volume.dims) != extent_shape(data_extent):
-        raise ValueError(f"the piece's volume has {tuple(volume.dims)} points, its extent "
-                         f"{data_extent} {extent_shape(data_extent)}")
+    decomposition = Decomposition.checked(whole_extent, piece_extent, par.rank, par.size,
+                                          volume.dims, data_extent)
     if not _contains(data_extent, piece_extent):
         raise ValueError(f"the data extent {data_extent} does not hold the piece {piece_extent}")
     inner = decomposition.ghosted(par.rank, int(extra))

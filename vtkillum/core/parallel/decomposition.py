@@ -117,6 +117,25 @@ class Decomposition:
             raise ValueError(f"pieces must be at least 1, got {pieces}")
         return cls(whole, tuple(split_extent(whole, p, pieces) for p in range(pieces)))
 
+    @classmethod
+    def checked(cls, whole, piece_extent, rank: int, size: int, dims, data_extent=None) \
+            -> Decomposition:
+        """The decomposition of ``whole`` into ``size`` pieces, after checking that rank
+        ``rank`` holds VTK's piece ``rank`` (``piece_extent``) and that its volume of
+        ``dims`` points covers ``data_extent`` (default the piece)."""
+        decomposition = cls.of(whole, size)
+        piece_extent = tuple(int(v) for v in piece_extent)
+        if decomposition.extents[rank] != piece_extent:
+            raise ValueError(f"rank {rank} of {size} holds extent {piece_extent}, but VTK's "
+                             f"piece {rank} of {decomposition.whole} is "
+                             f"{decomposition.extents[rank]}")
+        data_extent = piece_extent if data_extent is None else \
+            tuple(int(v) for v in data_extent)
+        if tuple(dims) != extent_shape(data_extent):
+            raise ValueError(f"the piece's volume has {tuple(dims)} points, its extent "
+                             f"{data_extent} {extent_shape(data_extent)}")
+        return decomposition
+
     @property
     def pieces(self) -> int:
         """Number of pieces."""

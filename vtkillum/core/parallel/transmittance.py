@@ -231,14 +231,8 @@ def distributed_light_transmittance(volume, piece_extent, whole_extent, transfer
                          "point light")
     whole_extent = tuple(int(v) for v in whole_extent)
     piece_extent = tuple(int(v) for v in piece_extent)
-    decomposition = Decomposition.of(whole_extent, par.size)
-    if decomposition.extents[par.rank] != piece_extent:
-        raise ValueError(f"rank {par.rank} of {par.size} holds extent {piece_extent}, but VTK's "
-                         f"piece {par.rank} of {whole_extent} is "
-                         f"{decomposition.extents[par.rank]}")
-    if tuple(volume.dims) != extent_shape(piece_extent):
-        raise ValueError(f"the piece's volume has {tuple(volume.dims)} points, its extent "
-                         f"{piece_extent} {extent_shape(piece_extent)}")
+    decomposition = Decomposition.checked(whole_extent, piece_extent, par.rank, par.size,
+                                          volume.dims)
     spacing = np.asarray(volume.spacing, np.float64)
     whole_dims = np.asarray(extent_shape(whole_extent))
     gext = (whole_dims - 1) * spacing  # Volume.extent of the whole volume
