@@ -112,17 +112,14 @@ from vtkillum.core.convection_diffusion.distributed_layout import (
 )
 from vtkillum.core.convection_diffusion.distributed_multigrid import DistributedMultigrid
 from vtkillum.core.convection_diffusion.distributed_radiative import DistributedRadiativeDiffusion
-from vtkillum.core.convection_diffusion.opacity import MAX_SUBSAMPLES
+from vtkillum.core.convection_diffusion.opacity import MAX_SUBSAMPLES, footprint_optics
 from vtkillum.core.convection_diffusion.reconstruction import filter_along_surfaces
 from vtkillum.core.lights import DIRECTIONAL, pack_lights
 from vtkillum.core.warp_common import (
     Medium,
     component,
     grid_point,
-    lookup_color,
-    lookup_sigma_t,
     set_table_range,
-    trilinear_index,
 )
 
 #: MPI tags of the convection's face messages: ``CONVECTION_TAG + light``; the
@@ -689,51 +686,18 @@ def _sweep_block(sigma, out, job, layout, h32, source_radius, scheme_id, glo, de
 
 
 # --- kernels ---------------------------------------------------------------------------------------
-@wp.func
-def piece_sample(a: wp.array3d(dtype=wp.float32), start: wp.vec3i, dims: wp.vec3i,
-                 inv_spacing: wp.vec3, p: wp.vec3):
-    """:func:`~vtkillum.core.warp_common.trilinear` of the whole data (``dims`` points) at
-    ``p``, read from the piece ``a`` whose ``[0, 0, 0]`` is global point ``start``."""
-    idx, f = trilinear_index(p, inv_spacing, dims)
-    i = idx[0] - start[0]
-    j = idx[1] - start[1]
-    k = idx[2] - start[2]
-    c00 = wp.lerp(a[i, j, k], a[i + 1, j, k], f[0])
-    c10 = wp.lerp(a[i, j + 1, k], a[i + 1, j + 1, k], f[0])
-    c01 = wp.lerp(a[i, j, k + 1], a[i + 1, j, k + 1], f[0])
-    c11 = wp.lerp(a[i, j + 1, k + 1], a[i + 1, j + 1, k + 1], f[0])
-    return wp.lerp(wp.lerp(c00, c10, f[1]), wp.lerp(c01, c11, f[1]), f[2])
-
-
 @wp.kernel
 def block_optics_kernel(m: Medium, piece: wp.array3d(dtype=wp.float32), start: wp.vec3i,
                         dims: wp.vec3i, h: wp.vec3, sub: wp.vec3i, off: wp.vec3i,
                         sigma: wp.array3d(dtype=wp.float32),
                         color_sigma: wp.array3d(dtype=wp.vec3)):
     """``light_grid_optics_kernel`` at global light-grid point ``wp.tid() + off`` of a
-    ghosted block, sampling the data piece (same operations, same values)."""
+    ghosted block, sampling the data piece (the same footprint function, same values)."""
     i, j, k = wp.tid()
-    p = grid_point(i + off[0], j + off[1], k + off[2], h)
-    acc = float(0.0)  # noqa: UP018 (a warp variable the loop changes)
-    acc_c = wp.vec3(0.0)
-    for a in range(sub[0]):
-        for b in range(sub[1]):
-            for c in range(sub[2]):
-                o = wp.vec3(
-                    ((float(a) + 0.5) / float(sub[0]) - 0.5) * h[0],
-                    ((float(b) + 0.5) / float(sub[1]) - 0.5) * h[1],
-                    ((float(c) + 0.5) / float(sub[2]) - 0.5) * h[2],
-                )
-                q = p + o
-                q = wp.vec3(wp.clamp(q[0], 0.0, m.extent[0]), wp.clamp(q[1], 0.0, m.extent[1]),
-                            wp.clamp(q[2], 0.0, m.extent[2]))
-                s = piece_sample(piece, start, dims, m.inv_spacing, q)
-                st = lookup_sigma_t(m, s)
-                acc += st
-                acc_c += st * lookup_color(m, s)
-    n = float(sub[0] * sub[1] * sub[2])
-    sigma[i, j, k] = acc / n
-    color_sigma[i, j, k] = acc_c / n
+    st, cs = footprint_optics(m, piece, start, dims, h, sub,
+                              grid_point(i + off[0], j + off[1], k + off[2], h))
+    sigma[i, j, k] = st
+    color_sigma[i, j, k] = cs
 
 
 @wp.func

@@ -36,6 +36,7 @@ from vtkillum.core.warp_common import (
     lookup_sigma_t,
     make_medium,
     sample_scalar,
+    trilinear_index,
 )
 
 #: At most this many sub-samples per axis when averaging a footprint.
@@ -177,6 +178,56 @@ class LightGridOptics:
         return self.out
 
 
+@wp.func
+def footprint_sample(m: Medium, p: wp.vec3, h: wp.vec3, sub: wp.vec3i, a: int, b: int, c: int):
+    """Sub-sample ``(a, b, c)`` of the footprint box ``h`` around light-grid point ``p``: the
+    centre of that cell of a regular ``sub`` split, clamped into the volume."""
+    off = wp.vec3(
+        ((float(a) + 0.5) / float(sub[0]) - 0.5) * h[0],
+        ((float(b) + 0.5) / float(sub[1]) - 0.5) * h[1],
+        ((float(c) + 0.5) / float(sub[2]) - 0.5) * h[2],
+    )
+    q = p + off
+    return wp.vec3(wp.clamp(q[0], 0.0, m.extent[0]), wp.clamp(q[1], 0.0, m.extent[1]),
+                   wp.clamp(q[2], 0.0, m.extent[2]))
+
+
+@wp.func
+def piece_sample(a: wp.array3d(dtype=wp.float32), start: wp.vec3i, dims: wp.vec3i,
+                 inv_spacing: wp.vec3, p: wp.vec3):
+    """:func:`~vtkillum.core.warp_common.trilinear` of the whole data (``dims`` points) at
+    ``p``, read from the piece ``a`` whose ``[0, 0, 0]`` is global point ``start`` (the
+    whole volume: ``start`` 0, ``dims`` its shape; the same operations)."""
+    idx, f = trilinear_index(p, inv_spacing, dims)
+    i = idx[0] - start[0]
+    j = idx[1] - start[1]
+    k = idx[2] - start[2]
+    c00 = wp.lerp(a[i, j, k], a[i + 1, j, k], f[0])
+    c10 = wp.lerp(a[i, j + 1, k], a[i + 1, j + 1, k], f[0])
+    c01 = wp.lerp(a[i, j, k + 1], a[i + 1, j, k + 1], f[0])
+    c11 = wp.lerp(a[i, j + 1, k + 1], a[i + 1, j + 1, k + 1], f[0])
+    return wp.lerp(wp.lerp(c00, c10, f[1]), wp.lerp(c01, c11, f[1]), f[2])
+
+
+@wp.func
+def footprint_optics(m: Medium, data: wp.array3d(dtype=wp.float32), start: wp.vec3i,
+                     dims: wp.vec3i, h: wp.vec3, sub: wp.vec3i, p: wp.vec3):
+    """Footprint means of ``sigma_t`` and ``color * sigma_t`` around light-grid point ``p``
+    (1/world units), the data read by :func:`piece_sample` (the whole volume or a piece)."""
+    acc = float(0.0)
+    acc_c = wp.vec3(0.0)
+    for a in range(sub[0]):
+        for b in range(sub[1]):
+            for c in range(sub[2]):
+                s = piece_sample(data, start, dims, m.inv_spacing,
+                                 footprint_sample(m, p, h, sub, a, b, c))
+                st = lookup_sigma_t(m, s)
+                acc += st
+                acc_c += st * lookup_color(m, s)
+    n = float(sub[0] * sub[1] * sub[2])
+    return acc / n, acc_c / n
+
+
 @wp.kernel
 def light_grid_sigma_kernel(m: Medium, h: wp.vec3, sub: wp.vec3i,
                             sigma: wp.array3d(dtype=wp.float32)):
@@ -184,7 +235,8 @@ def light_grid_sigma_kernel(m: Medium, h: wp.vec3, sub: wp.vec3i,
 
     The point sits at ``(i, j, k) * h`` in the local frame (world units); the
     ``sub[0] * sub[1] * sub[2]`` sub-samples are the centres of a regular split of
-    the footprint box, clamped into the volume. Output in 1/world units.
+    the footprint box, clamped into the volume (:func:`footprint_sample`). Output in
+    1/world units.
     """
     i, j, k = wp.tid()
     p = grid_point(i, j, k, h)
@@ -192,14 +244,7 @@ def light_grid_sigma_kernel(m: Medium, h: wp.vec3, sub: wp.vec3i,
     for a in range(sub[0]):
         for b in range(sub[1]):
             for c in range(sub[2]):
-                off = wp.vec3(
-                    ((float(a) + 0.5) / float(sub[0]) - 0.5) * h[0],
-                    ((float(b) + 0.5) / float(sub[1]) - 0.5) * h[1],
-                    ((float(c) + 0.5) / float(sub[2]) - 0.5) * h[2],
-                )
-                q = p + off
-                q = wp.vec3(wp.clamp(q[0], 0.0, m.extent[0]), wp.clamp(q[1], 0.0, m.extent[1]),
-                            wp.clamp(q[2], 0.0, m.extent[2]))
+                q = footprint_sample(m, p, h, sub, a, b, c)
                 acc += lookup_sigma_t(m, sample_scalar(m.scalars, m.inv_spacing, q))
     sigma[i, j, k] = acc / float(sub[0] * sub[1] * sub[2])
 
@@ -213,24 +258,8 @@ def light_grid_optics_kernel(m: Medium, h: wp.vec3, sub: wp.vec3i,
     Same sub-samples as :func:`light_grid_sigma_kernel`; both outputs in 1/world units.
     """
     i, j, k = wp.tid()
-    p = grid_point(i, j, k, h)
-    acc = float(0.0)
-    acc_c = wp.vec3(0.0)
-    for a in range(sub[0]):
-        for b in range(sub[1]):
-            for c in range(sub[2]):
-                off = wp.vec3(
-                    ((float(a) + 0.5) / float(sub[0]) - 0.5) * h[0],
-                    ((float(b) + 0.5) / float(sub[1]) - 0.5) * h[1],
-                    ((float(c) + 0.5) / float(sub[2]) - 0.5) * h[2],
-                )
-                q = p + off
-                q = wp.vec3(wp.clamp(q[0], 0.0, m.extent[0]), wp.clamp(q[1], 0.0, m.extent[1]),
-                            wp.clamp(q[2], 0.0, m.extent[2]))
-                s = sample_scalar(m.scalars, m.inv_spacing, q)
-                st = lookup_sigma_t(m, s)
-                acc += st
-                acc_c += st * lookup_color(m, s)
-    n = float(sub[0] * sub[1] * sub[2])
-    sigma[i, j, k] = acc / n
-    color_sigma[i, j, k] = acc_c / n
+    shape = wp.vec3i(m.scalars.shape[0], m.scalars.shape[1], m.scalars.shape[2])
+    st, cs = footprint_optics(m, m.scalars, wp.vec3i(0, 0, 0), shape, h, sub,
+                              grid_point(i, j, k, h))
+    sigma[i, j, k] = st
+    color_sigma[i, j, k] = cs
