@@ -65,7 +65,8 @@ data   illumination          before ms   after   moving      TF edit 16/32 b
 
 ``--profile`` prints where the shader's time goes, as ratios to VTK's plain composite ray
 caster (``vtkGPUVolumeRayCastMapper``, no shading: the floor) on the same data, step and
-camera (CT phantom, ``--size``, default scene): ``IlluminatedVolume`` without
+camera (``--data``: ``bench_scaling.py``'s CT-like volume made on the device and its scene,
+or the CT phantom and its default scene; ``--size``): ``IlluminatedVolume`` without
 illumination, with a scattered fluence only, with transmittance and ``near_cells`` 0 or 2,
 with Phong, without leaps, and moving (with and without ``interactive_near_cells`` 0).
 ``--baseline FILE`` runs another version of ``illuminated_volume_mapper.py`` in the same
@@ -83,7 +84,7 @@ python benchmarks/bench_opengl.py --size 128 --image 512 --frames 5 --reach 0.25
 python benchmarks/bench_opengl.py --quality --image 256 --datasets head mni mni-half
 VTK_DEFAULT_OPENGL_WINDOW=vtkEGLRenderWindow python benchmarks/bench_opengl.py --interactive \
     --sizes 512 --image 1024
-python benchmarks/bench_opengl.py --profile --size 96 --image 256 --frames 11 \
+python benchmarks/bench_opengl.py --profile --data phantom --size 96 --image 256 --frames 11 \
     --baseline /tmp/old_mapper.py
 """
 
@@ -110,9 +111,10 @@ from vtkmodules.vtkRenderingVolumeOpenGL2 import vtkOpenGLGPUVolumeRayCastMapper
 from vtkillum.data import procedural
 from vtkillum.filters import ConvectionDiffusionLightFilter
 from vtkillum.io.convert import image_data_from_volume
-from vtkillum.mappers import IlluminatedVolume, apply_camera_to_vtk
+from vtkillum.mappers import AmbientScatteringVolume, IlluminatedVolume, apply_camera_to_vtk
 from vtkillum.mappers.camera_bridge import apply_scene_to_volume_property
 from vtkillum.mappers.illuminated_volume_mapper import NEAR_CELLS
+from vtkillum.mappers.interaction import INTERACTIVE_IMAGE_SAMPLE_DISTANCE
 
 #: The light (travel direction, irradiance) of both renderers.
 LIGHT = ((1.0, -1.0, -1.0), (3.0, 3.0, 3.0))
@@ -440,6 +442,9 @@ KINDS = {
     "many-lights fluence": (False, True),
 }
 
+#: The ambient-scattering OpenGL mapper (its own inputs, computed on the warp device).
+AMBIENT = "ambient-scattering"
+
 
 def gl_renderer(window) -> str:
     """The OpenGL renderer string (the GPU's name) of a window that has rendered."""
@@ -514,6 +519,20 @@ def interactive_data(opts, size: int):
     return volume, procedural.default_scene("ct", volume)
 
 
+def opacity_scaled(scene, factor: float):
+    """A copy of ``scene`` whose opacity transfer function is ``factor`` times its own."""
+    import copy
+
+    from vtkillum.core.transfer_function import TransferFunction
+
+    tf = scene.transfer_function
+    edited = copy.deepcopy(scene)
+    edited.transfer_function = TransferFunction(tf.scalars,
+                                                np.minimum(np.asarray(tf.opacity) * factor, 1.0),
+                                                tf.colors)
+    return edited
+
+
 def interactive(opts) -> tuple[list, str]:
     """The ``--interactive`` table (see the module docstring)."""
     from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
@@ -527,8 +546,15 @@ def interactive(opts) -> tuple[list, str]:
         image = image_data_from_volume(volume)
         for kind in opts.kinds:
             window, renderer = window_for(opts.image)
-            light = synthetic_illumination(volume, kind, len(scene.lights), scale=opts.grid_scale)
-            actor = IlluminatedVolume(image, scene, illumination=light, exposure=4 * np.pi / 3)
+            if kind == AMBIENT:
+                actor = AmbientScatteringVolume(image, scene, exposure=4 * np.pi / 3,
+                                                device=opts.device)
+                light = None
+            else:
+                light = synthetic_illumination(volume, kind, len(scene.lights),
+                                               scale=opts.grid_scale)
+                actor = IlluminatedVolume(image, scene, illumination=light,
+                                          exposure=4 * np.pi / 3)
             renderer.AddVolume(actor)
             apply_camera_to_vtk(scene.camera, renderer.GetActiveCamera())
             frames = Frames(window, renderer)
@@ -541,47 +567,63 @@ def interactive(opts) -> tuple[list, str]:
                     frames.frame()
                 return statistics.median(frames.times)
 
+            nan = float("nan")
             with GLCallCounter() as gl:
                 still = timed(opts.frames)
             uploads = gl.volume_uploads / (opts.frames + 1)
-            actor.near_cells = 0.0
-            still_near0 = timed(opts.frames)
-            actor.near_cells = NEAR_CELLS
-            before = float("nan")
-            if opts.history:  # before issue 35: float32 grids, no leaps
-                actor.skip_empty = False
-                actor.illumination_16bit = False
-                before = timed(opts.frames)
-                actor.skip_empty = True
-                actor.illumination_16bit = True
-            # the same camera moves in an interactive window: interactive_step (and
-            # interactive_near_cells 0)
+            still_near0 = before = moving_near0 = moving_every = nan
+            if kind != AMBIENT:
+                actor.near_cells = 0.0
+                still_near0 = timed(opts.frames)
+                actor.near_cells = NEAR_CELLS
+                if opts.history:  # before issue 35: float32 grids, no leaps
+                    actor.skip_empty = False
+                    actor.illumination_16bit = False
+                    before = timed(opts.frames)
+                    actor.skip_empty = True
+                    actor.illumination_16bit = True
+            # the same camera moves in an interactive window, as during a drag (the
+            # interactor's update rate): interactive_step, interactive_image_sample_distance
+            # (and interactive_near_cells 0)
             interactor = vtkGenericRenderWindowInteractor()
             interactor.SetRenderWindow(window)
             interactor.Initialize()
+            window.SetDesiredUpdateRate(interactor.GetDesiredUpdateRate())
             moving = timed(opts.frames)
-            actor.interactive_near_cells = 0.0
-            moving_near0 = timed(opts.frames)
-            actor.interactive_near_cells = None
+            actor.interactive_image_sample_distance = 1.0
+            moving_every = timed(opts.frames)
+            actor.interactive_image_sample_distance = INTERACTIVE_IMAGE_SAMPLE_DISTANCE
+            if kind != AMBIENT:
+                actor.interactive_near_cells = 0.0
+                moving_near0 = timed(opts.frames)
+                actor.interactive_near_cells = None
+            window.SetDesiredUpdateRate(interactor.GetStillUpdateRate())
             window.SetInteractor(None)
             frames.frame(record=False)
             # TF edit to new frame: a new light volume (as a method hands it over, host
-            # arrays, 16-bit textures) and a new transfer function, then the frame
+            # arrays, 16-bit textures) and a new transfer function, then the frame; the
+            # ambient mapper recomputes its inputs on the device from the new opacity
             edits = []
             for k in range(3 if opts.tf_edit else 0):
-                new_light = synthetic_illumination(volume, kind, len(scene.lights),
-                                                   scale=opts.grid_scale, seed=k + 1)
                 t0 = time.perf_counter()
-                actor.set_illumination(new_light)
-                actor.set_scene(scene.copy() if hasattr(scene, "copy") else scene)
+                if kind == AMBIENT:
+                    actor.set_scene(opacity_scaled(scene, 1.0 + 0.1 * (k + 1)))
+                else:
+                    new_light = synthetic_illumination(volume, kind, len(scene.lights),
+                                                       scale=opts.grid_scale, seed=k + 1)
+                    t0 = time.perf_counter()
+                    actor.set_illumination(new_light)
+                    actor.set_scene(scene.copy() if hasattr(scene, "copy") else scene)
                 window.Render()
                 window.WaitForCompletion()
                 edits.append(1000.0 * (time.perf_counter() - t0))
-            tf_ms = statistics.median(edits) if edits else float("nan")
-            row = (size, kind, still, moving, moving_near0, still_near0, before, tf_ms, uploads)
+            tf_ms = statistics.median(edits) if edits else nan
+            row = (size, kind, still, moving, moving_every, moving_near0, still_near0, before,
+                   tf_ms, uploads)
             rows.append(row)
-            print(f"| {size}^3 | {kind} | {still:.1f} | {moving:.1f} | {moving_near0:.1f} | "
-                  f"{still_near0:.1f} | {before:.1f} | {tf_ms:.0f} | {uploads:g} |", flush=True)
+            print(f"| {size}^3 | {kind} | {still:.1f} | {moving:.1f} | {moving_every:.1f} | "
+                  f"{moving_near0:.1f} | {still_near0:.1f} | {before:.1f} | {tf_ms:.0f} | "
+                  f"{uploads:g} |", flush=True)
             window.Finalize()
             del actor, light
     return rows, gpu
@@ -595,10 +637,11 @@ def interactive_main(opts) -> int:
           f"of {opts.frames} camera moves of 1 degree; illumination grids at "
           f"{opts.grid_scale:g} x the data's points")
     print("| data | illumination | camera move ms (still: full quality) | moving in an "
-          "interactive window (step x2) | moving, interactive_near_cells 0 | still, "
-          "near_cells 0 | before issue 35 (float32 grids, no leaps; --history) | TF edit to "
-          "new frame ms (--tf-edit) | 3D uploads per camera move |")
-    print("|---|---|---|---|---|---|---|---|---|")
+          "interactive window (step x2, a ray per 2 x 2 pixels) | moving, every pixel | "
+          "moving, interactive_near_cells 0 | still, near_cells 0 | before issue 35 (float32 "
+          "grids, no leaps; --history) | TF edit to new frame ms (--tf-edit) | 3D uploads "
+          "per camera move |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     _, gpu = interactive(opts)
     print(f"GPU (GL_RENDERER): {gpu}")
     if opts.interop:
@@ -715,9 +758,13 @@ def profile_variants(scene):
         "transmittance, near_cells 2, Phong": (phong, {}, "transmittance", False),
         "transmittance, near_cells 2, no leaps": (scene, {"skip_empty": False},
                                                   "transmittance", False),
+        "transmittance, moving (interactive), every pixel": (
+            scene, {"interactive_image_sample_distance": 1.0}, "transmittance", True),
         "transmittance, moving (interactive)": (scene, {}, "transmittance", True),
         "transmittance, moving, interactive_near_cells 0": (
             scene, {"interactive_near_cells": 0.0}, "transmittance", True),
+        "scattered only, moving (interactive), every pixel": (
+            scene, {"interactive_image_sample_distance": 1.0}, "photon density", True),
         "scattered only, moving (interactive)": (scene, {}, "photon density", True),
     }
 
@@ -740,22 +787,27 @@ def profile(opts) -> int:
     with that version's class, in the same rounds, and the table gives both."""
     from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
 
-    volume = procedural.ct_phantom(opts.size)
-    scene = procedural.default_scene("ct", volume)
+    volume, scene = interactive_data(opts, opts.size)
     floor = plain_composite(volume, scene, opts.image)
     classes = {"": IlluminatedVolume}
     if opts.baseline:
         classes["baseline: "] = _mapper_module(opts.baseline).IlluminatedVolume
     runs = {}
+    lights = {}  # (kind, lights) -> the synthetic illumination, made once
     for name, (sc, options, kind, moving) in profile_variants(scene).items():
+        if opts.variants and not any(v in name for v in opts.variants):
+            continue
         for label, cls in classes.items():
             kwargs = dict(options)
             skip = kwargs.pop("skip_empty", True)
-            if "interactive_near_cells" in kwargs and label:
-                continue  # the baseline has no such option
+            if label and any(k.startswith("interactive_") and k != "interactive_step"
+                             for k in kwargs):
+                continue  # the baseline may not have this option
             window, renderer = window_for(opts.image)
-            light = None if kind is None else synthetic_illumination(
-                volume, kind, len(sc.lights), scale=opts.grid_scale)
+            if kind is not None and (kind, len(sc.lights)) not in lights:
+                lights[kind, len(sc.lights)] = synthetic_illumination(
+                    volume, kind, len(sc.lights), scale=opts.grid_scale)
+            light = None if kind is None else lights[kind, len(sc.lights)]
             actor = cls(image_data_from_volume(volume), sc, illumination=light,
                         exposure=4 * np.pi / 3, **kwargs)
             actor.skip_empty = skip
@@ -772,8 +824,10 @@ def profile(opts) -> int:
         floor.frame()
         for frames in runs.values():
             frames.frame()
-    print(f"window {floor.window.GetClassName()} ({gl_renderer(floor.window)}), CT phantom "
-          f"{opts.size}^3, image {opts.image}^2, default CT scene (2 lights), grids at "
+    data = ("bench_scaling.py's CT-like volume and scene (1 light)" if opts.data == "ct-like"
+            else "CT phantom, default CT scene (2 lights)")
+    print(f"window {floor.window.GetClassName()} ({gl_renderer(floor.window)}), {data}, "
+          f"{opts.size}^3, image {opts.image}^2, grids at "
           f"{opts.grid_scale:g} x the data's points, median of {opts.frames} camera moves; "
           "ratio: median over the rounds of the frame / VTK's plain composite frame")
     print("| variant | ms per frame | ratio to VTK composite |")
@@ -814,8 +868,8 @@ def main(argv=None) -> int:
                         help=f"--interactive: illumination kinds, of {list(KINDS)} (default "
                              "transmittance and photon density: a scattered fluence only)")
     parser.add_argument("--data", choices=["ct-like", "phantom"], default="ct-like",
-                        help="--interactive: bench_scaling.py's CT-like volume and scene "
-                             "(default) or the upsampled CT phantom")
+                        help="--interactive, --profile: bench_scaling.py's CT-like volume and "
+                             "scene (default) or the upsampled CT phantom")
     parser.add_argument("--device", help="--interactive --data ct-like: warp device making "
                                          "the volume (default cuda:0 where there is one)")
     parser.add_argument("--history", action="store_true",
@@ -832,6 +886,8 @@ def main(argv=None) -> int:
     parser.add_argument("--grid-scale", type=float, default=1.0,
                         help="--profile, --interactive: light grid points per data point "
                              "(1: the methods' default light_volume_scale)")
+    parser.add_argument("--variants", nargs="+", default=None,
+                        help="--profile: only the variants whose name contains one of these")
     parser.add_argument("--baseline",
                         help="--profile: another version of illuminated_volume_mapper.py "
                              "to time alongside")

@@ -252,3 +252,35 @@ def test_bad_inputs_raise_clear_errors(setup):
         AmbientScatteringVolume(np.zeros((4, 4, 4)), scene, device="cpu")
     with pytest.raises(ValueError, match="array_name"):
         AmbientScatteringVolume(image, scene, array_name="missing", device="cpu")
+
+
+def test_fewer_rays_while_an_interactor_moves_the_view(setup):
+    """While an interactor style interacts (the window's desired update rate is the
+    interactor's), the mapper casts one ray per 2 × 2 pixels: a coarser picture of the
+    same scene; at the still rate every ray again (the gather's picture)."""
+    from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
+
+    volume, scene, ref, exposure = setup
+    actor = AmbientScatteringVolume(image_data_from_volume(volume), scene, exposure=exposure,
+                                    device="cpu")
+    assert actor.interactive_image_sample_distance == 2.0
+    renderer = vtkRenderer()
+    renderer.AddVolume(actor)
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
+    interactor = vtkGenericRenderWindowInteractor()
+    interactor.SetRenderWindow(window)
+    interactor.Initialize()
+    still = read_window_rgb(window)
+    assert actor.mapper.GetImageSampleDistance() == 1.0
+    assert within(rel_errors(still, ref))
+    window.SetDesiredUpdateRate(interactor.GetDesiredUpdateRate())  # a drag
+    moving = read_window_rgb(window)
+    assert actor.mapper.GetImageSampleDistance() == 2.0
+    coarse = rel_errors(moving, ref)
+    print(f"moving (2 x 2 pixels a ray) vs gather: mean {coarse[0]:.2e}, p99 {coarse[1]:.2e}")
+    assert not within(coarse) and coarse[0] < 3e-2
+    window.SetDesiredUpdateRate(interactor.GetStillUpdateRate())  # the drag ends
+    assert np.abs(read_window_rgb(window) - still).max() == 0.0
+    with pytest.raises(ValueError, match="interactive_image_sample_distance"):
+        actor.interactive_image_sample_distance = 0.5
+    window.Finalize()

@@ -93,7 +93,7 @@ import numpy as np
 import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (OpenGL factory overrides)
 from vtkmodules.util.numpy_support import numpy_to_vtk
 from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
-from vtkmodules.vtkCommonCore import vtkOutputWindow
+from vtkmodules.vtkCommonCore import vtkCommand, vtkOutputWindow, vtkWeakReference
 from vtkmodules.vtkCommonDataModel import vtkImageData
 from vtkmodules.vtkCommonExecutionModel import vtkAlgorithm
 from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
@@ -111,6 +111,11 @@ from vtkillum.core.scene import Scene
 from vtkillum.io.convert import add_point_array, image_like, volume_from_image_data
 from vtkillum.mappers.camera_bridge import GridSummary, apply_scene_to_volume_property
 from vtkillum.mappers.inputs import connect_input, rendered_point_array
+from vtkillum.mappers.interaction import (
+    INTERACTIVE_IMAGE_SAMPLE_DISTANCE,
+    image_sample_distance,
+    interacting,
+)
 
 #: Lights the OpenGL path takes (one channel of the radiance-cache texture each).
 MAX_LIGHTS = 4
@@ -430,6 +435,10 @@ class AmbientScatteringVolume(vtkMultiVolume):
         Warp device of the preprocessing (SAT, ``σ̃t``, tube marching).
     cache : AmbientScatteringCache, optional
         Cache to use (on ``device``); default a new one.
+    interactive_image_sample_distance : float
+        Pixels per ray along x and y while an interactor moves the view (default
+        :data:`~vtkillum.mappers.interaction.INTERACTIVE_IMAGE_SAMPLE_DISTANCE`; 1: every
+        pixel); see :attr:`interactive_image_sample_distance`.
     **options
         Override the scene's ``ambient_scattering`` section: ``radius``,
         ``radius_units``, ``radiance_cache_scale``, ``specular``, ``ambient_occlusion``,
@@ -454,7 +463,9 @@ class AmbientScatteringVolume(vtkMultiVolume):
 
     def __init__(self, data, scene: Scene | None = None, array_name: str | None = None,
                  exposure: float = 1.0, device: str | None = None,
-                 cache: AmbientScatteringCache | None = None, **options) -> None:
+                 cache: AmbientScatteringCache | None = None,
+                 interactive_image_sample_distance: float = INTERACTIVE_IMAGE_SAMPLE_DISTANCE,
+                 **options) -> None:
         super().__init__()
         self.inputs = AmbientScatteringInputs(device=device, cache=cache)
         self.inputs.SetArrayName(array_name)
@@ -495,12 +506,31 @@ class AmbientScatteringVolume(vtkMultiVolume):
         shader.AddFragmentShaderReplacement("//VTK::Shading::Impl", True, SHADER_IMPL, False)
         shader.AddFragmentShaderReplacement("//VTK::Shading::Exit", True, SHADER_EXIT, False)
         self.inputs.uniforms = shader.GetFragmentCustomUniforms()
+        self._interactive_isd = image_sample_distance(interactive_image_sample_distance)
+        # Each render: every pixel at rest, fewer rays while an interactor moves the view
+        # (a weak reference: the mapper must not keep its volume alive).
+        weak = vtkWeakReference()
+        weak.Set(self)
+        self.mapper.AddObserver(vtkCommand.VolumeMapperRenderStartEvent,
+                                lambda caller, event: _sample_image(weak.Get()))
         self._exposure = 1.0
         self.exposure = exposure
         self._options = {}
         self._scene = None
         self.set_options(**options)
         self.set_scene(scene if scene is not None else Scene())
+
+    @property
+    def interactive_image_sample_distance(self) -> float:
+        """Pixels per ray along x and y while an interactor moves the view (VTK's
+        ``ImageSampleDistance``; default 2; 1: every pixel). Frames drawn at rest (and the
+        one VTK's interactor styles draw when a drag ends) cast every ray
+        (:mod:`vtkillum.mappers.interaction`)."""
+        return self._interactive_isd
+
+    @interactive_image_sample_distance.setter
+    def interactive_image_sample_distance(self, value: float) -> None:
+        self._interactive_isd = image_sample_distance(value)
 
     # --- scene and options ---------------------------------------------------------------------
     @property
@@ -595,6 +625,13 @@ class AmbientScatteringVolume(vtkMultiVolume):
     def _grid_summary(self) -> GridSummary:
         image = self.inputs.GetInputDataObject(0, 0)
         return GridSummary(image, rendered_point_array(image, self.inputs.GetArrayName()))
+
+
+def _sample_image(volume) -> None:
+    """The image sample distance of this frame (the mapper reads it as it renders)."""
+    if volume is not None:
+        moving = interacting(volume)
+        volume.mapper.SetImageSampleDistance(volume._interactive_isd if moving else 1.0)
 
 
 class AmbientScatteringInputs(VTKPythonAlgorithmBase):

@@ -180,7 +180,7 @@ once even when it has no iteration:
   illumination has transmittance (or none: unshadowed), the scattered fluence where it
   has one.
 
-Measured with ``benchmarks/bench_opengl.py --profile --size 96 --image 256 --frames 11``
+Measured with ``benchmarks/bench_opengl.py --profile --data phantom --size 96 --image 256 --frames 11``
 (llvmpipe on 2 shared cores: ratios to VTK's plain composite ray caster on the same data,
 step and camera, the two versions taking turns in the same rounds; CT phantom, default
 scene with 2 directional lights, light grids at full resolution):
@@ -209,12 +209,27 @@ caster's (``raycast.near_transmittance``). Voxel-long segments would halve its s
 at rest, but left rings of 3.7 % of the image on a one-voxel-sharp sphere instead of
 1.1 % (``tests/core/test_transmittance_render.py::test_no_rings_on_a_sharp_sphere``), so
 both keep the step; while the view moves, ``interactive_step`` 2 makes them voxel-long
-anyway. ``interactive_near_cells = 0`` (default ``None``: as at rest) skips the march
-while the view moves and reads the grid at the sample: a further 15-25 % on llvmpipe,
-but the grid's bands on sharp surfaces show while dragging (on the sharp sphere of
-``tests/rendering/test_interactive_near_field.py``: mean 2.7e-2, 99th percentile 0.38
-of the still frame's maximum); the frames added at rest march ``near_cells`` again.
-Off by default until a GPU measurement makes the case.
+anyway. ``interactive_near_cells = 0`` (the default; ``None``: as at rest) skips the march
+while the view moves and reads the grid at the sample: a further 15-25 % on llvmpipe and
+30 % on the H200 (below), but the grid's bands on sharp surfaces show while dragging (on
+the sharp sphere of ``tests/rendering/test_interactive_near_field.py``: mean 2.7e-2, 99th
+percentile 0.38 of the still frame's maximum); the frames added at rest march
+``near_cells`` again.
+
+On a GPU (NVIDIA H200, EGL, ``bench_opengl.py --profile --size 512 --image 1024`` and
+``--interactive``, ``bench_scaling.py``'s CT-like 512³ volume, one light, full-resolution
+16-bit grids): **VTK's own composite ray casting of the same data takes 59.7 ms a frame**,
+26 times the 2.3 ms of the warp caster's emission kernel. The H200 is a data-centre GPU
+whose fragment shaders run on a few of its multiprocessors, so the frame of any
+OpenGL ray caster there is bounded by this floor, not by the shading. Against it, a
+frame of this mapper costs 0.81 (scattered fluence only), 0.96 (transmittance,
+``near_cells`` 0) and 1.98 (transmittance, ``near_cells`` 2: 118 ms; 137 ms before the
+light counts were compiled in and the fetches took an explicit level of detail). While
+the view moves, ``interactive_step`` 2, ``interactive_image_sample_distance`` 2 (a ray
+per 2 × 2 pixels, :mod:`vtkillum.mappers.interaction`) and ``interactive_near_cells`` 0
+bring a camera move to 14.2 ms (transmittance), 18.5 ms (convection-diffusion: both
+grids) and 12.5 ms (scattered fluence only); at every pixel it takes 55-66 ms and
+29 ms.
 
 ``benchmarks/bench_opengl.py`` compares the frame time with VTK's own volumetric shadows
 (``docs/benchmarks.md``).
@@ -246,9 +261,15 @@ import math
 
 import numpy as np
 import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (OpenGL factory overrides)
-from vtkmodules.util.numpy_support import numpy_to_vtk
+from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
 from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
-from vtkmodules.vtkCommonCore import vtkCommand, vtkOutputWindow, vtkWeakReference
+from vtkmodules.vtkCommonCore import (
+    vtkCommand,
+    vtkFloatArray,
+    vtkOutputWindow,
+    vtkUnsignedShortArray,
+    vtkWeakReference,
+)
 from vtkmodules.vtkCommonDataModel import vtkImageData
 from vtkmodules.vtkCommonExecutionModel import vtkAlgorithm
 from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as SDDP
@@ -266,6 +287,7 @@ from vtkillum.io.illumination_arrays import illumination_from_image, lights_from
 from vtkillum.mappers.accumulation import accumulator_for, existing_accumulator
 from vtkillum.mappers.camera_bridge import GridSummary, apply_scene_to_volume_property
 from vtkillum.mappers.inputs import check_covers, connect_input, rendered_point_array
+from vtkillum.mappers.interaction import INTERACTIVE_IMAGE_SAMPLE_DISTANCE, image_sample_distance
 
 #: Lights the shader takes: two 4-channel transmittance textures.
 MAX_LIGHTS = 8
@@ -281,8 +303,9 @@ ACCUMULATE = 16
 #: Default sample-distance factor while the view moves in an interactive window.
 INTERACTIVE_STEP = 2.0
 
-#: Default near-field march while the view moves (None: ``near_cells``, as at rest).
-INTERACTIVE_NEAR_CELLS = None
+#: Default near-field march while the view moves (0: read the grid at the sample; None:
+#: ``near_cells``, as at rest). See the module docstring for what it saves on a GPU.
+INTERACTIVE_NEAR_CELLS = 0.0
 
 #: Ports of the mapper (= indices of ``in_volume[]`` in the shader).
 OPTICS_PORT, DATA_PORT, DIRECT_PORT_A, DIRECT_PORT_B, SCATTERED_PORT = range(5)
@@ -306,8 +329,10 @@ UNIFORMS = {
     "il_exposure": "float: factor on the radiance written to the frame buffer",
     "il_shading": "vec4: ka, kd, ks, shininess (illumination.py)",
     "il_gradEps": "float: gradient magnitude below which there is no normal (data units/world)",
-    "il_numLights": "int: lights (Phong directions)",
-    "il_numDirect": "int: lights with a transmittance channel (0: no direct light)",
+    "il_numLights": "int: lights (Phong directions; the shader is compiled for this count, "
+                    "IL_NUM_LIGHTS)",
+    "il_numDirect": "int: lights with a transmittance channel (0: no direct light; compiled "
+                    "in as IL_NUM_DIRECT)",
     "il_lights": "float[4 * MAX_LIGHTS]: per light kind (0 directional, 1 point), then the "
                  "travel direction or the position (local)",
     "il_lightRGB": "float[3 * MAX_LIGHTS]: per light RGB irradiance or intensity",
@@ -341,6 +366,9 @@ GLSL_LAYOUT_DEC = """//VTK::Shading::Dec
 // vtkillum: illumination-volume shading (vtkillum/mappers/illuminated_volume_mapper.py)
 // --- layout: this mapper's textures (another host replaces this block) ---
 #define IL_MAX_LIGHTS %(max_lights)d
+#define IL_NUM_LIGHTS %(lights)d
+#define IL_NUM_DIRECT %(direct_lights)d
+#define IL_LIGHT_SLOTS %(slots)d
 #define IL_OPTICS_ROW %(row)d
 #define IL_OPTICS_SHIFT %(shift)d
 #define IL_PHONG %(phong)d
@@ -355,8 +383,9 @@ vec3 il_stepLocal;   // one step (g_dirStep) in the local frame (set per ray)
 vec3 il_invBlock;    // 1 / il_blockSize (set per ray)
 
 // Per-ray constants of the layout (il_initLayout): for each grid, texture coordinate =
-// clamp(p, 0, extent) * scale + bias (point-centred, clamped to the box like the warp
-// samplers). Texels are read as they were uploaded, not through VTK's in_volume_scale /
+// (clamp(p, 0, extent) * scale + bias).zyx (point-centred, clamped to the box like the warp
+// samplers; the grids of ports 1-4 are uploaded as numpy keeps them, [x, y, z] with z
+// fastest, so the texture's first axis is z: no transposition on the host). Texels are read as they were uploaded, not through VTK's in_volume_scale /
 // in_volume_bias (which a multi-volume sets only for some component layouts): float32
 // textures (data, optics) hold the values, 16-bit ones are normalised by OpenGL to [0, 1]
 // and il_taQ / il_tbQ / il_scQ scale them back.
@@ -390,17 +419,17 @@ void il_gridMap(vec3 n, out vec3 scale, out vec3 bias)
 // The per-ray constants above (call once per ray, before any fetch).
 void il_initLayout()
 {
-  il_gridMap(vec3(textureSize(in_volume[%(data)d], 0)), il_dataScale, il_dataBias);
-  il_gridMap(vec3(textureSize(in_volume[%(ta)d], 0)), il_taScale, il_taBias);
-  il_gridMap(vec3(textureSize(in_volume[%(tb)d], 0)), il_tbScale, il_tbBias);
-  il_gridMap(vec3(textureSize(in_volume[%(sc)d], 0)), il_scScale, il_scBias);
+  il_gridMap(vec3(textureSize(in_volume[%(data)d], 0)).zyx, il_dataScale, il_dataBias);
+  il_gridMap(vec3(textureSize(in_volume[%(ta)d], 0)).zyx, il_taScale, il_taBias);
+  il_gridMap(vec3(textureSize(in_volume[%(tb)d], 0)).zyx, il_tbScale, il_tbBias);
+  il_gridMap(vec3(textureSize(in_volume[%(sc)d], 0)).zyx, il_scScale, il_scBias);
 }
 
 // Data value (data units) at local position p, trilinear.
 float il_scalar(vec3 p)
 {
   vec3 tex = clamp(p, vec3(0.0), il_extent) * il_dataScale + il_dataBias;
-  return texture3D(in_volume[%(data)d], tex).r;
+  return textureLod(in_volume[%(data)d], tex.zyx, 0.0).r;
 }
 
 // Continuous table index of data value s (clamped: constant outside the table).
@@ -447,17 +476,17 @@ float il_gridTransmittance(int l, vec3 p)
   vec3 q = clamp(p, vec3(0.0), il_extent);
   if (l < 4)
   {
-    return texture3D(in_volume[%(ta)d], q * il_taScale + il_taBias)[l] * il_taQ[l];
+    return textureLod(in_volume[%(ta)d], (q * il_taScale + il_taBias).zyx, 0.0)[l] * il_taQ[l];
   }
-  int c = l - 4;
-  return texture3D(in_volume[%(tb)d], q * il_tbScale + il_tbBias)[c] * il_tbQ[c];
+  int c = l & 3;  // l - 4 (never negative: with a constant l, dead code is still checked)
+  return textureLod(in_volume[%(tb)d], (q * il_tbScale + il_tbBias).zyx, 0.0)[c] * il_tbQ[c];
 }
 
 // Scattered fluence phi_s (RGB) at local position p, trilinear.
 vec3 il_scatteredFluence(vec3 p)
 {
   vec3 tex = clamp(p, vec3(0.0), il_extent) * il_scScale + il_scBias;
-  return texture3D(in_volume[%(sc)d], tex).xyz * il_scQ.xyz;
+  return textureLod(in_volume[%(sc)d], tex.zyx, 0.0).xyz * il_scQ.xyz;
 }
 
 // Occupancy: 1 where block b (of il_blockCount, il_blockSize each, covering the points of
@@ -484,8 +513,8 @@ float il_step;  // sample spacing, world units (set per ray)
 // Per ray (il_initRay): for directional lights the unit vector towards the light and
 // p_HG(w_l . d) E_l (the ray's and the light's directions are fixed); the block whose
 // occupancy was fetched last and whether it is empty.
-vec3 il_rayToLight[IL_MAX_LIGHTS];
-vec3 il_rayLight[IL_MAX_LIGHTS];
+vec3 il_rayToLight[IL_LIGHT_SLOTS];
+vec3 il_rayLight[IL_LIGHT_SLOTS];
 vec3 il_lastBlock;
 bool il_lastEmpty;
 
@@ -576,11 +605,11 @@ float il_cachedTransmittance(int l, vec3 p, vec3 w, float dist)
 // ray), and no occupancy fetched yet.
 void il_initRay(vec3 d)
 {
-  for (int l = 0; l < IL_MAX_LIGHTS; ++l)
+  for (int l = 0; l < IL_LIGHT_SLOTS; ++l)
   {
     il_rayToLight[l] = vec3(0.0);
     il_rayLight[l] = vec3(0.0);
-    if (l < il_numLights && il_lights[4 * l] < 0.5)
+    if (l < IL_NUM_LIGHTS && il_lights[4 * l] < 0.5)
     {
       vec3 w;
       float dist;
@@ -600,7 +629,7 @@ void il_initRay(vec3 d)
 vec3 il_directLight(vec3 p, vec3 d)
 {
   vec3 acc = vec3(0.0);
-  for (int l = 0; l < il_numDirect; ++l)
+  for (int l = 0; l < IL_NUM_DIRECT; ++l)
   {
     vec3 w = il_rayToLight[l];
     float dist = 1.0e30;
@@ -654,7 +683,7 @@ float il_phong(vec3 p, vec3 d)
   }
   float diff = 0.0;
   float spec = 0.0;
-  for (int l = 0; l < il_numLights; ++l)
+  for (int l = 0; l < IL_NUM_LIGHTS; ++l)
   {
     vec3 w = il_rayToLight[l];
     if (il_lights[4 * l] >= 0.5)
@@ -671,7 +700,7 @@ float il_phong(vec3 p, vec3 d)
       spec += pow(max(dot(n, h / hlen), 0.0), il_shading.w);
     }
   }
-  return ka + (kd * diff + ks * spec) / float(il_numLights);
+  return ka + (kd * diff + ks * spec) / float(max(IL_NUM_LIGHTS, 1));
 #else
   return ka;
 #endif
@@ -796,21 +825,32 @@ GLSL_SAMPLE = """
 
 
 def glsl_layout_dec(max_lights: int = MAX_LIGHTS, phong: bool = True, direct: bool = True,
-                    scattered: bool = True) -> str:
+                    scattered: bool = True, lights: int | None = None,
+                    direct_lights: int | None = None) -> str:
     """:data:`GLSL_LAYOUT_DEC` with this mapper's port numbers filled in.
 
     ``phong``: compile the diffuse and specular terms (``IL_PHONG``; without them the
     shader takes ``S = ka`` and never computes a gradient). ``direct``, ``scattered``:
     compile the direct light (``IL_DIRECT``) and the scattered fluence (``IL_SCATTERED``);
-    without them the source has no such term.
+    without them the source has no such term. ``lights``, ``direct_lights``: the lights
+    (``IL_NUM_LIGHTS``, default ``max_lights``) and those with a transmittance channel
+    (``IL_NUM_DIRECT``, default ``lights`` where ``direct``, else 0) the shader is compiled
+    for: loops over lights of a known count are unrolled and keep the per-ray light values
+    in registers (an array indexed by a uniform count lives in local memory on GPUs).
     """
+    lights = int(max_lights if lights is None else lights)
+    direct_lights = int((lights if direct else 0) if direct_lights is None else direct_lights)
+    if not 0 <= direct_lights <= lights <= max_lights:
+        raise ValueError(f"need 0 <= direct_lights <= lights <= max_lights, got "
+                         f"{direct_lights}, {lights}, {max_lights}")
     ports = {"data": DATA_PORT, "opt": OPTICS_PORT, "ta": DIRECT_PORT_A, "tb": DIRECT_PORT_B,
              "sc": SCATTERED_PORT}
     shift = int(OPTICS_ROW).bit_length() - 1
     if 1 << shift != OPTICS_ROW:
         raise ValueError("OPTICS_ROW must be a power of two")
     values = {"max_lights": int(max_lights), "row": OPTICS_ROW, "shift": shift,
-              "phong": int(bool(phong)), "direct": int(bool(direct)),
+              "lights": lights, "direct_lights": direct_lights, "slots": max(1, lights),
+              "phong": int(bool(phong)), "direct": int(bool(direct and direct_lights)),
               "scattered": int(bool(scattered)), **ports}
     values.update({f"{k}4": 4 * v for k, v in ports.items()})
     values["sigma_row"] = -(-TABLE_SIZE // OPTICS_ROW)
@@ -858,7 +898,11 @@ class IlluminatedVolume(vtkMultiVolume):
         :data:`INTERACTIVE_STEP`; see :attr:`interactive_step`).
     interactive_near_cells : float or None
         Near-field march while the view moves in an interactive window (default
-        :data:`INTERACTIVE_NEAR_CELLS`: ``near_cells``; see :attr:`interactive_near_cells`).
+        :data:`INTERACTIVE_NEAR_CELLS`: 0; see :attr:`interactive_near_cells`).
+    interactive_image_sample_distance : float
+        Pixels per ray along x and y while the view moves in an interactive window
+        (default :data:`INTERACTIVE_IMAGE_SAMPLE_DISTANCE`; see
+        :attr:`interactive_image_sample_distance`).
 
     Notes
     -----
@@ -878,7 +922,9 @@ class IlluminatedVolume(vtkMultiVolume):
                  near_cells: float = NEAR_CELLS, jitter: bool = True,
                  accumulate: int = ACCUMULATE,
                  interactive_step: float = INTERACTIVE_STEP,
-                 interactive_near_cells: float | None = INTERACTIVE_NEAR_CELLS) -> None:
+                 interactive_near_cells: float | None = INTERACTIVE_NEAR_CELLS,
+                 interactive_image_sample_distance: float = INTERACTIVE_IMAGE_SAMPLE_DISTANCE,
+                 ) -> None:
         super().__init__()
         self.inputs = IlluminationInputs()
         self.inputs.SetArrayName(array_name)
@@ -924,6 +970,8 @@ class IlluminatedVolume(vtkMultiVolume):
         self.interactive_step = interactive_step
         self._interactive_near_cells = None
         self.interactive_near_cells = interactive_near_cells
+        self._interactive_isd = 1.0
+        self.interactive_image_sample_distance = interactive_image_sample_distance
         self.set_frame(0, False)
         # Attach the renderers that show this volume to their accumulator at each render
         # (a weak reference: the mapper must not keep its volume alive).
@@ -1057,7 +1105,9 @@ class IlluminatedVolume(vtkMultiVolume):
     def set_frame(self, index: int, hold: bool, moving: bool = False) -> None:
         """Sample with the offsets of accumulation frame ``index``; ``hold``: draw nothing;
         ``moving``: the view moves in an interactive window (sample distance times
-        :attr:`interactive_step`).
+        :attr:`interactive_step`, image sample distance
+        :attr:`interactive_image_sample_distance`, near field
+        :attr:`interactive_near_cells`).
 
         Called by the renderer's :class:`~vtkillum.mappers.accumulation.FrameAccumulator`
         before each render; changes no modification time.
@@ -1072,12 +1122,34 @@ class IlluminatedVolume(vtkMultiVolume):
         if interactive and self._interactive_near_cells is not None and self.near_cells > 0:
             near_scale = self._interactive_near_cells / self.near_cells
         uniforms.SetUniformf("il_nearScale", float(near_scale))
+        # vtkSetMacro: modifies the mapper only when the value changes (the accumulator
+        # takes its key after this call, so the change starts no new mean)
+        self.mapper.SetImageSampleDistance(float(self._interactive_isd) if interactive else 1.0)
+
+    @property
+    def interactive_image_sample_distance(self) -> float:
+        """Pixels per ray along x and y of the frames drawn while the view moves (default
+        :data:`~vtkillum.mappers.interaction.INTERACTIVE_IMAGE_SAMPLE_DISTANCE`; 1: every
+        pixel), VTK's ``ImageSampleDistance``: the GPU ray caster draws into a buffer this
+        many times smaller along each axis and scales it up.
+
+        Like :attr:`interactive_step`, it applies only to frame 0 of an accumulation in a
+        window with an initialised interactor (a drag, or the still frame that ends it);
+        the frames the timer adds at rest cast a ray for every pixel, and the mean never
+        includes frame 0. Why, and what it saves: :mod:`vtkillum.mappers.interaction` and
+        the module docstring.
+        """
+        return self._interactive_isd
+
+    @interactive_image_sample_distance.setter
+    def interactive_image_sample_distance(self, value: float) -> None:
+        self._interactive_isd = image_sample_distance(value)
 
     @property
     def interactive_near_cells(self) -> float | None:
         """Near-field march of the frames drawn while the view moves, in transmittance-grid
-        cells (default ``None``: :attr:`near_cells`, as at rest; 0: read the grid at the
-        sample while moving).
+        cells (default :data:`INTERACTIVE_NEAR_CELLS`, 0: read the grid at the sample while
+        moving; ``None``: :attr:`near_cells`, as at rest).
 
         Like :attr:`interactive_step`, it applies only to frame 0 of an accumulation in a
         window with an initialised interactor; the frames added at rest march
@@ -1252,6 +1324,7 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
         self.shader_property = None
         #: (phong, direct, scattered) the declarations were compiled for.
         self.variant = None
+        self._declared = None  # (variant, lights, direct lights) of the declarations
         #: The error of the last RequestData, or None.
         self.last_error = None
         #: Lights of the last update (the illumination's or the scene's).
@@ -1376,7 +1449,7 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
         light_key = (*light_key, len(lights))
 
         if refresh_data:
-            _set_image(self.data_image, image_like(volume), "scalars", volume.scalars)
+            _set_grid_image(self.data_image, volume, "scalars", volume.scalars)
         if refresh_data or light_key != self._light_key:
             self._set_light_images(volume, illumination, len(lights))
         self._data_key = key
@@ -1403,20 +1476,26 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
             set_uniforms(self.uniforms, values)
             _, kd, ks, _ = shading_terms(scene.shading)
             self.declare((kd > 0 or ks > 0, values["il_numDirect"] > 0,
-                          values["il_hasScattered"] != 0))
+                          values["il_hasScattered"] != 0),
+                         values["il_numLights"], values["il_numDirect"])
 
-    def declare(self, variant: tuple) -> None:
-        """(Re)declare the shader functions for ``(phong, direct, scattered)`` (see
-        :func:`glsl_layout_dec`); a new variant recompiles the shader (VTK keeps the
-        programs it built, so switching back is a cache hit)."""
+    def declare(self, variant: tuple, lights: int = MAX_LIGHTS,
+                direct_lights: int | None = None) -> None:
+        """(Re)declare the shader functions for ``(phong, direct, scattered)`` and the light
+        counts (see :func:`glsl_layout_dec`); a new variant or count recompiles the shader
+        (VTK keeps the programs it built, so switching back is a cache hit)."""
         variant = tuple(bool(v) for v in variant)
-        if variant == self.variant or self.shader_property is None:
-            return
-        self.variant = variant
         phong, direct, scattered = variant
+        lights = int(lights)
+        direct_lights = (lights if direct else 0) if direct_lights is None else int(direct_lights)
+        key = (variant, lights, direct_lights)
+        if key == self._declared or self.shader_property is None:
+            return
+        self.variant, self._declared = variant, key
         self.shader_property.AddFragmentShaderReplacement(
             "//VTK::Shading::Dec", True,
-            glsl_layout_dec(phong=phong, direct=direct, scattered=scattered) + GLSL_SHADING_DEC,
+            glsl_layout_dec(phong=phong, direct=direct, scattered=scattered, lights=lights,
+                            direct_lights=direct_lights) + GLSL_SHADING_DEC,
             False)
 
     def _set_light_images(self, volume, illumination, n_lights: int) -> None:
@@ -1432,20 +1511,17 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
         for half, (target, key) in enumerate(zip(self.direct_images, ("il_taQ", "il_tbQ"))):
             channels = None if transmittance is None else transmittance[4 * half: 4 * half + 4]
             if channels is None or len(channels) == 0:
-                _set_image(target, image_like(volume, shape=(2, 2, 2)), "unused", placeholder)
+                _set_grid_image(target, volume, "unused", placeholder)
                 continue
-            packed, quant[key] = pack_channels(np.moveaxis(np.asarray(channels), 0, -1),
-                                               self.illumination_16bit, unit_range=True)
-            _set_image(target, image_like(volume, shape=packed.shape[:3]), "transmittance",
-                       packed)
+            quant[key] = _set_grid_image(target, volume, "transmittance",
+                                         np.moveaxis(np.asarray(channels), 0, -1),
+                                         pack=(self.illumination_16bit, True))
         if scattered is None:
-            _set_image(self.scattered_image, image_like(volume, shape=(2, 2, 2)), "unused",
-                       placeholder)
+            _set_grid_image(self.scattered_image, volume, "unused", placeholder)
         else:
-            packed, quant["il_scQ"] = pack_channels(np.asarray(scattered),
-                                                    self.illumination_16bit)
-            _set_image(self.scattered_image, image_like(volume, shape=packed.shape[:3]),
-                       "scattered_fluence", packed)
+            quant["il_scQ"] = _set_grid_image(self.scattered_image, volume, "scattered_fluence",
+                                              np.asarray(scattered),
+                                              pack=(self.illumination_16bit, False))
         self._quantisation = quant
 
 
@@ -1639,7 +1715,8 @@ def _block_reduce(a: np.ndarray, size: int, axis: int, fn) -> np.ndarray:
     return out
 
 
-def pack_channels(values: np.ndarray, sixteen_bit: bool, unit_range: bool = False):
+def pack_channels(values: np.ndarray, sixteen_bit: bool, unit_range: bool = False,
+                  out: np.ndarray | None = None):
     """Up to 4 channels (last axis) as a 4-component texture image and its factors.
 
     Returns ``(image, q)``: ``image`` float32, or uint16 with ``sixteen_bit`` (half the
@@ -1648,40 +1725,89 @@ def pack_channels(values: np.ndarray, sixteen_bit: bool, unit_range: bool = Fals
     whose texels OpenGL normalises to ``stored / 65535``, the channel's top value, with
     ``stored = round(65535 v / top)``, ``top = 1`` for transmittances (``unit_range``,
     clipped to [0, 1]) and the channel's maximum otherwise (non-negative values): an
-    absolute error of at most ``top / 131070``.
+    absolute error of at most ``top / 131070``. ``out``: write into this array (shape
+    ``values.shape[:-1] + (4,)``, the image's dtype; e.g. a VTK array's memory) instead of
+    a new one. Works one slab of the first axis at a time (the temporaries stay in cache).
     """
-    values = np.asarray(values, np.float32)
-    c = values.shape[-1]
-    q = [1.0] * 4
-    if not sixteen_bit:
-        packed = np.zeros(values.shape[:3] + (4,), np.float32)
-        packed[..., :c] = values
-        return packed, q
-    packed = np.zeros(values.shape[:3] + (4,), np.uint16)
-    for k in range(c):
-        channel = values[..., k]
-        if unit_range:
-            top = 1.0
-            channel = np.clip(channel, 0.0, 1.0)
-        else:
-            top = float(np.max(channel)) if channel.size else 0.0
-            channel = np.maximum(channel, 0.0)
-        if top > 0:
-            q[k] = top
-            packed[..., k] = np.rint(channel * np.float32(65535.0 / top))
-    return packed, q
-
-
-def _set_image(target: vtkImageData, geometry: vtkImageData, name: str, values) -> None:
-    """Give ``target`` the geometry of ``geometry`` and ``values`` as its active scalars
-    (float32, or uint16 kept as is)."""
-    target.Initialize()
-    target.CopyStructure(geometry)
     values = np.asarray(values)
-    if values.dtype != np.uint16:
-        values = values.astype(np.float32, copy=False)
-    add_point_array(target, name, values, set_active=True)
+    c = values.shape[-1]
+    dtype = np.uint16 if sixteen_bit else np.float32
+    shape = values.shape[:-1] + (4,)
+    if out is None:
+        out = np.empty(shape, dtype)
+    elif out.shape != shape or out.dtype != dtype:
+        raise ValueError(f"out must be {shape} {np.dtype(dtype)}, got {out.shape} {out.dtype}")
+    q = [1.0] * 4
+    empty = [False] * c  # channels stored as 0 (no positive finite maximum)
+    if sixteen_bit:
+        for k in range(c):
+            if unit_range:
+                continue
+            top = float(np.max(values[..., k])) if values[..., k].size else 0.0
+            if top > 0 and np.isfinite(top):
+                q[k] = top
+            else:
+                empty[k] = True
+    scale = [np.float32(65535.0 / t) for t in q]
+    slab = max(1, (1 << 18) // max(1, int(np.prod(shape[1:-1]))))  # ~256k points a slab
+    tmp = None
+    for i in range(0, shape[0], slab):
+        part = out[i:i + slab]
+        part[..., c:] = 0
+        for k in range(c):
+            channel = values[i:i + slab, ..., k]
+            if not sixteen_bit:
+                part[..., k] = channel
+                continue
+            if empty[k]:
+                part[..., k] = 0
+                continue
+            if tmp is None or tmp.shape != channel.shape:
+                tmp = np.empty(channel.shape, np.float32)
+            np.multiply(channel, scale[k], out=tmp)
+            np.clip(tmp, 0.0, 65535.0, out=tmp)
+            np.rint(tmp, out=tmp)
+            part[..., k] = tmp
+    return out, q
+
+
+def _set_grid_image(target: vtkImageData, volume: Volume, name: str, values,
+                    pack: tuple | None = None):
+    """Give ``target`` the grid ``values`` (``[x, y, z(, c)]``, covering the data's box) as
+    its active scalars, **without transposing**: the image's axes are (z, y, x), so numpy's
+    C order (z fastest) is VTK's point order; the shader reads it with ``.zyx``.
+
+    ``pack``: ``(sixteen_bit, unit_range)`` packs ``values`` (last axis: channels) with
+    :func:`pack_channels` straight into the VTK array's memory and returns the factors
+    ``q``; otherwise ``values`` are copied as float32 (or uint16).
+    """
+    values = np.asarray(values)
+    shape = values.shape[:3]
+    box = (np.asarray(volume.dims) - 1) * volume.spacing  # the data's box (local frame)
+    dims = shape[::-1]
+    target.Initialize()
+    target.SetDimensions(*(int(n) for n in dims))
+    target.SetSpacing(*(float(e) / (n - 1) for e, n in zip(box, dims)))
+    target.SetOrigin(*(float(v) for v in volume.origin))
+    target.SetDirectionMatrix(*np.asarray(volume.direction, np.float64).reshape(-1))
+    if pack is not None:
+        dtype, comps = (np.uint16 if pack[0] else np.float32), 4
+    else:
+        dtype = np.uint16 if values.dtype == np.uint16 else np.float32
+        comps = 1 if values.ndim == 3 else values.shape[3]
+    array = vtkUnsignedShortArray() if dtype == np.uint16 else vtkFloatArray()
+    array.SetNumberOfComponents(comps)
+    array.SetNumberOfTuples(int(np.prod(shape)))
+    array.SetName(name)
+    view = vtk_to_numpy(array).reshape(shape + ((comps,) if comps > 1 or pack else ()))
+    q = None
+    if pack is not None:
+        _, q = pack_channels(values, pack[0], unit_range=pack[1], out=view)
+    else:
+        np.copyto(view, values.reshape(view.shape), casting="unsafe")
+    target.GetPointData().SetScalars(array)
     target.Modified()
+    return q
 
 
 def _empty_start_image(image: vtkImageData, components: int = 4) -> None:
@@ -1706,6 +1832,7 @@ __all__ = [
     "GLSL_RAY_INIT",
     "GLSL_SAMPLE",
     "GLSL_SHADING_DEC",
+    "INTERACTIVE_IMAGE_SAMPLE_DISTANCE",
     "INTERACTIVE_NEAR_CELLS",
     "INTERACTIVE_STEP",
     "MAX_LIGHTS",
