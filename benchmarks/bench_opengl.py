@@ -40,17 +40,38 @@ taking turns frame by frame:
 ``--interactive`` (issue 35) times, per illumination kind (the textures each method hands
 ``IlluminatedVolume``: transmittance; transmittance + scattered fluence for
 convection-diffusion; scattered fluence alone for photon density and many-lights
-fluence; default transmittance and photon density) and volume size, with ``--data
-ct-like`` (default: ``bench_scaling.py``'s CT-like volume, made on the device, and its
-one-light scene, as the warp ray caster's figures) or ``--data phantom`` (the CT phantom
-upsampled from 256³, 2 lights), light grids at ``--grid-scale`` times the data's points
-(default 1, the methods' default): a camera move at full quality (still), the same move
-in an interactive window (``interactive_step`` 2), that with ``interactive_near_cells``
-0, a still move with ``near_cells`` 0, and with ``--history`` the move before issue 35's
-first changes (float32 grids, no leaps), with ``--tf-edit`` a TF edit to the new frame
-from host arrays (16-bit grids; the method's own compute is not included); and counts 3D
-uploads per camera move. One table. Measured before this session's shader changes on an
-NVIDIA H200 (EGL, VTK 9.7.2), 1024², ``--data phantom --grid-scale 0.5``:
+fluence; default transmittance and photon density; ``ambient-scattering``: the
+``AmbientScatteringVolume`` mapper, its inputs computed on the warp device) and volume size,
+with ``--data ct-like`` (default: ``bench_scaling.py``'s CT-like volume, made on the device,
+and its one-light scene, as the warp ray caster's figures) or ``--data phantom`` (the CT
+phantom upsampled from 256³, 2 lights), light grids at ``--grid-scale`` times the data's
+points (default 1, the methods' default): a camera move at full quality (still), the same
+move while dragging in an interactive window (the interactor's update rate: the defaults
+``interactive_step`` 2, ``interactive_image_sample_distance`` 2, ``interactive_near_cells``
+0), that at every pixel, that with ``interactive_near_cells`` 0, a still move with
+``near_cells`` 0, and with ``--history`` the move before issue 35's first changes (float32
+grids, no leaps), with ``--tf-edit`` a TF edit to the new frame from host arrays (16-bit
+grids; the method's own compute is not included; the ambient mapper recomputes its inputs);
+and counts 3D uploads per camera move. One table.
+
+Measured on an NVIDIA H200 (EGL, VTK 9.7.2), 512³ CT-like, 1024², grids at full resolution
+(2026-11-29, after the z-major textures and the moving defaults; ms):
+
+====================  ======  ========  ============  ============  =======
+illumination          still   dragging  dragging,     still,        TF edit
+                                        every pixel   near_cells 0
+====================  ======  ========  ============  ============  =======
+transmittance         116.0   14.6      35.0          56.5          2561
+convection-diffusion  135.2   17.7      43.5          70.0          5992
+photon density        46.8    12.3      28.7          46.2          3593
+ambient-scattering    376.5   119.1     372.5         --            5970
+====================  ======  ========  ============  ============  =======
+
+Earlier the same day, before them (``interactive_near_cells`` None, no image sample
+distance while dragging, grids transposed on the host): dragging 67 ms with transmittance
+(56 with the compiled-in light counts alone) and 30 ms with photon density; TF edit 6841 /
+14188 / 8337 ms. From an earlier session, ``--data phantom --grid-scale 0.5`` (before and
+after that session's shader changes):
 
 =====  ====================  ==========  ======  ==========  ===============
 data   illumination          before ms   after   moving      TF edit 16/32 b
@@ -71,7 +92,11 @@ illumination, with a scattered fluence only, with transmittance and ``near_cells
 with Phong, without leaps, and moving (with and without ``interactive_near_cells`` 0).
 ``--baseline FILE`` runs another version of ``illuminated_volume_mapper.py`` in the same
 rounds. Measured on llvmpipe (2 shared cores: ratios only), 96³, 256², 11 rounds,
-against the mapper before this change (the numbers are in that module's docstring).
+against the mapper before this change (the numbers are in that module's docstring), and
+on the H200 at 512³, 1024² (``--profile --size 512 --image 1024 --frames 5``): VTK's
+composite frame 59.7 ms; ratios 0.81 (scattered only, unchanged), 0.82 (no illumination;
+0.96 before the light counts were compiled in), 0.96 / 1.98 (transmittance, ``near_cells``
+0 / 2; 1.14 / 2.30 before), 2.74 (Phong; 3.11 before).
 
 ``--interop`` (same run): a 256³ RGBA16 grid (134 MB) from a warp array through a
 registered pixel buffer into a 3D texture took 3.6 ms, through the host 137 ms (128³:

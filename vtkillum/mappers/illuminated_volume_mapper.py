@@ -33,7 +33,8 @@ Five inputs of one ``vtkMultiVolume`` (each a texture VTK uploads, re-uploads wh
 its image is modified, and owns, so the volume survives its window being closed and
 shown in a new one). All cover the data's box, but the shader computes every
 texture coordinate itself from the sample's position in the volume's local frame
-(``[0, extent]``), so each grid keeps its own resolution:
+(``[0, extent]``), so each grid keeps its own resolution (ports 1-4 with their axes in
+the order z, y, x: numpy's memory as it is, see "How the grids reach VTK" below):
 
 ====  ============================  ======================================================
 port  image                         contents
@@ -227,9 +228,17 @@ frame of this mapper costs 0.81 (scattered fluence only), 0.96 (transmittance,
 light counts were compiled in and the fetches took an explicit level of detail). While
 the view moves, ``interactive_step`` 2, ``interactive_image_sample_distance`` 2 (a ray
 per 2 × 2 pixels, :mod:`vtkillum.mappers.interaction`) and ``interactive_near_cells`` 0
-bring a camera move to 14.2 ms (transmittance), 18.5 ms (convection-diffusion: both
-grids) and 12.5 ms (scattered fluence only); at every pixel it takes 55-66 ms and
-29 ms.
+bring a camera move to 14.6 ms (transmittance), 17.7 ms (convection-diffusion: both
+grids) and 12.3 ms (scattered fluence only); at every pixel 35.0, 43.5 and 28.7 ms; at full
+quality 116, 135 and 47 ms (``bench_opengl.py``'s docstring has the table).
+
+How the grids reach VTK: numpy keeps a grid ``[x, y, z]`` with z fastest, VTK's point
+order has x fastest. Instead of transposing (a slow, cache-hostile pass over every 512³
+grid on each edit), the images of ports 1-4 have their axes in the order (z, y, x), so
+numpy's memory is VTK's as it is, and the shader reads them with ``.zyx``; 16-bit packing
+writes straight into the VTK array's memory, one slab at a time. A TF edit with a new
+512³ light grid from host arrays took 6.8 s before, 2.6 s now, of which about 1 s is VTK's
+own range pass and upload.
 
 ``benchmarks/bench_opengl.py`` compares the frame time with VTK's own volumetric shadows
 (``docs/benchmarks.md``).
