@@ -46,10 +46,11 @@ def shown(volume, scene, illumination, interactor: bool, **options):
     renderer.AddVolume(actor)
     window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
     keep = [renderer]
-    if interactor:
+    if interactor:  # a drag: VTK's interactor styles raise the window's update rate
         iren = vtkGenericRenderWindowInteractor()
         iren.SetRenderWindow(window)
         iren.Initialize()
+        window.SetDesiredUpdateRate(iren.GetDesiredUpdateRate())
         keep.append(iren)
     window.Render()
     window.Render()
@@ -122,4 +123,36 @@ def test_moving_frames_cast_fewer_rays_and_the_rest_every_ray():
             actor.interactive_image_sample_distance = bad
     assert actor.interactive_image_sample_distance == 2.0
     for window in (still, moving):
+        window.Finalize()
+
+
+def test_scripts_with_an_interactor_draw_still_frames():
+    """pyvista initialises an interactor even off screen: a camera moved by a script (a
+    screenshot, a camera path) is not a drag, so its frame casts every ray at the scene's
+    step and near field; a drag (the style's start) is coarse, and the render at its end
+    (the style's stop, at the still rate) is full quality again."""
+    from vtkmodules.vtkInteractionStyle import vtkInteractorStyleTrackballCamera
+
+    volume, scene, illumination = sharp_sphere()
+    still, _, _k1 = shown(volume, scene, illumination, False)
+    scripted, actor, keep = shown(volume, scene, illumination, False)
+    iren = vtkGenericRenderWindowInteractor()
+    iren.SetRenderWindow(scripted)
+    style = vtkInteractorStyleTrackballCamera()
+    iren.SetInteractorStyle(style)
+    iren.Initialize()
+    for window in (still, scripted):
+        window.GetRenderers().GetFirstRenderer().GetActiveCamera().Azimuth(1.0)
+        window.Render()
+    assert actor.frames == 0 and actor.GetMapper().GetImageSampleDistance() == 1.0
+    assert np.abs(shown_rgb(scripted) - shown_rgb(still)).max() == 0.0
+    actor.interactive_image_sample_distance = 2.0
+    style.StartRotate()  # a drag
+    scripted.GetRenderers().GetFirstRenderer().GetActiveCamera().Azimuth(1.0)
+    scripted.Render()
+    assert actor.frames == 0 and actor.GetMapper().GetImageSampleDistance() == 2.0
+    style.EndRotate()  # renders at the still rate: every ray
+    assert actor.GetMapper().GetImageSampleDistance() == 1.0
+    iren.SetRenderWindow(None)
+    for window in (still, scripted):
         window.Finalize()

@@ -33,8 +33,9 @@ frames (each within half a level of its radiance; the varying offsets dither the
 written back rounded to 8 bits.
 
 Volumes take part through duck typing: every prop of the renderer that has
-``content_mtime()``, ``set_frame(index, hold, moving)`` (``moving``: frame 0 in a window
-with an initialised interactor, where a volume may sample more coarsely: the timer's
+``content_mtime()``, ``set_frame(index, hold, moving)`` (``moving``: frame 0 while an
+interactor style moves the view, :func:`~vtkillum.mappers.interaction.window_interacting`,
+where a volume may sample more coarsely: the still frame that ends the drag and the timer's
 frames refine it), ``jitter`` and ``accumulate``
 (:class:`~vtkillum.mappers.IlluminatedVolume`). A renderer accumulates when at least one
 visible such prop has ``jitter`` on and ``accumulate > 0``; it sums up to the largest
@@ -55,6 +56,8 @@ from vtkmodules.util.misc import calldata_type
 from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
 from vtkmodules.util.vtkConstants import VTK_INT
 from vtkmodules.vtkCommonCore import vtkCommand, vtkFloatArray, vtkWeakReference
+
+from vtkillum.mappers.interaction import window_interacting
 
 #: Milliseconds between the frames an interactor's timer adds while the view rests.
 REFINE_INTERVAL_MS = 10
@@ -214,9 +217,7 @@ class FrameAccumulator:
         if self._sum is not None and self.count >= self.limit:
             self.converged = True
         self._hold = self.converged
-        window = renderer.GetRenderWindow()
-        interactor = window.GetInteractor() if window is not None else None
-        moving = self.frame == 0 and interactor is not None and bool(interactor.GetInitialized())
+        moving = self.frame == 0 and window_interacting(renderer.GetRenderWindow())
         for prop in ours:
             prop.set_frame(self.frame, self._hold, moving)
         self._key = self._view_key(renderer, ours, others)

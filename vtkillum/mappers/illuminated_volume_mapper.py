@@ -1097,10 +1097,12 @@ class IlluminatedVolume(vtkMultiVolume):
         """Sample-distance factor of the frames drawn while the view moves (default
         :data:`INTERACTIVE_STEP`; 1: every frame at the scene's step).
 
-        Applies only to frame 0 of an accumulation in a window with an initialised
-        interactor (a drag, or the still frame that ends it); the interactor's timer then
-        adds frames at the scene's step, so the picture at rest is the full-quality mean.
-        Off-screen windows and scripts (no interactor) always sample at the scene's step.
+        Applies only to the frames of a drag (frame 0 of an accumulation while an
+        interactor style moves the view: :func:`~vtkillum.mappers.interaction.
+        window_interacting`); the still frame that ends the drag and the frames the
+        interactor's timer then adds sample at the scene's step, so the picture at rest is
+        the full-quality mean. Scripts (screenshots, camera paths) always sample at the
+        scene's step.
         """
         return self._interactive_step
 
@@ -1142,10 +1144,9 @@ class IlluminatedVolume(vtkMultiVolume):
         pixel), VTK's ``ImageSampleDistance``: the GPU ray caster draws into a buffer this
         many times smaller along each axis and scales it up.
 
-        Like :attr:`interactive_step`, it applies only to frame 0 of an accumulation in a
-        window with an initialised interactor (a drag, or the still frame that ends it);
-        the frames the timer adds at rest cast a ray for every pixel, and the mean never
-        includes frame 0. Why, and what it saves: :mod:`vtkillum.mappers.interaction` and
+        Like :attr:`interactive_step`, it applies only to the frames of a drag; the frame
+        that ends it and those the timer adds at rest cast a ray for every pixel, and the
+        mean never includes frame 0. Why, and what it saves: :mod:`vtkillum.mappers.interaction` and
         the module docstring.
         """
         return self._interactive_isd
@@ -1160,9 +1161,8 @@ class IlluminatedVolume(vtkMultiVolume):
         cells (default :data:`INTERACTIVE_NEAR_CELLS`, 0: read the grid at the sample while
         moving; ``None``: :attr:`near_cells`, as at rest).
 
-        Like :attr:`interactive_step`, it applies only to frame 0 of an accumulation in a
-        window with an initialised interactor; the frames added at rest march
-        :attr:`near_cells`. What it saves and costs is in the module docstring.
+        Like :attr:`interactive_step`, it applies only to the frames of a drag; the frames
+        drawn at rest march :attr:`near_cells`. What it saves and costs is in the module docstring.
         """
         return self._interactive_near_cells
 

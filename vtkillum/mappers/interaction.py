@@ -5,12 +5,14 @@ VTK's GPU ray caster can cast one ray per ``d × d`` pixels (``ImageSampleDistan
 while the view moves (``interactive_image_sample_distance``, default
 :data:`INTERACTIVE_IMAGE_SAMPLE_DISTANCE`) and cast every ray at rest:
 
-* :class:`~vtkillum.mappers.IlluminatedVolume` for frame 0 of an accumulation in a window
-  with an initialised interactor (:mod:`vtkillum.mappers.accumulation`: a drag, or the
-  still frame that ends it, which the frames added at rest then replace);
-* :class:`~vtkillum.mappers.AmbientScatteringVolume` while an interactor style interacts
-  (:func:`interacting`: the window's desired update rate is the interactor's, not its
-  still rate; VTK's styles render once at the still rate when the drag ends).
+* :class:`~vtkillum.mappers.IlluminatedVolume` for the frames of a drag
+  (:mod:`vtkillum.mappers.accumulation`'s frame 0 while :func:`window_interacting`);
+* :class:`~vtkillum.mappers.AmbientScatteringVolume` likewise (:func:`interacting`).
+
+Both decide by the window's desired update rate, which VTK's interactor styles (and
+pyvista's, built on them) raise while the user drags and set back to the still rate, with
+one more render, when the drag ends: that frame and every frame a script renders (a
+screenshot, a camera path) cast every ray.
 
 Why: a GPU's fragment shaders may run on a few of its multiprocessors. On an NVIDIA H200
 (data-centre Hopper), VTK's own composite ray casting of 512³ data into a 1024² window
@@ -46,20 +48,26 @@ def image_sample_distance(value) -> float:
     return value
 
 
+def window_interacting(window) -> bool:
+    """Whether an interactor style is moving the view of ``window``: its interactor is
+    initialised and the window's desired update rate is above the interactor's still rate
+    (VTK's styles raise it to the interactor's desired rate while a button is down or the
+    wheel turns, and set it back, rendering once more, when the interaction ends). Scripts
+    that move the camera and render, with or without an interactor, draw still frames."""
+    interactor = window.GetInteractor() if window is not None else None
+    if interactor is None or not interactor.GetInitialized():
+        return False
+    return window.GetDesiredUpdateRate() > interactor.GetStillUpdateRate()
+
+
 def interacting(prop) -> bool:
-    """Whether a renderer showing ``prop`` is in a window whose initialised interactor is
-    interacting: VTK's interactor styles set the window's desired update rate to the
-    interactor's while a button is down and back to its still rate when it is released."""
+    """Whether a renderer showing ``prop`` is in a window an interactor style is moving
+    (:func:`window_interacting`)."""
     if prop is None:
         return False
     for i in range(prop.GetNumberOfConsumers()):
         renderer = prop.GetConsumer(i)
-        if renderer is None or not renderer.IsA("vtkRenderer"):
-            continue
-        window = renderer.GetRenderWindow()
-        interactor = window.GetInteractor() if window is not None else None
-        if interactor is None or not interactor.GetInitialized():
-            continue
-        if window.GetDesiredUpdateRate() > interactor.GetStillUpdateRate():
+        if renderer is not None and renderer.IsA("vtkRenderer") and \
+                window_interacting(renderer.GetRenderWindow()):
             return True
     return False
