@@ -274,7 +274,10 @@ from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
 from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
 from vtkmodules.vtkCommonCore import (
     vtkCommand,
+    vtkDataArray,
     vtkFloatArray,
+    vtkInformation,
+    vtkInformationVector,
     vtkOutputWindow,
     vtkUnsignedShortArray,
     vtkWeakReference,
@@ -1458,7 +1461,8 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
         light_key = (*light_key, len(lights))
 
         if refresh_data:
-            _set_grid_image(self.data_image, volume, "scalars", volume.scalars)
+            _set_grid_image(self.data_image, volume, "scalars", volume.scalars,
+                            value_range=volume.value_range)
         if refresh_data or light_key != self._light_key:
             self._set_light_images(volume, illumination, len(lights))
         self._data_key = key
@@ -1781,7 +1785,7 @@ def pack_channels(values: np.ndarray, sixteen_bit: bool, unit_range: bool = Fals
 
 
 def _set_grid_image(target: vtkImageData, volume: Volume, name: str, values,
-                    pack: tuple | None = None):
+                    pack: tuple | None = None, value_range: tuple | None = None):
     """Give ``target`` the grid ``values`` (``[x, y, z(, c)]``, covering the data's box) as
     its active scalars, **without transposing**: the image's axes are (z, y, x), so numpy's
     C order (z fastest) is VTK's point order; the shader reads it with ``.zyx``.
@@ -1789,6 +1793,10 @@ def _set_grid_image(target: vtkImageData, volume: Volume, name: str, values,
     ``pack``: ``(sixteen_bit, unit_range)`` packs ``values`` (last axis: channels) with
     :func:`pack_channels` straight into the VTK array's memory and returns the factors
     ``q``; otherwise ``values`` are copied as float32 (or uint16).
+
+    The array's range is declared (16 bit: the type's; otherwise ``value_range`` when given)
+    so that VTK's texture upload does not scan the whole array for it: the shader reads
+    texels as they are, not through the scale and bias VTK derives from the range.
     """
     values = np.asarray(values)
     shape = values.shape[:3]
@@ -1814,9 +1822,26 @@ def _set_grid_image(target: vtkImageData, volume: Volume, name: str, values,
         _, q = pack_channels(values, pack[0], unit_range=pack[1], out=view)
     else:
         np.copyto(view, values.reshape(view.shape), casting="unsafe")
+    if dtype == np.uint16:
+        _declare_range(array, (0.0, 65535.0))
+    elif value_range is not None:
+        _declare_range(array, value_range)
     target.GetPointData().SetScalars(array)
     target.Modified()
     return q
+
+
+def _declare_range(array, value_range: tuple) -> None:
+    """Store ``value_range`` as every component's cached finite range of a VTK array (what
+    ``GetFiniteRange`` returns until the array is modified), so that VTK does not compute it
+    with a pass over the array (about 0.45 s for a 512³ four-component grid)."""
+    lo, hi = (float(v) for v in value_range)
+    ranges = vtkInformationVector()
+    for _ in range(array.GetNumberOfComponents()):
+        info = vtkInformation()
+        info.Set(vtkDataArray.COMPONENT_RANGE(), (lo, hi), 2)
+        ranges.Append(info)
+    array.GetInformation().Set(vtkDataArray.PER_FINITE_COMPONENT(), ranges)
 
 
 def _empty_start_image(image: vtkImageData, components: int = 4) -> None:
