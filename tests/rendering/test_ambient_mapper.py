@@ -256,14 +256,15 @@ def test_bad_inputs_raise_clear_errors(setup):
 
 def test_fewer_rays_while_an_interactor_moves_the_view(setup):
     """While an interactor style interacts (the window's desired update rate is the
-    interactor's), the mapper casts one ray per 2 × 2 pixels: a coarser picture of the
-    same scene; at the still rate every ray again (the gather's picture)."""
+    interactor's), the mapper casts one ray per 2 × 2 pixels, with samples twice as far
+    apart: a coarser picture of the same scene; at the still rate every ray at the scene's
+    step again (the gather's picture)."""
     from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
 
     volume, scene, ref, exposure = setup
     actor = AmbientScatteringVolume(image_data_from_volume(volume), scene, exposure=exposure,
                                     device="cpu")
-    assert actor.interactive_image_sample_distance == 2.0
+    assert actor.interactive_image_sample_distance == 2.0 and actor.interactive_step == 2.0
     renderer = vtkRenderer()
     renderer.AddVolume(actor)
     window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
@@ -279,8 +280,17 @@ def test_fewer_rays_while_an_interactor_moves_the_view(setup):
     coarse = rel_errors(moving, ref)
     print(f"moving (2 x 2 pixels a ray) vs gather: mean {coarse[0]:.2e}, p99 {coarse[1]:.2e}")
     assert not within(coarse) and coarse[0] < 3e-2
+    # each coarsening alone changes the picture
+    actor.interactive_image_sample_distance = 1.0
+    step_only = read_window_rgb(window)
+    assert np.abs(step_only - still).max() > 0.0 and rel_errors(step_only, ref)[0] < 3e-2
+    actor.interactive_step = 1.0
+    assert np.abs(read_window_rgb(window) - still).max() == 0.0
+    actor.interactive_image_sample_distance = actor.interactive_step = 2.0
     window.SetDesiredUpdateRate(interactor.GetStillUpdateRate())  # the drag ends
     assert np.abs(read_window_rgb(window) - still).max() == 0.0
     with pytest.raises(ValueError, match="interactive_image_sample_distance"):
         actor.interactive_image_sample_distance = 0.5
+    with pytest.raises(ValueError, match="interactive_step"):
+        actor.interactive_step = 0.5
     window.Finalize()

@@ -67,10 +67,12 @@ Speed
 -----
 While an interactor moves the view, the mapper casts one ray per 2 × 2 pixels
 (:attr:`AmbientScatteringVolume.interactive_image_sample_distance`,
-:mod:`vtkillum.mappers.interaction`); at rest, and in the frame VTK's interactor styles
-draw when a drag ends, every ray. On an NVIDIA H200 (EGL, ``benchmarks/bench_opengl.py
+:mod:`vtkillum.mappers.interaction`) with samples twice as far apart
+(:attr:`~AmbientScatteringVolume.interactive_step`); at rest, and in the frame VTK's
+interactor styles draw when a drag ends, every ray at the scene's step. On an NVIDIA H200 (EGL, ``benchmarks/bench_opengl.py
 --interactive --kinds ambient-scattering --sizes 512 --image 1024``) a camera move of the
-512³ CT-like volume takes 377 ms at every pixel and 119 ms while dragging; a TF edit to
+512³ CT-like volume takes 377 ms at every pixel and 119 ms while dragging (a ray per 2 × 2
+pixels, before the coarser step was added; not yet measured with it); a TF edit to
 the new frame 6.0 s (the extinction and the radiance cache computed on the device, then
 downloaded and uploaded by VTK). That GPU runs OpenGL's fragment shaders on a few of its
 multiprocessors (VTK's own composite frame of the same data: 60 ms); the compute path
@@ -127,9 +129,11 @@ from vtkillum.mappers.camera_bridge import GridSummary, apply_scene_to_volume_pr
 from vtkillum.mappers.inputs import connect_input, rendered_point_array
 from vtkillum.mappers.interaction import (
     INTERACTIVE_IMAGE_SAMPLE_DISTANCE,
+    INTERACTIVE_STEP,
     image_sample_distance,
     interacting,
 )
+from vtkillum.mappers.interaction import interactive_step as checked_step
 
 #: Lights the OpenGL path takes (one channel of the radiance-cache texture each).
 MAX_LIGHTS = 4
@@ -326,6 +330,12 @@ vec3 il_normal(vec3 p)
 # Per ray: frames, first sample on the entry face (VTK starts one step inside), accumulators.
 SHADER_INIT = """//VTK::Shading::Init
   {
+    if (il_stepScale != 1.0)  // coarser samples while an interactor moves the view
+    {
+      g_dirStep *= il_stepScale;
+      g_lengthStep *= il_stepScale;
+      g_terminatePointMax /= il_stepScale;
+    }
     mat4 il_texToWorld = in_volumeMatrix[0] * in_textureDatasetMatrix[0];
     vec3 il_stepWorld = (il_texToWorld * vec4(g_dirStep, 0.0)).xyz;
     il_step = length(il_stepWorld);
@@ -453,6 +463,9 @@ class AmbientScatteringVolume(vtkMultiVolume):
         Pixels per ray along x and y while an interactor moves the view (default
         :data:`~vtkillum.mappers.interaction.INTERACTIVE_IMAGE_SAMPLE_DISTANCE`; 1: every
         pixel); see :attr:`interactive_image_sample_distance`.
+    interactive_step : float
+        Sample-distance factor while an interactor moves the view (default
+        :data:`~vtkillum.mappers.interaction.INTERACTIVE_STEP`; 1: the scene's step).
     **options
         Override the scene's ``ambient_scattering`` section: ``radius``,
         ``radius_units``, ``radiance_cache_scale``, ``specular``, ``ambient_occlusion``,
@@ -479,7 +492,7 @@ class AmbientScatteringVolume(vtkMultiVolume):
                  exposure: float = 1.0, device: str | None = None,
                  cache: AmbientScatteringCache | None = None,
                  interactive_image_sample_distance: float = INTERACTIVE_IMAGE_SAMPLE_DISTANCE,
-                 **options) -> None:
+                 interactive_step: float = INTERACTIVE_STEP, **options) -> None:
         super().__init__()
         self.inputs = AmbientScatteringInputs(device=device, cache=cache)
         self.inputs.SetArrayName(array_name)
@@ -521,6 +534,8 @@ class AmbientScatteringVolume(vtkMultiVolume):
         shader.AddFragmentShaderReplacement("//VTK::Shading::Exit", True, SHADER_EXIT, False)
         self.inputs.uniforms = shader.GetFragmentCustomUniforms()
         self._interactive_isd = image_sample_distance(interactive_image_sample_distance)
+        self._interactive_step = checked_step(interactive_step)
+        self.inputs.uniforms.SetUniformf("il_stepScale", 1.0)  # declared from the start
         # Each render: every pixel at rest, fewer rays while an interactor moves the view
         # (a weak reference: the mapper must not keep its volume alive).
         weak = vtkWeakReference()
@@ -545,6 +560,16 @@ class AmbientScatteringVolume(vtkMultiVolume):
     @interactive_image_sample_distance.setter
     def interactive_image_sample_distance(self, value: float) -> None:
         self._interactive_isd = image_sample_distance(value)
+
+    @property
+    def interactive_step(self) -> float:
+        """Sample-distance factor while an interactor moves the view (default 2; 1: the
+        scene's step); frames drawn at rest sample at the scene's step."""
+        return self._interactive_step
+
+    @interactive_step.setter
+    def interactive_step(self, value: float) -> None:
+        self._interactive_step = checked_step(value)
 
     # --- scene and options ---------------------------------------------------------------------
     @property
@@ -642,10 +667,12 @@ class AmbientScatteringVolume(vtkMultiVolume):
 
 
 def _sample_image(volume) -> None:
-    """The image sample distance of this frame (the mapper reads it as it renders)."""
+    """The image sample distance and step of this frame (read as the mapper renders)."""
     if volume is not None:
         moving = interacting(volume)
         volume.mapper.SetImageSampleDistance(volume._interactive_isd if moving else 1.0)
+        volume.inputs.uniforms.SetUniformf("il_stepScale",
+                                           volume._interactive_step if moving else 1.0)
 
 
 class AmbientScatteringInputs(VTKPythonAlgorithmBase):

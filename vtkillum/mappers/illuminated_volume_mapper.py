@@ -300,7 +300,12 @@ from vtkillum.io.illumination_arrays import illumination_from_image, lights_from
 from vtkillum.mappers.accumulation import accumulator_for, existing_accumulator
 from vtkillum.mappers.camera_bridge import GridSummary, apply_scene_to_volume_property
 from vtkillum.mappers.inputs import check_covers, connect_input, rendered_point_array
-from vtkillum.mappers.interaction import INTERACTIVE_IMAGE_SAMPLE_DISTANCE, image_sample_distance
+from vtkillum.mappers.interaction import (
+    INTERACTIVE_IMAGE_SAMPLE_DISTANCE,
+    INTERACTIVE_STEP,
+    image_sample_distance,
+)
+from vtkillum.mappers.interaction import interactive_step as checked_step
 
 #: Lights the shader takes: two 4-channel transmittance textures.
 MAX_LIGHTS = 8
@@ -313,8 +318,6 @@ NEAR_CELLS = 2.0
 #: Default frames an :class:`IlluminatedVolume` averages while the view rests.
 ACCUMULATE = 16
 
-#: Default sample-distance factor while the view moves in an interactive window.
-INTERACTIVE_STEP = 2.0
 
 #: Default near-field march while the view moves (0: read the grid at the sample; None:
 #: ``near_cells``, as at rest). See the module docstring for what it saves on a GPU.
@@ -1112,10 +1115,7 @@ class IlluminatedVolume(vtkMultiVolume):
 
     @interactive_step.setter
     def interactive_step(self, value: float) -> None:
-        value = float(value)
-        if not (math.isfinite(value) and value >= 1.0):
-            raise ValueError(f"interactive_step must be a number >= 1, got {value}")
-        self._interactive_step = value
+        self._interactive_step = checked_step(value)
 
     def set_frame(self, index: int, hold: bool, moving: bool = False) -> None:
         """Sample with the offsets of accumulation frame ``index``; ``hold``: draw nothing;

@@ -3,7 +3,8 @@
 VTK's GPU ray caster can cast one ray per ``d × d`` pixels (``ImageSampleDistance``,
 ``d ≥ 1``) and scale the picture up. The OpenGL mappers here use it for the frames drawn
 while the view moves (``interactive_image_sample_distance``, default
-:data:`INTERACTIVE_IMAGE_SAMPLE_DISTANCE`) and cast every ray at rest:
+:data:`INTERACTIVE_IMAGE_SAMPLE_DISTANCE`), with samples :data:`INTERACTIVE_STEP` times
+farther apart (``interactive_step``), and cast every ray at the scene's step at rest:
 
 * :class:`~vtkillum.mappers.IlluminatedVolume` for the frames of a drag
   (:mod:`vtkillum.mappers.accumulation`'s frame 0 while :func:`window_interacting`);
@@ -29,6 +30,10 @@ import math
 #: along x and y, and VTK scales the picture up).
 INTERACTIVE_IMAGE_SAMPLE_DISTANCE = 2.0
 
+#: Default sample-distance factor while the view moves (samples along a ray twice as far
+#: apart).
+INTERACTIVE_STEP = 2.0
+
 #: Largest image sample distance accepted (VTK's own limit for its automatic adjustment is
 #: of this order; beyond it a frame is a few blocks).
 MAX_IMAGE_SAMPLE_DISTANCE = 32.0
@@ -45,6 +50,18 @@ def image_sample_distance(value) -> float:
     if not (math.isfinite(value) and 1.0 <= value <= MAX_IMAGE_SAMPLE_DISTANCE):
         raise ValueError(f"interactive_image_sample_distance must be a number in [1, "
                          f"{MAX_IMAGE_SAMPLE_DISTANCE:g}], got {value}")
+    return value
+
+
+def interactive_step(value) -> float:
+    """``value`` as a sample-distance factor (a number >= 1), or a ``ValueError`` naming
+    ``interactive_step``."""
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"interactive_step must be a number >= 1, got {value!r}") from None
+    if not (math.isfinite(value) and value >= 1.0):
+        raise ValueError(f"interactive_step must be a number >= 1, got {value}")
     return value
 
 
