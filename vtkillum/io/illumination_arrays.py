@@ -97,6 +97,27 @@ def lights_from_field(image) -> list | None:
             else PointLight(r[1:4], r[4:7], r[7] if width > 7 else 0.0) for r in rows]
 
 
+def illumination_array_names(image) -> tuple:
+    """``(transmittance, scattered)``: the names of an illumination image's arrays to draw.
+
+    ``(transmittance, scattered_fluence or None)`` when it has a transmittance (the
+    phase-aware convention), else ``(None, fluence)`` (an isotropic scattered fluence);
+    a ``ValueError`` when it has neither.
+    """
+    pd = image.GetPointData()
+    if pd.GetArray(TRANSMITTANCE_ARRAY) is not None:
+        return TRANSMITTANCE_ARRAY, (SCATTERED_ARRAY if pd.GetArray(SCATTERED_ARRAY) is not None
+                                     else None)
+    if pd.GetArray(FLUENCE_ARRAY) is not None:
+        return None, FLUENCE_ARRAY
+    names = [pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())]
+    raise ValueError(
+        f"the illumination image has neither a {TRANSMITTANCE_ARRAY!r} nor a "
+        f"{FLUENCE_ARRAY!r} point array (it has {names}); connect an illumination "
+        "filter's output"
+    )
+
+
 def illumination_from_image(image, volume) -> IlluminationVolume:
     """Rebuild an :class:`IlluminationVolume` covering ``volume`` from an image's arrays.
 
@@ -104,22 +125,12 @@ def illumination_from_image(image, volume) -> IlluminationVolume:
     convention), else ``fluence`` as an isotropic scattered fluence (1 or 3
     components). The caller checks that the image covers the data's box.
     """
-    pd = image.GetPointData()
     transmittance = None
-    if pd.GetArray(TRANSMITTANCE_ARRAY) is not None:
-        t = point_array(image, TRANSMITTANCE_ARRAY)
+    t_name, name = illumination_array_names(image)
+    if t_name is not None:
+        t = point_array(image, t_name)
         t = t[..., None] if t.ndim == 3 else t
         transmittance = np.moveaxis(t, -1, 0)
-        name = SCATTERED_ARRAY if pd.GetArray(SCATTERED_ARRAY) is not None else None
-    elif pd.GetArray(FLUENCE_ARRAY) is not None:
-        name = FLUENCE_ARRAY
-    else:
-        names = [pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())]
-        raise ValueError(
-            f"the illumination image has neither a {TRANSMITTANCE_ARRAY!r} nor a "
-            f"{FLUENCE_ARRAY!r} point array (it has {names}); connect an illumination "
-            "filter's output"
-        )
     scattered = None
     if name is not None:
         values = point_array(image, name)

@@ -300,12 +300,7 @@ from vtkillum.core.scene import Scene
 from vtkillum.core.transfer_function import TABLE_SIZE
 from vtkillum.core.volume import Volume
 from vtkillum.io.convert import add_point_array, image_like, volume_from_image_data
-from vtkillum.io.illumination_arrays import (
-    FLUENCE_ARRAY,
-    SCATTERED_ARRAY,
-    TRANSMITTANCE_ARRAY,
-    lights_from_field,
-)
+from vtkillum.io.illumination_arrays import illumination_array_names, lights_from_field
 from vtkillum.mappers.accumulation import accumulator_for, existing_accumulator
 from vtkillum.mappers.camera_bridge import GridSummary, apply_scene_to_volume_property
 from vtkillum.mappers.inputs import check_covers, connect_input, rendered_point_array
@@ -1860,18 +1855,9 @@ class ImageGrids:
         self.extent = np.asarray(volume.extent, np.float64)
         self.transmittance = None
         self.scattered = None
-        if pd.GetArray(TRANSMITTANCE_ARRAY) is not None:
-            self.transmittance = _vtk_order_view(pd.GetArray(TRANSMITTANCE_ARRAY), dims,
-                                                 TRANSMITTANCE_ARRAY)
-            name = SCATTERED_ARRAY if pd.GetArray(SCATTERED_ARRAY) is not None else None
-        elif pd.GetArray(FLUENCE_ARRAY) is not None:
-            name = FLUENCE_ARRAY
-        else:
-            names = [pd.GetArrayName(i) for i in range(pd.GetNumberOfArrays())]
-            raise ValueError(
-                f"the illumination image has neither a {TRANSMITTANCE_ARRAY!r} nor a "
-                f"{FLUENCE_ARRAY!r} point array (it has {names}); connect an illumination "
-                "filter's output")
+        t_name, name = illumination_array_names(image)
+        if t_name is not None:
+            self.transmittance = _vtk_order_view(pd.GetArray(t_name), dims, t_name)
         if name is not None:
             values = _vtk_order_view(pd.GetArray(name), dims, name)
             if values.shape[-1] not in (1, 3):
