@@ -127,6 +127,13 @@ def trilinear(a: wp.array3d(dtype=Any), inv_spacing: wp.vec3, p: wp.vec3):
     so scalar and RGB grids share one body at no run-time cost.
     """
     idx, f = trilinear_index(p, inv_spacing, wp.vec3i(a.shape[0], a.shape[1], a.shape[2]))
+    return cell_trilinear(a, idx, f)
+
+
+@wp.func
+def cell_trilinear(a: wp.array3d(dtype=Any), idx: wp.vec3i, f: wp.vec3):
+    """Trilinear blend of the 8 points of ``a`` from ``idx`` to ``idx + 1`` with fractions
+    ``f`` (what :func:`trilinear` and pieces of a grid, ``piece_sample``, share)."""
     i = idx[0]
     j = idx[1]
     k = idx[2]

@@ -31,6 +31,7 @@ import warp as wp
 from vtkillum.core.device import resolve_device
 from vtkillum.core.warp_common import (
     Medium,
+    cell_trilinear,
     grid_point,
     lookup_color,
     lookup_sigma_t,
@@ -199,14 +200,7 @@ def piece_sample(a: wp.array3d(dtype=wp.float32), start: wp.vec3i, dims: wp.vec3
     ``p``, read from the piece ``a`` whose ``[0, 0, 0]`` is global point ``start`` (the
     whole volume: ``start`` 0, ``dims`` its shape; the same operations)."""
     idx, f = trilinear_index(p, inv_spacing, dims)
-    i = idx[0] - start[0]
-    j = idx[1] - start[1]
-    k = idx[2] - start[2]
-    c00 = wp.lerp(a[i, j, k], a[i + 1, j, k], f[0])
-    c10 = wp.lerp(a[i, j + 1, k], a[i + 1, j + 1, k], f[0])
-    c01 = wp.lerp(a[i, j, k + 1], a[i + 1, j, k + 1], f[0])
-    c11 = wp.lerp(a[i, j + 1, k + 1], a[i + 1, j + 1, k + 1], f[0])
-    return wp.lerp(wp.lerp(c00, c10, f[1]), wp.lerp(c01, c11, f[1]), f[2])
+    return cell_trilinear(a, idx - start, f)
 
 
 @wp.func
