@@ -1376,8 +1376,9 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
         self._light_key = None
         self._volume = None
         self._blocks = None
-        self._quantisation = {"il_taQ": [1.0] * 4, "il_tbQ": [1.0] * 4, "il_scQ": [1.0] * 4,
-                              "il_zMajor": [1.0] * 4}
+        # layout uniforms of the grid images (16-bit factors, axis order)
+        self._texture_uniforms = {"il_taQ": [1.0] * 4, "il_tbQ": [1.0] * 4,
+                                  "il_scQ": [1.0] * 4, "il_zMajor": [1.0] * 4}
 
     def FillInputPortInformation(self, port, info):
         info.Set(vtkAlgorithm.INPUT_REQUIRED_DATA_TYPE(), "vtkImageData")
@@ -1511,7 +1512,7 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
             values = shading_uniforms(volume, scene, lights, illumination, self.near_cells,
                                       (lo, hi, len(sigma)))
             values.update(self._blocks.uniforms(self.skip_empty))
-            values.update(self._quantisation)
+            values.update(self._texture_uniforms)
             set_uniforms(self.uniforms, values)
             _, kd, ks, _ = shading_terms(scene.shading)
             self.declare((kd > 0 or ks > 0, values["il_numDirect"] > 0,
@@ -1538,34 +1539,52 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
             False)
 
     def _set_light_images(self, volume, illumination, n_lights: int) -> None:
-        if isinstance(illumination, ImageGrids):
-            self._quantisation = illumination.upload(self, volume)
-            return
-        if illumination is None:  # unshadowed: T = 1 for every light
-            transmittance = np.ones((n_lights, 2, 2, 2), np.float32)
-            scattered = None
-        else:
-            transmittance, scattered = illumination.transmittance, illumination.scattered
-        # Placeholders cover the data's box too: the ray caster marches the union of all
-        # inputs' boxes.
-        placeholder = np.zeros((2, 2, 2, 4), np.float32)
-        quant = {"il_taQ": [1.0] * 4, "il_tbQ": [1.0] * 4, "il_scQ": [1.0] * 4,
-                 "il_zMajor": [1.0] * 4}
-        for half, (target, key) in enumerate(zip(self.direct_images, ("il_taQ", "il_tbQ"))):
-            channels = None if transmittance is None else transmittance[4 * half: 4 * half + 4]
-            if channels is None or len(channels) == 0:
-                _set_grid_image(target, volume, "unused", placeholder)
-                continue
-            quant[key] = _set_grid_image(target, volume, "transmittance",
-                                         np.moveaxis(np.asarray(channels), 0, -1),
-                                         pack=(self.illumination_16bit, True))
-        if scattered is None:
-            _set_grid_image(self.scattered_image, volume, "unused", placeholder)
-        else:
-            quant["il_scQ"] = _set_grid_image(self.scattered_image, volume, "scattered_fluence",
-                                              np.asarray(scattered),
-                                              pack=(self.illumination_16bit, False))
-        self._quantisation = quant
+        if isinstance(illumination, ImageGrids):  # VTK's order, checked while packing
+            transmittance, scattered = illumination.transmittance, illumination.drawn_scattered()
+            vtk_order = True
+        else:  # numpy's order (checked by IlluminationVolume)
+            if illumination is None:  # unshadowed: T = 1 for every light
+                transmittance, scattered = np.ones((2, 2, 2, n_lights), np.float32), None
+            else:
+                t = illumination.transmittance
+                transmittance = None if t is None else np.moveaxis(t, 0, -1)
+                scattered = illumination.scattered
+            vtk_order = False
+        self._texture_uniforms = _upload_light_grids(self, volume, transmittance, scattered,
+                                                     vtk_order)
+
+
+def _upload_light_grids(inputs, volume: Volume, transmittance, scattered,
+                        vtk_order: bool) -> dict:
+    """Pack the per-light transmittance (``[..., light]``) and the scattered fluence
+    (``[..., c]``, c 1 or 3) into ``inputs``' images (placeholders for what is absent);
+    returns their layout uniforms. ``vtk_order``: the grids are a VTK array's memory
+    (``[z, y, x, c]``, checked as they are packed), else numpy's (``[x, y, z, c]``)."""
+    sixteen = inputs.illumination_16bit
+    # Placeholders cover the data's box too: the ray caster marches the union of all
+    # inputs' boxes.
+    placeholder = np.zeros((2, 2, 2, 4), np.float32)
+    layout = 0.0 if vtk_order else 1.0
+    uniforms = {"il_taQ": [1.0] * 4, "il_tbQ": [1.0] * 4, "il_scQ": [1.0] * 4,
+                "il_zMajor": [1.0, layout, layout, layout]}
+    n = 0 if transmittance is None else transmittance.shape[-1]
+    for half, (target, key) in enumerate(zip(inputs.direct_images, ("il_taQ", "il_tbQ"))):
+        if n <= 4 * half:
+            _set_grid_image(target, volume, "unused", placeholder)
+            continue
+        uniforms[key] = _set_grid_image(
+            target, volume, "transmittance", transmittance, pack=(sixteen, True),
+            vtk_order=vtk_order, channels=list(range(4 * half, min(4 * half + 4, n))),
+            check="transmittance" if vtk_order else None)
+    if scattered is None:
+        _set_grid_image(inputs.scattered_image, volume, "unused", placeholder)
+    else:
+        uniforms["il_scQ"] = _set_grid_image(
+            inputs.scattered_image, volume, "scattered_fluence", scattered,
+            pack=(sixteen, False), vtk_order=vtk_order,
+            channels=[0, 0, 0] if scattered.shape[-1] == 1 else [0, 1, 2],
+            check="fluence" if vtk_order else None)
+    return uniforms
 
 
 # --- uniforms --------------------------------------------------------------------------------------
@@ -1834,7 +1853,7 @@ class ImageGrids:
 
     An illumination filter's output holds ``transmittance`` (one channel per light) and
     ``scattered_fluence``, or a ``fluence`` (1 or 3 components;
-    :mod:`vtkillum.io.illumination_arrays`). :meth:`upload` packs them into textures in the
+    :mod:`vtkillum.io.illumination_arrays`). :func:`_upload_light_grids` packs them into textures in the
     same order (``il_zMajor`` 0), checking what
     :class:`~vtkillum.core.illumination.IlluminationVolume` checks (finite; transmittance in
     [0, 1], fluence non-negative) slab by slab as it packs. Converting the image to an
@@ -1870,7 +1889,7 @@ class ImageGrids:
         #: ``(n_lights, nx, ny, nz)`` of the transmittance, or None.
         self.transmittance_shape = None if t is None else (self.n_lights, *dims)
         #: Whether a scattered fluence is drawn (an all-zero one beside a transmittance is
-        #: not: :meth:`upload` decides).
+        #: not: :meth:`drawn_scattered` decides).
         self.has_scattered = self.scattered is not None
 
     def check_matches(self, volume, lights=None) -> None:
@@ -1881,33 +1900,15 @@ class ImageGrids:
                 f"the illumination volume has transmittance for {self.n_lights} light(s) but "
                 f"the scene has {len(lights)}; compute it with the scene's lights")
 
-    def upload(self, inputs: "IlluminationInputs", volume: Volume) -> dict:
-        """Pack the grids into ``inputs``' images; returns their layout uniforms."""
-        sixteen = inputs.illumination_16bit
-        placeholder = np.zeros((2, 2, 2, 4), np.float32)
-        quant = {"il_taQ": [1.0] * 4, "il_tbQ": [1.0] * 4, "il_scQ": [1.0] * 4,
-                 "il_zMajor": [1.0, 0.0, 0.0, 0.0]}
-        t = self.transmittance
-        for half, (target, key) in enumerate(zip(inputs.direct_images, ("il_taQ", "il_tbQ"))):
-            if t is None or self.n_lights <= 4 * half:
-                _set_grid_image(target, volume, "unused", placeholder)
-                continue
-            quant[key] = _set_grid_image(
-                target, volume, "transmittance", t, pack=(sixteen, True), vtk_order=True,
-                channels=list(range(4 * half, min(4 * half + 4, self.n_lights))),
-                check="transmittance")
+    def drawn_scattered(self):
+        """The scattered fluence to draw: None for an all-zero one beside a transmittance
+        (a transmittance-only method's output); sets :attr:`has_scattered`."""
         values = self.scattered
-        if values is not None and t is not None and values.size and not float(values.max()) > 0:
-            values = None  # an all-zero scattered fluence (a transmittance-only method)
+        if values is not None and self.transmittance is not None and values.size and \
+                not float(values.max()) > 0:
+            values = None
         self.has_scattered = values is not None
-        if values is None:
-            _set_grid_image(inputs.scattered_image, volume, "unused", placeholder)
-        else:
-            channels = [0, 0, 0] if values.shape[-1] == 1 else [0, 1, 2]
-            quant["il_scQ"] = _set_grid_image(
-                inputs.scattered_image, volume, "scattered_fluence", values,
-                pack=(sixteen, False), vtk_order=True, channels=channels, check="fluence")
-        return quant
+        return values
 
 
 def _vtk_order_view(array, dims: tuple, name: str) -> np.ndarray:
