@@ -108,13 +108,19 @@ def missing_tools() -> list[str]:
 
 def pvbatch_command(script, *args, ranks: int = 1) -> list[str]:
     """``xvfb-run -a pvbatch script args...`` (ParaView 5.11 needs an X server); with
-    ``ranks`` > 1 pvbatch runs under ``mpirun -np ranks`` (ParaView's MPI engine)."""
+    ``ranks`` > 1 pvbatch runs under ``mpirun -np ranks`` (ParaView's MPI engine), without
+    ParaView's X display test."""
     xvfb = xvfb_command()
     if ranks > 1:
         mpi = ["mpirun", "-np", str(ranks), "--oversubscribe"]
         if os.geteuid() == 0:
             mpi.append("--allow-run-as-root")  # Open MPI refuses root otherwise (CI runs as root)
-        return [*xvfb, *mpi, "pvbatch", str(script), *map(str, args)]
+        # ParaView probes the X server from every rank at once and Xvfb refuses a few per
+        # cent of simultaneous connections; one refusal turns remote rendering off on all
+        # ranks, and ParaView 5.11's first volume render then never ends. xvfb-run's
+        # display is known to work: skip the probe.
+        return [*xvfb, *mpi, "pvbatch", "--disable-xdisplay-test", str(script),
+                *map(str, args)]
     return [*xvfb, "pvbatch", str(script), *map(str, args)]
 
 
@@ -171,22 +177,37 @@ def _run_group(command, timeout=None, capture_output=False, **kwargs):
     return subprocess.CompletedProcess(command, proc.returncode, stdout, stderr)
 
 
+#: What an MPI pvbatch script prints (and exits 75) when ParaView found no remote rendering
+#: on its ranks: a rank's X connection failed while ParaView probed it. Debian's ParaView
+#: 5.11 would then wait forever in the first volume render (rank 0 redistributes the data
+#: for ordered compositing, the other ranks do not render), so the scripts end at once.
+NO_REMOTE_RENDERING = "vtkillum-tests: remote rendering is not available on the ranks"
+
+#: Output of a run that lost a race for the X server, not a fault of the script: tried again.
+X_RACES = ("bad X server connection", NO_REMOTE_RENDERING)
+
+
 def run_pvbatch_logged(script, *args, shim_dir=None, timeout=None, attempts: int = 2,
                        ranks: int = 1) -> tuple[subprocess.CompletedProcess, str]:
-    """:func:`run_pvbatch` with its output captured, tried again (up to ``attempts`` runs)
-    when ``xvfb-run -a`` lost the race for a display number, or, on several MPI ranks,
-    when the run timed out (once, on a loaded machine, ParaView 5.11's ranks waited for
-    each other in a render forever); returns the process and its stdout + stderr."""
+    """:func:`run_pvbatch` with its output captured, tried again (up to ``attempts`` runs;
+    on several MPI ranks at least 4) when it lost a race for the X server (:data:`X_RACES`:
+    ``xvfb-run -a`` lost the display number, or Xvfb refused a rank's connection, which
+    it does for a few per cent of simultaneous connections), or, once, on several MPI
+    ranks, when the run timed out; returns the process and its stdout + stderr."""
+    if ranks > 1:
+        attempts = max(attempts, 4)  # one of 4 ranks misses the X server in ~1 of 5 runs
+    timed_out = False
     for attempt in range(max(1, attempts)):
         try:
             proc = run_pvbatch(script, *args, shim_dir=shim_dir, timeout=timeout, ranks=ranks,
                                capture_output=True, text=True)
         except subprocess.TimeoutExpired:
-            if ranks > 1 and attempt + 1 < attempts:
+            if ranks > 1 and attempt + 1 < attempts and not timed_out:
+                timed_out = True  # once: a second hang is no race
                 continue
             raise
         log = proc.stdout + proc.stderr
-        if proc.returncode == 0 or "bad X server connection" not in log:
+        if proc.returncode == 0 or not any(race in log for race in X_RACES):
             break
     return proc, log
 

@@ -18,6 +18,7 @@ from paraview import simple
 OUT = Path(sys.argv[1])
 PLUGIN = Path(__file__).resolve().parents[2] / "paraview_plugin" / "vtkillum_plugin.py"
 simple.LoadPlugin(str(PLUGIN), ns=globals())
+import pvbatch_env  # noqa: E402  (paraview_plugin, on the path with the plugin)
 import vtkillum_plugin  # noqa: E402  (loaded by LoadPlugin above)
 from paraview.modules.vtkRemotingCore import vtkProcessModule  # noqa: E402
 
@@ -47,6 +48,12 @@ if hasattr(view, "UseColorPaletteForBackground"):
 view.CameraPosition = [0, 0, 70]
 view.CameraFocalPoint = [0, 0, 0]
 view.CameraViewUp = [0, 1, 0]
+if summary["ranks"] > 1 and not view.GetClientSideObject().GetRemoteRenderingAvailable():
+    # A rank could not reach the X server when ParaView probed it (Xvfb refuses a few
+    # per cent of simultaneous connections). ParaView 5.11 then waits forever in the first
+    # volume render; end at once, for run_pvbatch_logged to try again.
+    print(pvbatch_env.NO_REMOTE_RENDERING, flush=True)
+    sys.exit(75)
 
 for k, (label, settings) in enumerate(FILTERS.items()):
     make = globals()[label.replace(" ", "").replace("-", "")]
