@@ -200,12 +200,18 @@ STAGED_THEN_WAIT = textwrap.dedent("""
 """)
 
 
+def default_sighup() -> None:
+    """In the child: SIGHUP as a terminal gives it, even when the tests run under
+    ``nohup`` (which ignores it, and an ignored SIGHUP stays ignored: tested below)."""
+    signal.signal(signal.SIGHUP, signal.SIG_DFL)
+
+
 def signal_while_writing(directory: Path, name: str, signum: int):
     """Run the command writing ``name`` and send ``signum`` once the files are staged."""
     process = subprocess.Popen([sys.executable, "-c", STAGED_THEN_WAIT,
                                 *write_command(directory, name)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                               cwd=ROOT)
+                               cwd=ROOT, preexec_fn=default_sighup)
     try:
         line = process.stdout.readline()
         assert line.strip() == "staged", (line, process.stderr.read() if not line else "")
@@ -281,7 +287,7 @@ def path_render(output: Path, signals: list[int], after: int = 3, pause: float =
         [sys.executable, "-c", PATH_PASSES, "render", "builtin:ct:16", "-m", "path", "--spp",
          "100000", "--size", "12", "10", "--device", "cpu", "-o", str(output)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
-        env={**os.environ, "PASS_PAUSE": str(pause)})
+        env={**os.environ, "PASS_PAUSE": str(pause)}, preexec_fn=default_sighup)
     try:
         while True:
             line = process.stdout.readline()
