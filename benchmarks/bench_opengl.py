@@ -525,6 +525,20 @@ def synthetic_illumination(volume, kind: str, lights: int = 1, scale: float = 0.
     return IlluminationVolume.for_volume(volume, transmittance=t, scattered=phi)
 
 
+def on_device(illumination, device=None):
+    """The grids of an IlluminationVolume as warp arrays on ``device`` (default the first
+    GPU, else the CPU): what a light method computing on a GPU hands over."""
+    import warp as wp
+
+    from vtkillum.core.illumination import IlluminationVolume
+
+    device = device or ("cuda:0" if wp.get_cuda_device_count() else "cpu")
+    s, t = illumination.scattered, illumination.transmittance
+    return IlluminationVolume(
+        None if s is None else wp.array(s, dtype=wp.vec3, device=device),
+        illumination.extent, None if t is None else wp.array(t, dtype=wp.float32, device=device))
+
+
 def interactive_data(opts, size: int):
     """``(volume, scene)`` of the ``--interactive`` run: ``ct-like`` is
     ``bench_scaling.py``'s volume (made by a warp kernel on the device) and scene, the ones
@@ -643,12 +657,34 @@ def interactive(opts) -> tuple[list, str]:
                 window.WaitForCompletion()
                 edits.append(1000.0 * (time.perf_counter() - t0))
             tf_ms = statistics.median(edits) if edits else nan
+            # the same edits with the grids on the warp device (as a light method leaves
+            # them) written straight into VTK's textures (device_upload)
+            direct_ms, direct_writes = nan, 0
+            if opts.tf_edit and opts.device_upload and kind != AMBIENT:
+                actor.device_upload = True
+                for _ in range(2):  # the writer finds VTK's textures in a frame that
+                    window.Render()  # reuses the shader (the camera and its light still)
+                edits = []
+                for k in range(3):
+                    new_light = on_device(synthetic_illumination(
+                        volume, kind, len(scene.lights), scale=opts.grid_scale, seed=k + 4),
+                        opts.device)
+                    t0 = time.perf_counter()
+                    actor.set_illumination(new_light)
+                    actor.set_scene(scene.copy() if hasattr(scene, "copy") else scene)
+                    window.Render()
+                    window.WaitForCompletion()
+                    edits.append(1000.0 * (time.perf_counter() - t0))
+                direct_ms, direct_writes = statistics.median(edits), actor.inputs.writer.writes
+                if actor.inputs.writer.last_error:
+                    print(f"device upload: {actor.inputs.writer.last_error}", flush=True)
+                actor.device_upload = False
             row = (size, kind, still, moving, moving_every, moving_near0, still_near0, before,
-                   tf_ms, uploads)
+                   tf_ms, direct_ms, uploads)
             rows.append(row)
             print(f"| {size}^3 | {kind} | {still:.1f} | {moving:.1f} | {moving_every:.1f} | "
                   f"{moving_near0:.1f} | {still_near0:.1f} | {before:.1f} | {tf_ms:.0f} | "
-                  f"{uploads:g} |", flush=True)
+                  f"{direct_ms:.0f} ({direct_writes} writes) | {uploads:g} |", flush=True)
             window.Finalize()
             del actor, light
     return rows, gpu
@@ -664,9 +700,10 @@ def interactive_main(opts) -> int:
     print("| data | illumination | camera move ms (still: full quality) | moving in an "
           "interactive window (step x2, a ray per 2 x 2 pixels) | moving, every pixel | "
           "moving, interactive_near_cells 0 | still, near_cells 0 | before issue 35 (float32 "
-          "grids, no leaps; --history) | TF edit to new frame ms (--tf-edit) | 3D uploads "
+          "grids, no leaps; --history) | TF edit to new frame ms (--tf-edit) | the same, "
+          "grids on the device written into the textures (--device-upload) | 3D uploads "
           "per camera move |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
     _, gpu = interactive(opts)
     print(f"GPU (GL_RENDERER): {gpu}")
     if opts.interop:
@@ -899,6 +936,10 @@ def main(argv=None) -> int:
                                          "the volume (default cuda:0 where there is one)")
     parser.add_argument("--history", action="store_true",
                         help="--interactive: also time float32 grids without leaps")
+    parser.add_argument("--device-upload", action="store_true",
+                        help="with --tf-edit: also time edits whose grids are warp arrays "
+                             "written straight into VTK's textures (IlluminatedVolume."
+                             "device_upload)")
     parser.add_argument("--tf-edit", action="store_true",
                         help="--interactive: also time a TF edit to the new frame")
     parser.add_argument("--interop", action="store_true",

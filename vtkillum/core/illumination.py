@@ -167,6 +167,17 @@ class IlluminationVolume:
                 download(source).reshape(self._shapes[part]).astype(np.float32, copy=False))
         return self._host[part]
 
+    def resident_device(self) -> str | None:
+        """A warp device on which every present grid already is (a CUDA one first), or
+        None: where a consumer can read the grids without a copy."""
+        present = [p for p in ("scattered", "transmittance") if self._shapes[p] is not None]
+        devices = sorted({d for (_p, d) in self._device},
+                         key=lambda d: (not d.startswith("cuda"), d))
+        for device in devices:
+            if all((part, device) in self._device for part in present):
+                return device
+        return None
+
     # --- device views (uploaded once per device when the grids came from numpy) ---------------
     def device_scattered(self, device: str):
         """The scattered fluence as a warp ``array3d(vec3)`` on ``device`` (None if absent)."""

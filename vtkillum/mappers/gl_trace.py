@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import functools
 import glob
 import os
 from collections import Counter
@@ -62,6 +63,7 @@ UPLOADS = ("glTexImage3D", "glTexSubImage3D", "glTexImage2D", "glTexSubImage2D",
            "glTexImage1D", "glTexSubImage1D")
 
 
+@functools.lru_cache(maxsize=1)
 def _glad_library():
     import vtkmodules
 
@@ -73,6 +75,21 @@ def _glad_library():
     if name is None:
         raise RuntimeError("libvtkglad not found: this VTK does not load OpenGL through glad")
     return ctypes.CDLL(name)
+
+
+def gl_function(name: str, restype, *argtypes):
+    """A callable for the OpenGL function ``name`` as VTK's loader holds it (``restype``,
+    ``argtypes``: ctypes types). The pointer is read at each call: a context made current
+    later, or a :class:`GLCallCounter`, may have swapped it. Call it only while a VTK
+    window's context is current (e.g. in a mapper's render events)."""
+    slot = ctypes.c_void_p.in_dll(_glad_library(), f"vtk_glad_{name}")
+    proto = ctypes.CFUNCTYPE(restype, *argtypes)
+
+    def call(*args):
+        if not slot.value:
+            raise RuntimeError(f"{name} is not loaded: no OpenGL context was made current")
+        return proto(slot.value)(*args)
+    return call
 
 
 class GLCallCounter:
@@ -177,4 +194,4 @@ class GLCallCounter:
                 "glFinish": self.calls["glFinish"]}
 
 
-__all__ = ["SIGNATURES", "UPLOADS", "GLCallCounter"]
+__all__ = ["SIGNATURES", "UPLOADS", "GLCallCounter", "gl_function"]

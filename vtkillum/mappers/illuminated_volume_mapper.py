@@ -1223,6 +1223,43 @@ class IlluminatedVolume(vtkMultiVolume):
             self.inputs.Modified()
             self.Modified()
 
+    @property
+    def device_upload(self) -> bool:
+        """Write light grids that live on a warp device straight into VTK's textures
+        (default False).
+
+        On: an :class:`~vtkillum.core.illumination.IlluminationVolume` whose grids are warp
+        arrays (what a light method computes on a GPU) is packed to 16 bit on its device and
+        copied into the textures VTK made for the previous grids, through an OpenGL pixel
+        buffer mapped into CUDA (:mod:`vtkillum.mappers.texture_upload`): no download, no
+        host packing, no upload from host memory. It applies from the second set of grids
+        of the same size on (VTK makes the textures from the first); anything else
+        (images, numpy grids, another size, float32 grids, an OpenGL error) goes through
+        the host as before. Off by default until its whole TF edit is measured on a GPU.
+        """
+        return self.inputs.writer is not None
+
+    @device_upload.setter
+    def device_upload(self, value: bool) -> None:
+        if not isinstance(value, (bool, np.bool_)):
+            raise TypeError(f"device_upload must be True or False, got {value!r}")
+        if bool(value) == self.device_upload:
+            return
+        if value:
+            from vtkillum.mappers.texture_upload import TextureWriter
+
+            inputs = self.inputs
+            inputs.writer = TextureWriter(
+                self.mapper, {DIRECT_PORT_A: inputs.direct_images[0],
+                              DIRECT_PORT_B: inputs.direct_images[1],
+                              SCATTERED_PORT: inputs.scattered_image}, inputs._host_fallback)
+        else:
+            writer, self.inputs.writer = self.inputs.writer, None
+            writer.release()
+            self.inputs._light_key = None  # the images may hold older grids: re-pack
+            self.inputs.Modified()
+            self.Modified()
+
     def content_mtime(self) -> int:
         """Latest modification of anything that changes this volume's picture.
 
@@ -1372,6 +1409,9 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
         self.skip_empty = True
         #: Store illumination grids as 16-bit fixed point (True) or float32 (False).
         self.illumination_16bit = True
+        #: TextureWriter of device-resident grids (None: every grid goes through the host;
+        #: see IlluminatedVolume.device_upload).
+        self.writer = None
         self._data_key = None
         self._light_key = None
         self._volume = None
@@ -1538,7 +1578,12 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
                             direct_lights=direct_lights) + GLSL_SHADING_DEC,
             False)
 
-    def _set_light_images(self, volume, illumination, n_lights: int) -> None:
+    def _set_light_images(self, volume, illumination, n_lights: int,
+                          direct: bool = True) -> None:
+        if direct and self._write_device_grids(illumination):
+            return
+        if self.writer is not None:
+            self.writer.forget()  # the images (the host path) hold the grids again
         if isinstance(illumination, ImageGrids):  # VTK's order, checked while packing
             transmittance, scattered = illumination.transmittance, illumination.drawn_scattered()
             vtk_order = True
@@ -1552,6 +1597,59 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
             vtk_order = False
         self._texture_uniforms = _upload_light_grids(self, volume, transmittance, scattered,
                                                      vtk_order)
+
+    def _write_device_grids(self, illumination) -> bool:
+        """Schedule the grids of an IlluminationVolume that lives on a warp device for
+        :attr:`writer` (straight into VTK's textures, :mod:`.texture_upload`); False where
+        the host path must draw them (no writer, float32 textures, grids on the host,
+        textures of another size or not made yet)."""
+        writer = self.writer
+        if writer is None or not self.illumination_16bit or \
+                not isinstance(illumination, IlluminationVolume):
+            return False
+        device = illumination.resident_device()
+        if device is None:
+            return False
+        from functools import partial
+
+        from vtkillum.core import texels
+        from vtkillum.mappers.texture_upload import Job
+
+        jobs = {}
+        uniforms = {"il_taQ": [1.0] * 4, "il_tbQ": [1.0] * 4, "il_scQ": [1.0] * 4,
+                    "il_zMajor": [1.0] * 4}  # z-major textures, as the host path makes them
+        t = illumination.device_transmittance(device)
+        if t is not None:
+            size = tuple(int(n) for n in t.shape[1:][::-1])
+            for half, port in enumerate((DIRECT_PORT_A, DIRECT_PORT_B)):
+                lights = list(range(4 * half, min(4 * half + 4, t.shape[0])))
+                if lights:
+                    jobs[port] = Job(size, device,
+                                     partial(texels.pack_transmittance, t, lights))
+        s = illumination.device_scattered(device)
+        if s is not None:
+            tops = texels.fluence_tops(s)
+            uniforms["il_scQ"] = texels.fluence_factors(tops)
+            jobs[SCATTERED_PORT] = Job(tuple(int(n) for n in s.shape[::-1]), device,
+                                       partial(texels.pack_fluence, s, tops=tops))
+        if not jobs or not all(writer.can_write(port, job.size) for port, job in jobs.items()):
+            return False
+        for port, job in jobs.items():
+            writer.schedule(port, job)
+        # ports without a job keep their texels: this illumination's shader variant does
+        # not read them
+        self._texture_uniforms = uniforms
+        return True
+
+    def _host_fallback(self, ports) -> None:
+        """A scheduled texture write failed (at the render's start): put the grids on the
+        host path, in time for VTK to upload them in this render."""
+        if self._volume is None:
+            return
+        self._set_light_images(self._volume, self.illumination, len(self.lights),
+                               direct=False)
+        if self.uniforms is not None:
+            set_uniforms(self.uniforms, self._texture_uniforms)
 
 
 def _upload_light_grids(inputs, volume: Volume, transmittance, scattered,

@@ -1,0 +1,186 @@
+"""Light grids on a warp device reach VTK's textures without the host (issue 35).
+
+``IlluminatedVolume.device_upload`` packs device-resident grids to 16 bit where they live
+(:mod:`vtkillum.core.texels`) and copies them through an OpenGL pixel buffer into the
+textures VTK made (:mod:`vtkillum.mappers.texture_upload`). Here the device is warp's CPU
+and the OpenGL is llvmpipe, so the pixel buffer is filled from host memory; on CUDA the
+same buffer is mapped into the GPU (the only step these tests do not run). What they
+prove: the texels are ``pack_channels``' bit for bit; the picture is the host path's bit
+for bit; the images are not touched and VTK uploads nothing else; every case the writer
+cannot take (first grids, another size, a failed write, textures made anew) still draws
+the right picture.
+"""
+
+import numpy as np
+import pytest
+from helpers import read_window_rgb
+from test_illumination_images import SHAPE, skewed_blobs
+from test_mappers import blob_lights, direct_light, make_scene, render_opengl, slab_fluence
+
+pytest.importorskip("vtkmodules.vtkRenderingVolumeOpenGL2")
+import warp as wp  # noqa: E402
+from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: E402
+
+from vtkillum.core import texels  # noqa: E402
+from vtkillum.core.illumination import IlluminationVolume  # noqa: E402
+from vtkillum.core.resample import resample_points  # noqa: E402
+from vtkillum.io.convert import image_data_from_volume  # noqa: E402
+from vtkillum.mappers.gl_trace import GLCallCounter  # noqa: E402
+from vtkillum.mappers.illuminated_volume_mapper import (  # noqa: E402
+    DIRECT_PORT_A,
+    pack_channels,
+)
+
+
+def test_device_texels_are_pack_channels_bit_for_bit():
+    rng = np.random.default_rng(7)
+    t = rng.random((6, 5, 7, 4)).astype(np.float32)
+    t[0, 0, 0, 0], t[1, 0, 0, 1], t[2, 0, 0, 2] = 1.0, 0.0, 0.5 / 65535  # ends, a half-way tie
+    for lights in ([0, 1, 2, 3], [4, 5], [2]):
+        ref, q = pack_channels(np.moveaxis(t, 0, -1), True, unit_range=True, channels=lights)
+        out = wp.empty(texels.texel_count(t.shape[1:]), dtype=wp.uint16, device="cpu")
+        assert texels.pack_transmittance(wp.array(t, dtype=wp.float32, device="cpu"),
+                                         lights, out) == q
+        assert np.array_equal(out.numpy().reshape(ref.shape), ref)
+    s = (rng.random((5, 7, 4, 3)) * np.array([3.0, 0.2, 0.0])).astype(np.float32)  # B all 0
+    ref, q = pack_channels(s, True, channels=[0, 1, 2])
+    out = wp.empty(texels.texel_count(s.shape[:3]), dtype=wp.uint16, device="cpu")
+    assert texels.pack_fluence(wp.array(s, dtype=wp.vec3, device="cpu"), out) == q
+    assert np.array_equal(out.numpy().reshape(ref.shape), ref)
+    with pytest.raises(ValueError, match="uint16"):
+        texels.pack_fluence(wp.array(s, dtype=wp.vec3, device="cpu"), out[:-4])
+
+
+@pytest.fixture(scope="module")
+def grids():
+    volume = skewed_blobs()
+    scene = make_scene(volume, lights=blob_lights(volume))
+    transmittance = direct_light(volume, scene, shape=SHAPE)
+    scattered = resample_points(slab_fluence(volume, scene.transfer_function),
+                                SHAPE).astype(np.float32)
+    return volume, scene, transmittance, scattered
+
+
+def on_device(volume, scattered, transmittance):
+    """An IlluminationVolume whose grids are warp arrays (warp's CPU device here)."""
+    return IlluminationVolume.for_volume(
+        volume, None if scattered is None else wp.array(scattered, dtype=wp.vec3, device="cpu"),
+        None if transmittance is None else wp.array(transmittance, dtype=wp.float32,
+                                                    device="cpu"))
+
+
+def host_picture(volume, scene, scattered, transmittance):
+    picture, _actor, window = render_opengl(
+        image_data_from_volume(volume), scene,
+        IlluminationVolume.for_volume(volume, scattered, transmittance), 1.5)
+    window.Finalize()
+    return picture
+
+
+def test_new_grids_are_written_into_vtks_textures(grids):
+    volume, scene, transmittance, scattered = grids
+    first, actor, window = render_opengl(image_data_from_volume(volume), scene,
+                                         on_device(volume, scattered, transmittance), 1.5,
+                                         accumulate=1)
+    actor.device_upload = True
+    writer = actor.inputs.writer
+    window.Render()  # the writer finds VTK's textures (the first grids came through the host)
+    assert writer.writes == 0 and writer.can_write(DIRECT_PORT_A, SHAPE[::-1])
+    assert np.abs(read_window_rgb(window) - first).max() == 0.0
+    # a TF edit: new grids of the same size, on the device
+    edited_t, edited_s = transmittance ** 2, scattered * 0.6
+    images = (*actor.inputs.direct_images, actor.inputs.scattered_image)
+    stamps = [image.GetMTime() for image in images]
+    actor.set_illumination(on_device(volume, edited_s, edited_t))
+    with GLCallCounter() as gl:
+        window.Render()
+    drawn = read_window_rgb(window)
+    assert writer.writes == 2 and writer.last_error is None  # 2 lights: port A; scattered
+    # the grids' only uploads are the two writes (the optics table is re-made as ever)
+    grid_uploads = [u for u in gl.uploads_3d if u[:3] == SHAPE[::-1]]
+    assert gl.calls["glTexSubImage3D"] == 2 and len(grid_uploads) == 2
+    assert [image.GetMTime() for image in images] == stamps  # the host images untouched
+    expected = host_picture(volume, scene, edited_s, edited_t)
+    assert np.abs(drawn - first).max() > 0.05
+    assert np.abs(drawn - expected).max() == 0.0
+    # the host images are brought up to date in the background: what the host path packs
+    writer.sync_host()
+    _, host_actor, host_window = render_opengl(
+        image_data_from_volume(volume), scene,
+        IlluminationVolume.for_volume(volume, edited_s, edited_t), 1.5)
+    for mine, theirs in zip(images[:1] + images[2:], (*host_actor.inputs.direct_images[:1],
+                                     host_actor.inputs.scattered_image)):
+        assert np.array_equal(vtk_to_numpy(mine.GetPointData().GetScalars()),
+                              vtk_to_numpy(theirs.GetPointData().GetScalars()))
+    host_window.Finalize()
+    assert [image.GetMTime() for image in images] == stamps
+    # so VTK's textures made anew (as after a lost context) hold the new grids
+    actor.mapper.ReleaseGraphicsResources(window)
+    window.Render()
+    assert np.abs(read_window_rgb(window) - expected).max() == 0.0
+    # and the writer does not take the new textures (whose names are the old ones again)
+    # for those it found: the next grids go through the host until it has seen them
+    again_t = transmittance ** 3
+    actor.set_illumination(on_device(volume, edited_s, again_t))
+    window.Render()
+    assert writer.writes == 2
+    expected = host_picture(volume, scene, edited_s, again_t)
+    assert np.abs(read_window_rgb(window) - expected).max() == 0.0
+    # off: the host path, which packs the current grids again
+    actor.device_upload = False
+    window.Render()
+    assert np.abs(read_window_rgb(window) - expected).max() == 0.0
+    window.Finalize()
+
+
+def test_what_the_writer_cannot_take_goes_through_the_host(grids):
+    volume, scene, transmittance, scattered = grids
+    _first, actor, window = render_opengl(image_data_from_volume(volume), scene,
+                                          on_device(volume, None, transmittance), 1.5,
+                                          accumulate=1)
+    actor.device_upload = True
+    writer = actor.inputs.writer
+    window.Render()
+    # grids of another size: the host path (VTK makes textures of the new size)
+    smaller = direct_light(volume, scene, shape=(12, 9, 7))
+    actor.set_illumination(on_device(volume, None, smaller))
+    window.Render()
+    assert writer.writes == 0
+    assert np.abs(read_window_rgb(window) - host_picture(volume, scene, None, smaller)).max() \
+        == 0.0
+    # scattered fluence where the previous grids had none (its texture is a placeholder)
+    actor.set_illumination(on_device(volume, resample_points(scattered, (12, 9, 7))
+                                     .astype(np.float32), smaller))
+    window.Render()
+    assert writer.writes == 0
+    # numpy grids: the host path
+    actor.set_illumination(IlluminationVolume.for_volume(volume, None, smaller * 0.5))
+    window.Render()
+    assert writer.writes == 0
+    # a write that fails at the render's start: the host path draws the same frame
+    dimmer = smaller * 0.3
+    actor.set_illumination(on_device(volume, None, dimmer))
+    actor.check()
+    assert writer.pending  # scheduled: the textures are known and of this size
+
+    def broken(out):
+        raise RuntimeError("interop unavailable")
+
+    for job in writer.pending.values():
+        job.pack = broken
+    window.Render()
+    assert writer.writes == 0 and "interop unavailable" in writer.last_error
+    assert np.abs(read_window_rgb(window) - host_picture(volume, scene, None, dimmer)).max() \
+        == 0.0
+    window.Finalize()
+
+
+def test_device_upload_takes_a_bool(grids):
+    volume, scene, transmittance, _ = grids
+    _first, actor, window = render_opengl(image_data_from_volume(volume), scene,
+                                          on_device(volume, None, transmittance), 1.5)
+    with pytest.raises(TypeError, match="device_upload must be True or False"):
+        actor.device_upload = "yes"
+    assert actor.device_upload is False and actor.inputs.writer is None
+    window.Finalize()
+

@@ -1,0 +1,373 @@
+"""Light grids from a warp device straight into the 3D textures VTK made for them.
+
+:class:`~vtkillum.mappers.illuminated_volume_mapper.IlluminatedVolume` hands its light
+grids to VTK's ray caster as ``vtkImageData`` inputs; VTK uploads each from host memory
+when the image changes. For grids that a light method left on a GPU that is a download,
+a pack on the host and an upload (2.6 s for a 512³ transmittance on an H200, most of a
+TF edit). :class:`TextureWriter` writes the new texels into the textures VTK already
+has instead, without touching the images:
+
+1. VTK's texture of each input port is found in the mapper's ``UpdateShaderEvent`` (the
+   program is bound: the sampler ``in_volume[port]`` names a texture unit, the unit the
+   texture); its size and format are read from OpenGL.
+2. When the grids change and each texture has the grid's size and the 16-bit RGBA
+   format, the grids are packed by :mod:`vtkillum.core.texels` into an OpenGL pixel
+   buffer: on CUDA through warp's CUDA–OpenGL interop (``wp.RegisteredGLBuffer``, the
+   buffer mapped into CUDA, no host copy), on the CPU device from host memory.
+3. At the start of the next render (``VolumeMapperRenderStartEvent``, after the inputs
+   were updated, before the draw) ``glTexSubImage3D`` copies the buffer into the
+   texture; ``UpdateShaderEvent`` checks that the texture drawn from is the one written
+   (VTK makes new textures after ``ReleaseGraphicsResources``) and writes it again if not.
+
+Anything else (the first frame, a grid of another size, float32 textures, an OpenGL
+error) takes the host path: the images are filled and VTK uploads them. After a direct
+write the images are brought up to date in the background (the packed texels copied from
+the device into the image arrays, without marking them modified, so VTK uploads nothing):
+VTK reads them only when it makes its textures anew (a lost context, another window),
+and then finds the grids it was last given. :meth:`TextureWriter.sync_host` waits for
+that copy.
+
+The GPU-to-GPU copy was measured on an NVIDIA H200 in ``benchmarks/bench_opengl.py
+--interop`` (a 256³ RGBA16 grid: 3.6 ms, against 137 ms through the host); the whole
+TF edit through this class is not yet measured on a GPU, so
+``IlluminatedVolume.device_upload`` is off by default.
+"""
+
+from __future__ import annotations
+
+import ctypes
+from dataclasses import dataclass
+
+import numpy as np
+
+from vtkillum.mappers.gl_trace import gl_function
+
+_u, _i, _p, _sz = ctypes.c_uint, ctypes.c_int, ctypes.c_void_p, ctypes.c_ssize_t
+
+GL_TEXTURE_3D = 0x806F
+GL_TEXTURE_BINDING_3D = 0x806A
+GL_ACTIVE_TEXTURE = 0x84E0
+GL_TEXTURE0 = 0x84C0
+GL_TEXTURE_WIDTH, GL_TEXTURE_HEIGHT, GL_TEXTURE_DEPTH = 0x1000, 0x1001, 0x8071
+GL_TEXTURE_INTERNAL_FORMAT = 0x1003
+GL_RGBA, GL_RGBA16, GL_UNSIGNED_SHORT = 0x1908, 0x805B, 0x1403
+GL_PIXEL_UNPACK_BUFFER, GL_PIXEL_UNPACK_BUFFER_BINDING = 0x88EC, 0x88EF
+GL_STREAM_DRAW = 0x88E0
+GL_UNPACK_ALIGNMENT = 0x0CF5
+GL_TEXTURE = 0x1702
+
+
+class _GL:
+    """The OpenGL calls used here (looked up through VTK's loader)."""
+
+    def __init__(self) -> None:
+        self.GetUniformLocation = gl_function("glGetUniformLocation", _i, _u, ctypes.c_char_p)
+        self.GetUniformiv = gl_function("glGetUniformiv", None, _u, _i, _p)
+        self.GetIntegerv = gl_function("glGetIntegerv", None, _u, _p)
+        self.ActiveTexture = gl_function("glActiveTexture", None, _u)
+        self.BindTexture = gl_function("glBindTexture", None, _u, _u)
+        self.IsTexture = gl_function("glIsTexture", ctypes.c_ubyte, _u)
+        self.GetTexLevelParameteriv = gl_function("glGetTexLevelParameteriv", None, _u, _i, _u,
+                                                  _p)
+        self.GenBuffers = gl_function("glGenBuffers", None, _i, _p)
+        self.DeleteBuffers = gl_function("glDeleteBuffers", None, _i, _p)
+        self.BindBuffer = gl_function("glBindBuffer", None, _u, _u)
+        self.BufferData = gl_function("glBufferData", None, _u, _sz, _p, _u)
+        self.TexSubImage3D = gl_function("glTexSubImage3D", None, _u, _i, _i, _i, _i, _i, _i, _i,
+                                         _u, _u, _p)
+        self.PixelStorei = gl_function("glPixelStorei", None, _u, _i)
+        self.GetError = gl_function("glGetError", _u)
+        self.ObjectLabel = gl_function("glObjectLabel", None, _u, _u, _i, ctypes.c_char_p)
+        self.GetObjectLabel = gl_function("glGetObjectLabel", None, _u, _u, _i, _p,
+                                          ctypes.c_char_p)
+
+    def label(self, texture: int) -> bytes:
+        """The debug label of a texture name (empty for a texture made since)."""
+        length, buffer = _i(0), ctypes.create_string_buffer(64)
+        self.GetObjectLabel(GL_TEXTURE, texture, 64, ctypes.byref(length), buffer)
+        return buffer.value
+
+    def integer(self, name: int) -> int:
+        value = _i(0)
+        self.GetIntegerv(name, ctypes.byref(value))
+        return value.value
+
+
+@dataclass
+class Texture:
+    """VTK's texture of one input port, as the last ``UpdateShaderEvent`` found it."""
+
+    name: int
+    size: tuple  # (width, height, depth): the image's dimensions
+    internal_format: int
+    label: bytes  # the debug label given to it: gone once VTK deletes it (names are reused)
+
+
+@dataclass
+class Job:
+    """Texels for one port: ``pack(out)`` fills a uint16 warp array of ``size`` texels'
+    4 channels on ``device`` (:mod:`vtkillum.core.texels`)."""
+
+    size: tuple  # texture (width, height, depth)
+    device: str
+    pack: object
+
+
+class PixelBuffer:
+    """An OpenGL pixel buffer of ``nbytes`` filled from warp: mapped into CUDA on a GPU,
+    from host memory on the CPU device."""
+
+    def __init__(self, gl: _GL, nbytes: int, device: str) -> None:
+        self.gl, self.nbytes, self.device = gl, int(nbytes), str(device)
+        name = _u(0)
+        gl.GenBuffers(1, ctypes.byref(name))
+        self.name = name.value
+        gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, self.name)
+        gl.BufferData(GL_PIXEL_UNPACK_BUFFER, self.nbytes, None, GL_STREAM_DRAW)
+        gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, 0)
+        self._registered = None
+        if self.device.startswith("cuda"):
+            import warp as wp
+
+            self._registered = wp.RegisteredGLBuffer(
+                self.name, self.device, flags=wp.RegisteredGLBuffer.WRITE_DISCARD)
+
+    def fill(self, texels) -> None:
+        """Copy ``texels`` (a uint16 warp array of the buffer's size, on its device) into
+        the buffer."""
+        import warp as wp
+
+        if self._registered is not None:
+            out = self._registered.map(dtype=wp.uint16, shape=(self.nbytes // 2,))
+            try:
+                wp.copy(out, texels)
+            finally:
+                self._registered.unmap()
+            return
+        host = np.ascontiguousarray(texels.numpy())
+        self.gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, self.name)
+        self.gl.BufferData(GL_PIXEL_UNPACK_BUFFER, self.nbytes,
+                           host.ctypes.data_as(ctypes.c_void_p), GL_STREAM_DRAW)
+        self.gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, 0)
+
+    def release(self) -> None:
+        if self._registered is not None:
+            self._registered = None  # unregisters
+        name = _u(self.name)
+        self.gl.DeleteBuffers(1, ctypes.byref(name))
+
+
+class TextureWriter:
+    """Writes light grids into the textures of some of a VTK GPU ray caster's input ports
+    (see the module docstring).
+
+    Parameters
+    ----------
+    mapper : vtkOpenGLGPUVolumeRayCastMapper
+        Observed (``UpdateShaderEvent``, ``VolumeMapperRenderStartEvent``).
+    images : dict
+        ``port -> vtkImageData``: the image VTK uploads each port's texture from (kept up to
+        date in the background after a direct write).
+    fallback : callable
+        ``fallback(ports)`` is called when a scheduled write cannot be made (an OpenGL or
+        warp error, a texture that changed): it must put the grids of those ports on the
+        host path (fill the images; VTK uploads them in the same render).
+    """
+
+    def __init__(self, mapper, images: dict, fallback) -> None:
+        from vtkmodules.util.misc import calldata_type
+        from vtkmodules.util.vtkConstants import VTK_OBJECT
+        from vtkmodules.vtkCommonCore import vtkCommand
+
+        self.images = {int(port): image for port, image in images.items()}
+        self.ports = tuple(self.images)
+        self.fallback = fallback
+        self.textures: dict[int, Texture] = {}   # found in the last UpdateShaderEvent
+        self.pending: dict[int, Job] = {}        # to write at the next render start
+        self.writes = 0                          # texture writes made (tests, benchmarks)
+        self.last_error: str | None = None
+        self._buffers: dict[int, PixelBuffer] = {}
+        self._texels: dict[int, object] = {}     # port -> packed texels (warp, uint16)
+        self._copies: list = []                  # background copies to the host images
+        self._pool = None
+        self._gl = None
+
+        @calldata_type(VTK_OBJECT)
+        def on_shader(caller, event, program):
+            self._on_shader(program)
+
+        self._observers = [
+            mapper.AddObserver("UpdateShaderEvent", on_shader),
+            mapper.AddObserver(vtkCommand.VolumeMapperRenderStartEvent,
+                               lambda caller, event: self._flush()),
+        ]
+        self._mapper = mapper
+
+    # --- what the mapper asks ------------------------------------------------------------------
+    def can_write(self, port: int, size: tuple) -> bool:
+        """Whether ``port``'s texture is known, ``size`` texels and 16-bit RGBA."""
+        tex = self.textures.get(int(port))
+        return tex is not None and tex.size == tuple(int(n) for n in size) and \
+            tex.internal_format == GL_RGBA16
+
+    def schedule(self, port: int, job: Job) -> None:
+        """Write ``job``'s texels into ``port``'s texture at the next render start."""
+        self.pending[int(port)] = job
+
+    def forget(self) -> None:
+        """The host path owns the images again: drop what was scheduled, and let the
+        background copies end first (they write into the images' arrays)."""
+        self.pending.clear()
+        self.sync_host()
+
+    def sync_host(self) -> None:
+        """Wait until the images hold the grids last written (the background copies)."""
+        copies, self._copies = self._copies, []
+        for copy in copies:
+            copy.result()
+
+    def release(self) -> None:
+        """Remove the observers, end the background copies, free the pixel buffers (they
+        belong to the context of the last render: freed when it is current, else with it)."""
+        for tag in self._observers:
+            self._mapper.RemoveObserver(tag)
+        self._observers = []
+        self.sync_host()
+        if self._pool is not None:
+            self._pool.shutdown()
+        self._buffers.clear()
+        self._texels.clear()
+
+    # --- events --------------------------------------------------------------------------------
+    def _gl_calls(self) -> _GL:
+        if self._gl is None:
+            self._gl = _GL()
+        return self._gl
+
+    def _on_shader(self, program) -> None:
+        gl = self._gl_calls()
+        handle = program.GetHandle()
+        active = gl.integer(GL_ACTIVE_TEXTURE)
+        try:
+            for port in self.ports:
+                location = gl.GetUniformLocation(handle, f"in_volume[{port}]".encode())
+                if location < 0:  # not read by this shader variant
+                    continue
+                unit = _i(-1)
+                gl.GetUniformiv(handle, location, ctypes.byref(unit))
+                if unit.value < 0:
+                    continue
+                gl.ActiveTexture(GL_TEXTURE0 + unit.value)
+                name = gl.integer(GL_TEXTURE_BINDING_3D)
+                if not name:
+                    continue
+                known = self.textures.get(port)
+                if known is not None and known.name == name and gl.label(name) == known.label:
+                    label = known.label  # the same texture (perhaps re-specified: size)
+                else:
+                    label = f"vtkillum-{id(self):x}-{port}-{name}".encode()
+                    gl.ObjectLabel(GL_TEXTURE, name, -1, label)
+                self.textures[port] = Texture(name, self._size(gl),
+                                              self._level(gl, GL_TEXTURE_INTERNAL_FORMAT), label)
+        finally:
+            gl.ActiveTexture(active)
+
+    @staticmethod
+    def _level(gl: _GL, parameter: int) -> int:
+        value = _i(0)
+        gl.GetTexLevelParameteriv(GL_TEXTURE_3D, 0, parameter, ctypes.byref(value))
+        return value.value
+
+    def _size(self, gl: _GL) -> tuple:
+        return tuple(self._level(gl, p) for p in
+                     (GL_TEXTURE_WIDTH, GL_TEXTURE_HEIGHT, GL_TEXTURE_DEPTH))
+
+    def _flush(self) -> None:
+        if not self.pending:
+            return
+        gl = self._gl_calls()
+        jobs, self.pending = self.pending, {}
+        failed = []
+        bound = gl.integer(GL_TEXTURE_BINDING_3D)
+        try:
+            for port, job in jobs.items():
+                texture = self.textures.get(port)
+                # the label proves the name is still VTK's texture of this port
+                if texture is None or not gl.IsTexture(texture.name) or \
+                        gl.label(texture.name) != texture.label:
+                    self.textures.pop(port, None)
+                    failed.append(port)
+                    continue
+                gl.BindTexture(GL_TEXTURE_3D, texture.name)
+                if self._size(gl) != tuple(job.size) or \
+                        self._level(gl, GL_TEXTURE_INTERNAL_FORMAT) != GL_RGBA16 or \
+                        not self._write(gl, port, texture, job):
+                    failed.append(port)
+        finally:
+            gl.BindTexture(GL_TEXTURE_3D, bound)
+        if failed:
+            self.sync_host()
+            self.fallback(failed)
+
+    def _write(self, gl: _GL, port: int, texture: Texture, job: Job) -> bool:
+        """Pack ``job`` on its device, copy it through the port's pixel buffer into
+        ``texture`` (bound to the active unit) and start the copy to the host image;
+        False on an OpenGL or warp error (nothing of it reached the texture)."""
+        import warp as wp
+
+        while gl.GetError():  # errors of others are not ours
+            pass
+        count = 4 * int(np.prod(job.size))
+        self.sync_host()  # a background copy may still read the texels of the last write
+        try:
+            texels = self._texels.get(port)
+            if texels is None or texels.shape[0] != count or str(texels.device) != job.device:
+                texels = self._texels[port] = wp.empty(count, dtype=wp.uint16,
+                                                       device=job.device)
+            job.pack(texels)
+            buffer = self._buffers.get(port)
+            if buffer is None or buffer.nbytes != 2 * count or buffer.device != job.device:
+                buffer = self._buffers[port] = PixelBuffer(gl, 2 * count, job.device)
+            buffer.fill(texels)
+        except Exception as err:  # noqa: BLE001 -- interop unavailable: the host path draws
+            self.last_error = f"{type(err).__name__}: {err}"
+            self._buffers.pop(port, None)
+            return False
+        previous = gl.integer(GL_PIXEL_UNPACK_BUFFER_BINDING)
+        alignment = gl.integer(GL_UNPACK_ALIGNMENT)
+        gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, buffer.name)
+        gl.PixelStorei(GL_UNPACK_ALIGNMENT, 1)
+        width, height, depth = job.size
+        gl.TexSubImage3D(GL_TEXTURE_3D, 0, 0, 0, 0, width, height, depth, GL_RGBA,
+                         GL_UNSIGNED_SHORT, None)
+        gl.PixelStorei(GL_UNPACK_ALIGNMENT, alignment)
+        gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, previous)
+        error = gl.GetError()
+        if error:
+            self.last_error = f"OpenGL error 0x{error:04X} writing port {port}'s texture"
+            return False
+        self.writes += 1
+        self._copy_to_host(port, texels)
+        return True
+
+    def _copy_to_host(self, port: int, texels) -> None:
+        """Copy ``texels`` into the port's image array in the background, unless the image
+        no longer holds a uint16 array of their size (then the host path rewrites it)."""
+        from vtkmodules.util.numpy_support import vtk_to_numpy
+
+        array = self.images[port].GetPointData().GetScalars()
+        if array is None or array.GetDataType() != 5 or \
+                array.GetNumberOfValues() != texels.shape[0]:  # VTK_UNSIGNED_SHORT
+            return
+        if self._pool is None:
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vtkillum-texels")
+
+        def copy(array=array, texels=texels):  # keeps the VTK array alive while it runs
+            np.copyto(vtk_to_numpy(array).reshape(-1), texels.numpy())
+
+        self._copies.append(self._pool.submit(copy))
+
+
+__all__ = ["Job", "PixelBuffer", "Texture", "TextureWriter"]
