@@ -245,6 +245,15 @@ finite range), so the upload does not scan it. A TF edit with a
 new 512³ light grid from host arrays took 6.8 s before, 2.6 s with the first two (H200), of
 which 0.45 s was the range pass the third removes and about 0.5 s VTK's upload.
 
+Grids that a light method left on a GPU (an ``IlluminationVolume`` of warp arrays, e.g.
+``ConvectionDiffusionSolver.illumination_volume(volume)`` or ``light_transmittance(...,
+on_device=True)``) need none of that: with :attr:`IlluminatedVolume.device_upload` on they
+are packed to 16 bit on the device (:mod:`vtkillum.core.texels`, the same texels) and
+copied through an OpenGL pixel buffer mapped into CUDA into the textures VTK made for the
+previous grids (:mod:`vtkillum.mappers.texture_upload`). The copy alone took 3.6 ms for a
+256³ grid on the H200 against 137 ms through the host; the whole edit is not yet measured
+on a GPU, so the property is off by default.
+
 ``benchmarks/bench_opengl.py`` compares the frame time with VTK's own volumetric shadows
 (``docs/benchmarks.md``).
 
