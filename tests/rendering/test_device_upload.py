@@ -118,12 +118,12 @@ def test_new_grids_are_written_into_vtks_textures(grids):
     actor.mapper.ReleaseGraphicsResources(window)
     window.Render()
     assert np.abs(read_window_rgb(window) - expected).max() == 0.0
-    # and the writer does not take the new textures (whose names are the old ones again)
-    # for those it found: the next grids go through the host until it has seen them
+    # the new textures (their names are the old ones again, their labels gone) are found
+    # again by their texels, which the background copy made the new grids'
     again_t = transmittance ** 3
     actor.set_illumination(on_device(volume, edited_s, again_t))
     window.Render()
-    assert writer.writes == 2
+    assert writer.writes == 4
     expected = host_picture(volume, scene, edited_s, again_t)
     assert np.abs(read_window_rgb(window) - expected).max() == 0.0
     # off: the host path, which packs the current grids again
@@ -184,3 +184,58 @@ def test_device_upload_takes_a_bool(grids):
     assert actor.device_upload is False and actor.inputs.writer is None
     window.Finalize()
 
+
+
+def test_textures_are_found_by_their_texels_without_an_update_shader_event(grids):
+    """pyvista's lights follow the camera, so VTK rebuilds the shader in every frame and
+    fires no UpdateShaderEvent: the writer then finds VTK's texture among all textures by
+    comparing texels with the port's image, and refuses a texture it cannot tell apart."""
+    volume, scene, transmittance, scattered = grids
+    _first, actor, window = render_opengl(image_data_from_volume(volume), scene,
+                                          on_device(volume, scattered, transmittance), 1.5,
+                                          accumulate=1)
+    actor.device_upload = True
+    writer = actor.inputs.writer
+    writer._on_shader = lambda program: None  # as in a window whose lights follow the camera
+    edited_t = transmittance * 0.7
+    actor.set_illumination(on_device(volume, scattered, edited_t))
+    window.Render()
+    assert writer.writes == 2 and sorted(writer.textures) == [2, 4]
+    assert np.abs(read_window_rgb(window) - host_picture(volume, scene, scattered, edited_t)) \
+        .max() == 0.0
+    window.Finalize()
+
+
+def test_a_texture_that_cannot_be_told_apart_is_not_written(grids):
+    """Two volumes with the same grids in one window: two textures alike. The writer
+    takes neither (the host path draws), never the other volume's."""
+    from helpers import offscreen_window
+    from vtkmodules.vtkRenderingCore import vtkRenderer
+
+    from vtkillum.mappers import IlluminatedVolume
+
+    volume, scene, transmittance, _ = grids
+    data = image_data_from_volume(volume)
+    renderer = vtkRenderer()
+    actors = [IlluminatedVolume(data, scene, illumination=on_device(volume, None, transmittance),
+                                exposure=1.5, jitter=False, accumulate=1) for _ in range(2)]
+    for actor in actors:
+        renderer.AddVolume(actor)
+    window = offscreen_window(renderer, scene.camera, 64, 64)
+    window.Render()
+    mine, other = actors
+    mine.device_upload = True
+    writer = mine.inputs.writer
+    writer._on_shader = lambda program: None
+    other_texels = vtk_to_numpy(other.inputs.direct_images[0].GetPointData().GetScalars()).copy()
+    edited = transmittance * 0.5
+    mine.set_illumination(on_device(volume, None, edited))
+    window.Render()
+    assert writer.writes == 0 and not writer.textures
+    ref, _q = pack_channels(np.moveaxis(edited, 0, -1), True, unit_range=True)
+    assert np.array_equal(  # the host path packed the new grids into the image
+        vtk_to_numpy(mine.inputs.direct_images[0].GetPointData().GetScalars()),
+        ref.reshape(-1, 4))
+    assert np.array_equal(
+        vtk_to_numpy(other.inputs.direct_images[0].GetPointData().GetScalars()), other_texels)
+    window.Finalize()

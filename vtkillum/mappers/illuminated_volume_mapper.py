@@ -1613,7 +1613,7 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
         the host path must draw them (no writer, float32 textures, grids on the host,
         textures of another size or not made yet)."""
         writer = self.writer
-        if writer is None or not self.illumination_16bit or \
+        if writer is None or not self.illumination_16bit or writer.host_stale or \
                 not isinstance(illumination, IlluminationVolume):
             return False
         device = illumination.resident_device()

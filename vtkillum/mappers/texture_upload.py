@@ -9,15 +9,20 @@ has instead, without touching the images:
 
 1. VTK's texture of each input port is found in the mapper's ``UpdateShaderEvent`` (the
    program is bound: the sampler ``in_volume[port]`` names a texture unit, the unit the
-   texture); its size and format are read from OpenGL.
+   texture). VTK fires that event only in frames that reuse the shader, and a window
+   whose lights follow the camera (pyvista's) rebuilds it in every frame; so where it
+   is not known, the texture is found among all textures as the one 16-bit RGBA
+   texture of the grid's size whose texels equal the port image's at 24 places (none,
+   or two alike, and the host path draws). Each texture found gets a debug label
+   (``glObjectLabel``): OpenGL reuses the names of deleted textures, the label goes
+   with the texture.
 2. When the grids change and each texture has the grid's size and the 16-bit RGBA
    format, the grids are packed by :mod:`vtkillum.core.texels` into an OpenGL pixel
    buffer: on CUDA through warp's CUDA–OpenGL interop (``wp.RegisteredGLBuffer``, the
    buffer mapped into CUDA, no host copy), on the CPU device from host memory.
 3. At the start of the next render (``VolumeMapperRenderStartEvent``, after the inputs
-   were updated, before the draw) ``glTexSubImage3D`` copies the buffer into the
-   texture; ``UpdateShaderEvent`` checks that the texture drawn from is the one written
-   (VTK makes new textures after ``ReleaseGraphicsResources``) and writes it again if not.
+   were updated, before the draw) the texture's label, size and format are checked and
+   ``glTexSubImage3D`` copies the buffer into it.
 
 Anything else (the first frame, a grid of another size, float32 textures, an OpenGL
 error) takes the host path: the images are filled and VTK uploads them. After a direct
@@ -55,6 +60,7 @@ GL_PIXEL_UNPACK_BUFFER, GL_PIXEL_UNPACK_BUFFER_BINDING = 0x88EC, 0x88EF
 GL_STREAM_DRAW = 0x88E0
 GL_UNPACK_ALIGNMENT = 0x0CF5
 GL_TEXTURE = 0x1702
+GL_PIXEL_PACK_BUFFER, GL_PIXEL_PACK_BUFFER_BINDING = 0x88EB, 0x88ED
 
 
 class _GL:
@@ -77,6 +83,12 @@ class _GL:
                                          _u, _u, _p)
         self.PixelStorei = gl_function("glPixelStorei", None, _u, _i)
         self.GetError = gl_function("glGetError", _u)
+        self.GenTextures = gl_function("glGenTextures", None, _i, _p)
+        self.DeleteTextures = gl_function("glDeleteTextures", None, _i, _p)
+        self.GetTextureLevelParameteriv = gl_function("glGetTextureLevelParameteriv", None,
+                                                      _u, _i, _u, _p)
+        self.GetTextureSubImage = gl_function("glGetTextureSubImage", None, _u, _i, _i, _i, _i,
+                                              _i, _i, _i, _u, _u, _i, _p)
         self.ObjectLabel = gl_function("glObjectLabel", None, _u, _u, _i, ctypes.c_char_p)
         self.GetObjectLabel = gl_function("glGetObjectLabel", None, _u, _u, _i, _p,
                                           ctypes.c_char_p)
@@ -185,6 +197,7 @@ class TextureWriter:
         self.textures: dict[int, Texture] = {}   # found in the last UpdateShaderEvent
         self.pending: dict[int, Job] = {}        # to write at the next render start
         self.writes = 0                          # texture writes made (tests, benchmarks)
+        self.host_stale = False                  # an image missed its background copy
         self.last_error: str | None = None
         self._buffers: dict[int, PixelBuffer] = {}
         self._texels: dict[int, object] = {}     # port -> packed texels (warp, uint16)
@@ -205,10 +218,24 @@ class TextureWriter:
 
     # --- what the mapper asks ------------------------------------------------------------------
     def can_write(self, port: int, size: tuple) -> bool:
-        """Whether ``port``'s texture is known, ``size`` texels and 16-bit RGBA."""
+        """Whether ``port``'s texture is (as far as is known without OpenGL) ``size``
+        texels and 16-bit RGBA: found so, or made from a port image of that size."""
+        size = tuple(int(n) for n in size)
         tex = self.textures.get(int(port))
-        return tex is not None and tex.size == tuple(int(n) for n in size) and \
-            tex.internal_format == GL_RGBA16
+        if tex is not None:
+            return tex.size == size and tex.internal_format == GL_RGBA16
+        return self._host_texels(int(port), size) is not None
+
+    def _host_texels(self, port: int, size: tuple):
+        """The port image's uint16 RGBA values (a view, ``[n, 4]``) if it has ``size``."""
+        from vtkmodules.util.numpy_support import vtk_to_numpy
+
+        image = self.images[port]
+        array = image.GetPointData().GetScalars()
+        if array is None or tuple(image.GetDimensions()) != tuple(size) or \
+                array.GetDataType() != 5 or array.GetNumberOfComponents() != 4:
+            return None  # 5: VTK_UNSIGNED_SHORT
+        return vtk_to_numpy(array)
 
     def schedule(self, port: int, job: Job) -> None:
         """Write ``job``'s texels into ``port``'s texture at the next render start."""
@@ -219,12 +246,17 @@ class TextureWriter:
         background copies end first (they write into the images' arrays)."""
         self.pending.clear()
         self.sync_host()
+        self.host_stale = False  # the host path rewrites every image
 
     def sync_host(self) -> None:
-        """Wait until the images hold the grids last written (the background copies)."""
+        """Wait until the images hold the grids last written (the background copies).
+        A copy that failed sets :attr:`host_stale`: the next grids go through the host."""
         copies, self._copies = self._copies, []
         for copy in copies:
-            copy.result()
+            error = copy.exception()
+            if error is not None:
+                self.last_error = f"copy to the host image: {type(error).__name__}: {error}"
+                self.host_stale = True
 
     def release(self) -> None:
         """Remove the observers, end the background copies, free the pixel buffers (they
@@ -296,6 +328,8 @@ class TextureWriter:
                 if texture is None or not gl.IsTexture(texture.name) or \
                         gl.label(texture.name) != texture.label:
                     self.textures.pop(port, None)
+                    texture = self._find(gl, port, tuple(job.size))
+                if texture is None:
                     failed.append(port)
                     continue
                 gl.BindTexture(GL_TEXTURE_3D, texture.name)
@@ -308,6 +342,63 @@ class TextureWriter:
         if failed:
             self.sync_host()
             self.fallback(failed)
+
+    def _find(self, gl: _GL, port: int, size: tuple) -> Texture | None:
+        """VTK's texture of ``port`` among all texture names: the one 16-bit RGBA texture
+        of ``size`` whose texels equal the port image's at 24 places (VTK made it from that
+        image; no UpdateShaderEvent is needed: VTK fires it only for frames that reuse the
+        shader, and a window whose lights follow the camera, as pyvista's do, rebuilds it in
+        every frame). None when there is none or more than one."""
+        self.sync_host()  # the image must hold what the texture was last given
+        host = self._host_texels(port, size)
+        if host is None:
+            return None
+        count = host.shape[0]
+        rng = np.random.default_rng(port)
+        places = np.unique(np.concatenate([np.linspace(0, count - 1, 12).astype(np.int64),
+                                           rng.integers(0, count, 12)]))
+        expected = host[places]
+        probe = _u(0)
+        gl.GenTextures(1, ctypes.byref(probe))  # a name above (about) every name in use
+        gl.DeleteTextures(1, ctypes.byref(probe))
+        width, height = size[0], size[1]
+        pack = gl.integer(GL_PIXEL_PACK_BUFFER_BINDING)
+        gl.BindBuffer(GL_PIXEL_PACK_BUFFER, 0)
+        texel = (ctypes.c_uint16 * 4)()
+        matches = []
+        try:
+            for name in range(1, max(int(probe.value), 256) + 64):
+                if not gl.IsTexture(name):
+                    continue
+                level = _i(0)
+                found = []
+                for parameter in (GL_TEXTURE_WIDTH, GL_TEXTURE_HEIGHT, GL_TEXTURE_DEPTH,
+                                  GL_TEXTURE_INTERNAL_FORMAT):
+                    gl.GetTextureLevelParameteriv(name, 0, parameter, ctypes.byref(level))
+                    found.append(level.value)
+                if tuple(found[:3]) != tuple(size) or found[3] != GL_RGBA16:
+                    continue
+                same = True
+                for place, values in zip(places, expected):
+                    x, y, z = place % width, (place // width) % height, place // (width * height)
+                    gl.GetTextureSubImage(name, 0, int(x), int(y), int(z), 1, 1, 1, GL_RGBA,
+                                          GL_UNSIGNED_SHORT, 8, ctypes.byref(texel))
+                    if tuple(texel) != tuple(int(v) for v in values):
+                        same = False
+                        break
+                if same:
+                    matches.append(name)
+        finally:
+            gl.BindBuffer(GL_PIXEL_PACK_BUFFER, pack)
+        gl.GetError()  # a texture without storage at level 0 answered with an error: not ours
+        if len(matches) != 1:
+            return None
+        name = matches[0]
+        label = f"vtkillum-{id(self):x}-{port}-{name}".encode()
+        gl.ObjectLabel(GL_TEXTURE, name, -1, label)
+        texture = Texture(name, tuple(size), GL_RGBA16, label)
+        self.textures[port] = texture
+        return texture
 
     def _write(self, gl: _GL, port: int, texture: Texture, job: Job) -> bool:
         """Pack ``job`` on its device, copy it through the port's pixel buffer into
@@ -365,7 +456,10 @@ class TextureWriter:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vtkillum-texels")
 
         def copy(array=array, texels=texels):  # keeps the VTK array alive while it runs
-            np.copyto(vtk_to_numpy(array).reshape(-1), texels.numpy())
+            import warp as wp
+
+            with wp.ScopedDevice(texels.device):  # this thread's CUDA context
+                np.copyto(vtk_to_numpy(array).reshape(-1), texels.numpy())
 
         self._copies.append(self._pool.submit(copy))
 
