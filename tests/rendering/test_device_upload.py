@@ -126,6 +126,18 @@ def test_new_grids_are_written_into_vtks_textures(grids):
     assert writer.writes == 4
     expected = host_picture(volume, scene, edited_s, again_t)
     assert np.abs(read_window_rgb(window) - expected).max() == 0.0
+    # grids of another size: through the host once (VTK makes the textures of that size),
+    # then written again (new pixel buffers; the old ones freed)
+    small_t = direct_light(volume, scene, shape=(12, 9, 7))
+    small_s = resample_points(edited_s, (12, 9, 7)).astype(np.float32)
+    actor.set_illumination(on_device(volume, small_s, small_t))
+    window.Render()
+    assert writer.writes == 4
+    actor.set_illumination(on_device(volume, small_s * 0.5, small_t ** 2))
+    window.Render()
+    assert writer.writes == 6 and writer.last_error is None
+    expected = host_picture(volume, scene, small_s * 0.5, small_t ** 2)
+    assert np.abs(read_window_rgb(window) - expected).max() == 0.0
     # off: the host path, which packs the current grids again
     actor.device_upload = False
     window.Render()

@@ -107,7 +107,7 @@ class _GL:
 
 @dataclass
 class Texture:
-    """VTK's texture of one input port, as the last ``UpdateShaderEvent`` found it."""
+    """VTK's texture of one input port, as found (in ``UpdateShaderEvent`` or by texels)."""
 
     name: int
     size: tuple  # (width, height, depth): the image's dimensions
@@ -163,8 +163,8 @@ class PixelBuffer:
         self.gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, 0)
 
     def release(self) -> None:
-        if self._registered is not None:
-            self._registered = None  # unregisters
+        """Unregister from CUDA and delete the OpenGL buffer (its context current)."""
+        self._registered = None  # warp unregisters it
         name = _u(self.name)
         self.gl.DeleteBuffers(1, ctypes.byref(name))
 
@@ -222,9 +222,9 @@ class TextureWriter:
         texels and 16-bit RGBA: found so, or made from a port image of that size."""
         size = tuple(int(n) for n in size)
         tex = self.textures.get(int(port))
-        if tex is not None:
-            return tex.size == size and tex.internal_format == GL_RGBA16
-        return self._host_texels(int(port), size) is not None
+        if tex is not None and tex.size == size and tex.internal_format == GL_RGBA16:
+            return True
+        return self._host_texels(int(port), size) is not None  # then found at the write
 
     def _host_texels(self, port: int, size: tuple):
         """The port image's uint16 RGBA values (a view, ``[n, 4]``) if it has ``size``."""
@@ -259,8 +259,8 @@ class TextureWriter:
                 self.host_stale = True
 
     def release(self) -> None:
-        """Remove the observers, end the background copies, free the pixel buffers (they
-        belong to the context of the last render: freed when it is current, else with it)."""
+        """Remove the observers, end the background copies and drop the pixel buffers
+        (called without a current context: their OpenGL names go with the context)."""
         for tag in self._observers:
             self._mapper.RemoveObserver(tag)
         self._observers = []
@@ -324,24 +324,32 @@ class TextureWriter:
         try:
             for port, job in jobs.items():
                 texture = self.textures.get(port)
-                # the label proves the name is still VTK's texture of this port
-                if texture is None or not gl.IsTexture(texture.name) or \
-                        gl.label(texture.name) != texture.label:
+                # the label proves the name is still VTK's texture of this port; VTK may
+                # have given it another size since
+                if texture is not None and not (gl.IsTexture(texture.name) and
+                                                gl.label(texture.name) == texture.label and
+                                                self._fits(gl, texture.name, job.size)):
+                    texture = None
+                if texture is None:
                     self.textures.pop(port, None)
                     texture = self._find(gl, port, tuple(job.size))
-                if texture is None:
-                    failed.append(port)
-                    continue
-                gl.BindTexture(GL_TEXTURE_3D, texture.name)
-                if self._size(gl) != tuple(job.size) or \
-                        self._level(gl, GL_TEXTURE_INTERNAL_FORMAT) != GL_RGBA16 or \
-                        not self._write(gl, port, texture, job):
+                if texture is None or not self._write(gl, port, texture, job):
                     failed.append(port)
         finally:
             gl.BindTexture(GL_TEXTURE_3D, bound)
         if failed:
             self.sync_host()
             self.fallback(failed)
+
+    def _fits(self, gl: _GL, name: int, size) -> bool:
+        """Whether texture ``name`` is ``size`` texels of 16-bit RGBA (level 0)."""
+        found = []
+        level = _i(0)
+        for parameter in (GL_TEXTURE_WIDTH, GL_TEXTURE_HEIGHT, GL_TEXTURE_DEPTH,
+                          GL_TEXTURE_INTERNAL_FORMAT):
+            gl.GetTextureLevelParameteriv(name, 0, parameter, ctypes.byref(level))
+            found.append(level.value)
+        return tuple(found[:3]) == tuple(int(n) for n in size) and found[3] == GL_RGBA16
 
     def _find(self, gl: _GL, port: int, size: tuple) -> Texture | None:
         """VTK's texture of ``port`` among all texture names: the one 16-bit RGBA texture
@@ -368,15 +376,7 @@ class TextureWriter:
         matches = []
         try:
             for name in range(1, max(int(probe.value), 256) + 64):
-                if not gl.IsTexture(name):
-                    continue
-                level = _i(0)
-                found = []
-                for parameter in (GL_TEXTURE_WIDTH, GL_TEXTURE_HEIGHT, GL_TEXTURE_DEPTH,
-                                  GL_TEXTURE_INTERNAL_FORMAT):
-                    gl.GetTextureLevelParameteriv(name, 0, parameter, ctypes.byref(level))
-                    found.append(level.value)
-                if tuple(found[:3]) != tuple(size) or found[3] != GL_RGBA16:
+                if not gl.IsTexture(name) or not self._fits(gl, name, size):
                     continue
                 same = True
                 for place, values in zip(places, expected):
@@ -402,7 +402,7 @@ class TextureWriter:
 
     def _write(self, gl: _GL, port: int, texture: Texture, job: Job) -> bool:
         """Pack ``job`` on its device, copy it through the port's pixel buffer into
-        ``texture`` (bound to the active unit) and start the copy to the host image;
+        ``texture`` and start the copy to the host image;
         False on an OpenGL or warp error (nothing of it reached the texture)."""
         import warp as wp
 
@@ -418,6 +418,8 @@ class TextureWriter:
             job.pack(texels)
             buffer = self._buffers.get(port)
             if buffer is None or buffer.nbytes != 2 * count or buffer.device != job.device:
+                if buffer is not None:
+                    buffer.release()  # the context is current: free it now, not with it
                 buffer = self._buffers[port] = PixelBuffer(gl, 2 * count, job.device)
             buffer.fill(texels)
         except Exception as err:  # noqa: BLE001 -- interop unavailable: the host path draws
@@ -428,6 +430,7 @@ class TextureWriter:
         alignment = gl.integer(GL_UNPACK_ALIGNMENT)
         gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, buffer.name)
         gl.PixelStorei(GL_UNPACK_ALIGNMENT, 1)
+        gl.BindTexture(GL_TEXTURE_3D, texture.name)  # on the active unit (restored by _flush)
         width, height, depth = job.size
         gl.TexSubImage3D(GL_TEXTURE_3D, 0, 0, 0, 0, width, height, depth, GL_RGBA,
                          GL_UNSIGNED_SHORT, None)
