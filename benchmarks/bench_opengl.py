@@ -664,8 +664,7 @@ def interactive(opts) -> tuple[list, str]:
             direct_ms, direct_writes = nan, 0
             if opts.tf_edit and opts.device_upload and kind != AMBIENT:
                 actor.device_upload = True
-                for _ in range(2):  # the writer finds VTK's textures in a frame that
-                    window.Render()  # reuses the shader (the camera and its light still)
+                window.Render()  # a frame drawn with the writer watching: VTK's textures
                 edits = []
                 for k in range(3):
                     new_light = on_device(synthetic_illumination(

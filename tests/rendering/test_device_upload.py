@@ -84,7 +84,7 @@ def test_new_grids_are_written_into_vtks_textures(grids):
                                          accumulate=1)
     actor.device_upload = True
     writer = actor.inputs.writer
-    window.Render()  # the writer finds VTK's textures (the first grids came through the host)
+    window.Render()
     assert writer.writes == 0 and writer.can_write(DIRECT_PORT_A, SHAPE[::-1])
     assert np.abs(read_window_rgb(window) - first).max() == 0.0
     # a TF edit: new grids of the same size, on the device
@@ -198,17 +198,18 @@ def test_device_upload_takes_a_bool(grids):
 
 
 
-def test_textures_are_found_by_their_texels_without_an_update_shader_event(grids):
-    """pyvista's lights follow the camera, so VTK rebuilds the shader in every frame and
-    fires no UpdateShaderEvent: the writer then finds VTK's texture among all textures by
-    comparing texels with the port's image, and refuses a texture it cannot tell apart."""
+def test_textures_are_found_by_their_texels(grids):
+    """VTK's texture is found among all textures by its texels, which are the port
+    image's once the mapper has drawn it with the writer watching (one frame)."""
     volume, scene, transmittance, scattered = grids
     _first, actor, window = render_opengl(image_data_from_volume(volume), scene,
                                           on_device(volume, scattered, transmittance), 1.5,
                                           accumulate=1)
     actor.device_upload = True
     writer = actor.inputs.writer
-    writer._on_shader = lambda program: None  # as in a window whose lights follow the camera
+    actor.set_illumination(on_device(volume, scattered, transmittance * 0.9))
+    window.Render()  # not seen drawn yet: through the host
+    assert writer.writes == 0 and not writer.textures
     edited_t = transmittance * 0.7
     actor.set_illumination(on_device(volume, scattered, edited_t))
     window.Render()
@@ -238,7 +239,6 @@ def test_a_texture_that_cannot_be_told_apart_is_not_written(grids):
     mine, other = actors
     mine.device_upload = True
     writer = mine.inputs.writer
-    writer._on_shader = lambda program: None
     other_texels = vtk_to_numpy(other.inputs.direct_images[0].GetPointData().GetScalars()).copy()
     edited = transmittance * 0.5
     mine.set_illumination(on_device(volume, None, edited))
@@ -250,4 +250,44 @@ def test_a_texture_that_cannot_be_told_apart_is_not_written(grids):
         ref.reshape(-1, 4))
     assert np.array_equal(
         vtk_to_numpy(other.inputs.direct_images[0].GetPointData().GetScalars()), other_texels)
+    window.Finalize()
+
+
+def test_a_volume_not_drawn_yet_never_writes_into_another_volumes_texture(grids):
+    """A second volume with the same grids as a drawn one, given new device grids before
+    its first frame: its own textures do not exist yet and the first volume's texture has
+    the texels of its image, but the writer only looks once its mapper has drawn."""
+    from helpers import offscreen_window
+    from vtkmodules.vtkRenderingCore import vtkRenderer
+
+    from vtkillum.mappers import IlluminatedVolume
+
+    volume, scene, transmittance, _ = grids
+    data = image_data_from_volume(volume)
+    renderer = vtkRenderer()
+    first = IlluminatedVolume(data, scene, illumination=on_device(volume, None, transmittance),
+                              exposure=1.5, jitter=False, accumulate=1)
+    renderer.AddVolume(first)
+    window = offscreen_window(renderer, scene.camera, 64, 64)
+    window.Render()
+    texels_before = vtk_to_numpy(first.inputs.direct_images[0].GetPointData().GetScalars()
+                                 ).copy()
+    second = IlluminatedVolume(data, scene, illumination=on_device(volume, None, transmittance),
+                               exposure=1.5, jitter=False, accumulate=1)
+    second.device_upload = True
+    second.set_illumination(on_device(volume, None, transmittance * 0.5))
+    renderer.AddVolume(second)
+    window.Render()
+    assert second.inputs.writer.writes == 0
+    first.SetVisibility(False)
+    window.Render()
+    alone = read_window_rgb(window)
+    renderer.RemoveVolume(second)
+    first.SetVisibility(True)
+    window.Render()
+    assert np.abs(read_window_rgb(window) - host_picture(volume, scene, None, transmittance)) \
+        .max() == 0.0  # the first volume's texture untouched
+    assert np.array_equal(vtk_to_numpy(first.inputs.direct_images[0].GetPointData()
+                                       .GetScalars()), texels_before)
+    assert np.abs(alone - host_picture(volume, scene, None, transmittance * 0.5)).max() == 0.0
     window.Finalize()

@@ -1241,8 +1241,8 @@ class IlluminatedVolume(vtkMultiVolume):
         arrays (what a light method computes on a GPU) is packed to 16 bit on its device and
         copied into the textures VTK made for the previous grids, through an OpenGL pixel
         buffer mapped into CUDA (:mod:`vtkillum.mappers.texture_upload`): no download, no
-        host packing, no upload from host memory. It applies from the second set of grids
-        of the same size on (VTK makes the textures from the first); anything else
+        host packing, no upload from host memory. It applies to grids of the size VTK's
+        textures already have, once a frame was drawn with it on; anything else
         (images, numpy grids, another size, float32 grids, an OpenGL error) goes through
         the host as before. Off by default until its whole TF edit is measured on a GPU.
         """

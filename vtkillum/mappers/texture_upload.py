@@ -7,15 +7,16 @@ a pack on the host and an upload (2.6 s for a 512³ transmittance on an H200, mo
 TF edit). :class:`TextureWriter` writes the new texels into the textures VTK already
 has instead, without touching the images:
 
-1. VTK's texture of each input port is found in the mapper's ``UpdateShaderEvent`` (the
-   program is bound: the sampler ``in_volume[port]`` names a texture unit, the unit the
-   texture). VTK fires that event only in frames that reuse the shader, and a window
-   whose lights follow the camera (pyvista's) rebuilds it in every frame; so where it
-   is not known, the texture is found among all textures as the one 16-bit RGBA
-   texture of the grid's size whose texels equal the port image's at 24 places (none,
-   or two alike, and the host path draws). Each texture found gets a debug label
-   (``glObjectLabel``): OpenGL reuses the names of deleted textures, the label goes
-   with the texture.
+1. VTK's texture of a port is found among all textures of the current context as the
+   one 16-bit RGBA texture of the grid's size whose texels equal the port image's at 24
+   places, once the mapper has rendered since the image last changed (so VTK has made
+   its own texture from it, and a texture of another volume with the same texels makes
+   two: none is taken, the host path draws). Each texture found gets a debug label
+   (``glObjectLabel``): OpenGL reuses the names of deleted textures, the label goes with
+   the texture, so later writes find it again at once. (VTK's ``UpdateShaderEvent`` is
+   no help: it comes only in frames that reuse the shader, before that frame binds its
+   textures, and a window whose lights follow the camera, as pyvista's, rebuilds the
+   shader in every frame.)
 2. When the grids change and each texture has the grid's size and the 16-bit RGBA
    format, the grids are packed by :mod:`vtkillum.core.texels` into an OpenGL pixel
    buffer: on CUDA through warp's CUDA–OpenGL interop (``wp.RegisteredGLBuffer``, the
@@ -51,8 +52,6 @@ _u, _i, _p, _sz = ctypes.c_uint, ctypes.c_int, ctypes.c_void_p, ctypes.c_ssize_t
 
 GL_TEXTURE_3D = 0x806F
 GL_TEXTURE_BINDING_3D = 0x806A
-GL_ACTIVE_TEXTURE = 0x84E0
-GL_TEXTURE0 = 0x84C0
 GL_TEXTURE_WIDTH, GL_TEXTURE_HEIGHT, GL_TEXTURE_DEPTH = 0x1000, 0x1001, 0x8071
 GL_TEXTURE_INTERNAL_FORMAT = 0x1003
 GL_RGBA, GL_RGBA16, GL_UNSIGNED_SHORT = 0x1908, 0x805B, 0x1403
@@ -67,14 +66,9 @@ class _GL:
     """The OpenGL calls used here (looked up through VTK's loader)."""
 
     def __init__(self) -> None:
-        self.GetUniformLocation = gl_function("glGetUniformLocation", _i, _u, ctypes.c_char_p)
-        self.GetUniformiv = gl_function("glGetUniformiv", None, _u, _i, _p)
         self.GetIntegerv = gl_function("glGetIntegerv", None, _u, _p)
-        self.ActiveTexture = gl_function("glActiveTexture", None, _u)
         self.BindTexture = gl_function("glBindTexture", None, _u, _u)
         self.IsTexture = gl_function("glIsTexture", ctypes.c_ubyte, _u)
-        self.GetTexLevelParameteriv = gl_function("glGetTexLevelParameteriv", None, _u, _i, _u,
-                                                  _p)
         self.GenBuffers = gl_function("glGenBuffers", None, _i, _p)
         self.DeleteBuffers = gl_function("glDeleteBuffers", None, _i, _p)
         self.BindBuffer = gl_function("glBindBuffer", None, _u, _u)
@@ -107,7 +101,7 @@ class _GL:
 
 @dataclass
 class Texture:
-    """VTK's texture of one input port, as found (in ``UpdateShaderEvent`` or by texels)."""
+    """VTK's texture of one input port, as found by its texels."""
 
     name: int
     size: tuple  # (width, height, depth): the image's dimensions
@@ -176,7 +170,7 @@ class TextureWriter:
     Parameters
     ----------
     mapper : vtkOpenGLGPUVolumeRayCastMapper
-        Observed (``UpdateShaderEvent``, ``VolumeMapperRenderStartEvent``).
+        Observed (``VolumeMapperRenderStartEvent``, ``VolumeMapperRenderEndEvent``).
     images : dict
         ``port -> vtkImageData``: the image VTK uploads each port's texture from (kept up to
         date in the background after a direct write).
@@ -187,14 +181,13 @@ class TextureWriter:
     """
 
     def __init__(self, mapper, images: dict, fallback) -> None:
-        from vtkmodules.util.misc import calldata_type
-        from vtkmodules.util.vtkConstants import VTK_OBJECT
         from vtkmodules.vtkCommonCore import vtkCommand
 
         self.images = {int(port): image for port, image in images.items()}
         self.ports = tuple(self.images)
         self.fallback = fallback
-        self.textures: dict[int, Texture] = {}   # found in the last UpdateShaderEvent
+        self.textures: dict[int, Texture] = {}   # found by their texels
+        self._drawn: dict[int, int] = {}          # port -> image MTime at the last render end
         self.pending: dict[int, Job] = {}        # to write at the next render start
         self.writes = 0                          # texture writes made (tests, benchmarks)
         self.host_stale = False                  # an image missed its background copy
@@ -205,14 +198,11 @@ class TextureWriter:
         self._pool = None
         self._gl = None
 
-        @calldata_type(VTK_OBJECT)
-        def on_shader(caller, event, program):
-            self._on_shader(program)
-
         self._observers = [
-            mapper.AddObserver("UpdateShaderEvent", on_shader),
             mapper.AddObserver(vtkCommand.VolumeMapperRenderStartEvent,
                                lambda caller, event: self._flush()),
+            mapper.AddObserver(vtkCommand.VolumeMapperRenderEndEvent,
+                               lambda caller, event: self._rendered()),
         ]
         self._mapper = mapper
 
@@ -227,15 +217,22 @@ class TextureWriter:
         return self._host_texels(int(port), size) is not None  # then found at the write
 
     def _host_texels(self, port: int, size: tuple):
-        """The port image's uint16 RGBA values (a view, ``[n, 4]``) if it has ``size``."""
+        """The port image's uint16 RGBA values (a view, ``[n, 4]``) if it has ``size`` and
+        the mapper has rendered since it changed (VTK's texture holds it), else None."""
         from vtkmodules.util.numpy_support import vtk_to_numpy
 
         image = self.images[port]
         array = image.GetPointData().GetScalars()
         if array is None or tuple(image.GetDimensions()) != tuple(size) or \
-                array.GetDataType() != 5 or array.GetNumberOfComponents() != 4:
+                array.GetDataType() != 5 or array.GetNumberOfComponents() != 4 or \
+                self._drawn.get(port) != image.GetMTime():
             return None  # 5: VTK_UNSIGNED_SHORT
         return vtk_to_numpy(array)
+
+    def _rendered(self) -> None:
+        """At a render's end: VTK's textures now hold the images as they are."""
+        for port, image in self.images.items():
+            self._drawn[port] = image.GetMTime()
 
     def schedule(self, port: int, job: Job) -> None:
         """Write ``job``'s texels into ``port``'s texture at the next render start."""
@@ -276,44 +273,6 @@ class TextureWriter:
             self._gl = _GL()
         return self._gl
 
-    def _on_shader(self, program) -> None:
-        gl = self._gl_calls()
-        handle = program.GetHandle()
-        active = gl.integer(GL_ACTIVE_TEXTURE)
-        try:
-            for port in self.ports:
-                location = gl.GetUniformLocation(handle, f"in_volume[{port}]".encode())
-                if location < 0:  # not read by this shader variant
-                    continue
-                unit = _i(-1)
-                gl.GetUniformiv(handle, location, ctypes.byref(unit))
-                if unit.value < 0:
-                    continue
-                gl.ActiveTexture(GL_TEXTURE0 + unit.value)
-                name = gl.integer(GL_TEXTURE_BINDING_3D)
-                if not name:
-                    continue
-                known = self.textures.get(port)
-                if known is not None and known.name == name and gl.label(name) == known.label:
-                    label = known.label  # the same texture (perhaps re-specified: size)
-                else:
-                    label = f"vtkillum-{id(self):x}-{port}-{name}".encode()
-                    gl.ObjectLabel(GL_TEXTURE, name, -1, label)
-                self.textures[port] = Texture(name, self._size(gl),
-                                              self._level(gl, GL_TEXTURE_INTERNAL_FORMAT), label)
-        finally:
-            gl.ActiveTexture(active)
-
-    @staticmethod
-    def _level(gl: _GL, parameter: int) -> int:
-        value = _i(0)
-        gl.GetTexLevelParameteriv(GL_TEXTURE_3D, 0, parameter, ctypes.byref(value))
-        return value.value
-
-    def _size(self, gl: _GL) -> tuple:
-        return tuple(self._level(gl, p) for p in
-                     (GL_TEXTURE_WIDTH, GL_TEXTURE_HEIGHT, GL_TEXTURE_DEPTH))
-
     def _flush(self) -> None:
         if not self.pending:
             return
@@ -353,10 +312,9 @@ class TextureWriter:
 
     def _find(self, gl: _GL, port: int, size: tuple) -> Texture | None:
         """VTK's texture of ``port`` among all texture names: the one 16-bit RGBA texture
-        of ``size`` whose texels equal the port image's at 24 places (VTK made it from that
-        image; no UpdateShaderEvent is needed: VTK fires it only for frames that reuse the
-        shader, and a window whose lights follow the camera, as pyvista's do, rebuilds it in
-        every frame). None when there is none or more than one."""
+        of ``size`` whose texels equal the port image's at 24 places, asked only once the
+        mapper has rendered since the image changed (VTK's own texture is then one of
+        them). None when there is none or more than one."""
         self.sync_host()  # the image must hold what the texture was last given
         host = self._host_texels(port, size)
         if host is None:
