@@ -291,3 +291,29 @@ def test_a_volume_not_drawn_yet_never_writes_into_another_volumes_texture(grids)
                                        .GetScalars()), texels_before)
     assert np.abs(alone - host_picture(volume, scene, None, transmittance * 0.5)).max() == 0.0
     window.Finalize()
+
+
+def test_an_opengl_without_the_calls_draws_through_the_host(grids):
+    """OpenGL 4.1 (macOS) has no glGetTextureSubImage: the first grids that need it go
+    through the host, with the reason kept."""
+    volume, scene, transmittance, _ = grids
+    _first, actor, window = render_opengl(image_data_from_volume(volume), scene,
+                                          on_device(volume, None, transmittance), 1.5,
+                                          accumulate=1)
+    actor.device_upload = True
+    writer = actor.inputs.writer
+    window.Render()
+    gl = writer._gl_calls()
+
+    def missing(*args):
+        raise RuntimeError("glGetTextureSubImage is not loaded: no OpenGL context was made "
+                           "current")
+
+    gl.GetTextureSubImage = missing
+    edited = transmittance * 0.4
+    actor.set_illumination(on_device(volume, None, edited))
+    window.Render()
+    assert writer.writes == 0 and "glGetTextureSubImage" in writer.last_error
+    assert np.abs(read_window_rgb(window) - host_picture(volume, scene, None, edited)).max() \
+        == 0.0
+    window.Finalize()

@@ -276,29 +276,41 @@ class TextureWriter:
     def _flush(self) -> None:
         if not self.pending:
             return
-        gl = self._gl_calls()
         jobs, self.pending = self.pending, {}
         failed = []
-        bound = gl.integer(GL_TEXTURE_BINDING_3D)
+        try:
+            gl = self._gl_calls()
+            bound = gl.integer(GL_TEXTURE_BINDING_3D)
+        except RuntimeError as err:  # an OpenGL without these calls (e.g. 4.1): the host
+            self.last_error = str(err)
+            failed = list(jobs)
+            jobs = {}
         try:
             for port, job in jobs.items():
-                texture = self.textures.get(port)
-                # the label proves the name is still VTK's texture of this port; VTK may
-                # have given it another size since
-                if texture is not None and not (gl.IsTexture(texture.name) and
-                                                gl.label(texture.name) == texture.label and
-                                                self._fits(gl, texture.name, job.size)):
-                    texture = None
-                if texture is None:
-                    self.textures.pop(port, None)
-                    texture = self._find(gl, port, tuple(job.size))
-                if texture is None or not self._write(gl, port, texture, job):
+                try:
+                    texture = self._texture(gl, port, job)
+                    written = texture is not None and self._write(gl, port, texture, job)
+                except RuntimeError as err:  # a call this OpenGL does not offer
+                    self.last_error, written = str(err), False
+                if not written:
                     failed.append(port)
         finally:
-            gl.BindTexture(GL_TEXTURE_3D, bound)
+            if jobs:
+                gl.BindTexture(GL_TEXTURE_3D, bound)
         if failed:
             self.sync_host()
             self.fallback(failed)
+
+    def _texture(self, gl: _GL, port: int, job: Job) -> Texture | None:
+        """The port's texture as known (its label proves the name is still VTK's texture
+        of the port; VTK may have given it another size since) or found anew."""
+        texture = self.textures.get(port)
+        if texture is not None and gl.IsTexture(texture.name) and \
+                gl.label(texture.name) == texture.label and \
+                self._fits(gl, texture.name, job.size):
+            return texture
+        self.textures.pop(port, None)
+        return self._find(gl, port, tuple(job.size))
 
     def _fits(self, gl: _GL, name: int, size) -> bool:
         """Whether texture ``name`` is ``size`` texels of 16-bit RGBA (level 0)."""
