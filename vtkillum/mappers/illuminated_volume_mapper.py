@@ -286,6 +286,7 @@ import numpy as np
 import vtkmodules.vtkRenderingOpenGL2  # noqa: F401  (OpenGL factory overrides)
 from vtkmodules.util.numpy_support import numpy_to_vtk, vtk_to_numpy
 from vtkmodules.util.vtkAlgorithm import VTKPythonAlgorithmBase
+from vtkmodules.util.vtkConstants import VTK_FLOAT, VTK_UNSIGNED_SHORT
 from vtkmodules.vtkCommonCore import (
     vtkCommand,
     vtkDataArray,
@@ -2061,20 +2062,27 @@ def _set_grid_image(target: vtkImageData, volume: Volume, name: str, values,
     shape = values.shape[:3]
     box = (np.asarray(volume.dims) - 1) * volume.spacing  # the data's box (local frame)
     dims = shape[::-1]  # z-major: the image's axes are (z, y, x); VTK order: (x, y, z)
+    if pack is not None:
+        dtype, comps = (np.uint16 if pack[0] else np.float32), 4
+    else:
+        dtype = np.uint16 if values.dtype == np.uint16 else np.float32
+        comps = 1 if values.ndim == 3 else values.shape[3]
+    vtk_type = VTK_UNSIGNED_SHORT if dtype == np.uint16 else VTK_FLOAT
+    # The image's array of the last grid is written again when it fits: a new one of a
+    # 512³ grid's gigabyte costs more to fault in than the packing that fills it.
+    array = target.GetPointData().GetScalars()
+    if array is None or array.GetDataType() != vtk_type or \
+            array.GetNumberOfComponents() != comps or \
+            array.GetNumberOfTuples() != int(np.prod(shape)):
+        array = vtkUnsignedShortArray() if dtype == np.uint16 else vtkFloatArray()
+        array.SetNumberOfComponents(comps)
+        array.SetNumberOfTuples(int(np.prod(shape)))
     target.Initialize()
     target.SetDimensions(*(int(n) for n in dims))
     # either way the image's axis a spans the box's extent along x, y, z in turn
     target.SetSpacing(*(float(e) / (n - 1) for e, n in zip(box, dims)))
     target.SetOrigin(*(float(v) for v in volume.origin))
     target.SetDirectionMatrix(*np.asarray(volume.direction, np.float64).reshape(-1))
-    if pack is not None:
-        dtype, comps = (np.uint16 if pack[0] else np.float32), 4
-    else:
-        dtype = np.uint16 if values.dtype == np.uint16 else np.float32
-        comps = 1 if values.ndim == 3 else values.shape[3]
-    array = vtkUnsignedShortArray() if dtype == np.uint16 else vtkFloatArray()
-    array.SetNumberOfComponents(comps)
-    array.SetNumberOfTuples(int(np.prod(shape)))
     array.SetName(name)
     view = vtk_to_numpy(array).reshape(shape + ((comps,) if comps > 1 or pack else ()))
     q = None
@@ -2082,6 +2090,7 @@ def _set_grid_image(target: vtkImageData, volume: Volume, name: str, values,
         _, q = pack_channels(values, pack[0], unit_range=pack[1], out=view, **pack_options)
     else:
         np.copyto(view, values.reshape(view.shape), casting="unsafe")
+    array.Modified()  # new values (a reused array); drops the ranges it cached
     if dtype == np.uint16:
         _declare_range(array, (0.0, 65535.0))
     elif value_range is not None:
