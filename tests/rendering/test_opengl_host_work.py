@@ -126,6 +126,29 @@ def test_transfer_function_edit_uploads_only_the_optics():
     assert gl.shader_builds == 0
 
 
+def test_new_light_grids_are_packed_into_the_arrays_of_the_last():
+    """A new illumination of the same size: packed into the image arrays VTK uploaded the
+    last grids from (no new gigabyte to fault in at 512³), uploaded, and drawn as a fresh
+    volume draws it."""
+    window, _renderer, actor, volume = shown(24)
+    before = read_window_rgb(window)
+    images = (actor.inputs.direct_images[0], actor.inputs.scattered_image)
+    arrays = [image.GetPointData().GetScalars() for image in images]
+    edited = illumination_for(volume, (12, 12, 12))
+    edited = IlluminationVolume.for_volume(volume, transmittance=edited.transmittance ** 2,
+                                           scattered=edited.scattered * 0.5)
+    with GLCallCounter() as gl:
+        actor.set_illumination(edited)
+        window.Render()
+    assert [image.GetPointData().GetScalars() for image in images] == arrays
+    assert sum(u[:3] == (12, 12, 12) for u in gl.uploads_3d) >= 2  # both grids uploaded
+    fresh_window, _r, _a, _v = shown(24)
+    _a.set_illumination(edited)
+    fresh_window.Render()
+    assert np.abs(read_window_rgb(window) - read_window_rgb(fresh_window)).max() == 0.0
+    assert np.abs(read_window_rgb(window) - before).max() > 0.05
+
+
 def test_camera_move_host_work_independent_of_size():
     small = shown(16)
     large = shown(40)
