@@ -644,20 +644,23 @@ def interactive(opts) -> tuple[list, str]:
             # TF edit to new frame: a new light volume (as a method hands it over, host
             # arrays, 16-bit textures) and a new transfer function, then the frame; the
             # ambient mapper recomputes its inputs on the device from the new opacity
-            edits = []
-            for k in range(3 if opts.tf_edit else 0):
+            def edit_ms(new_light, k, actor=actor, kind=kind):
+                """Milliseconds of a TF edit to the new frame (the grids given as made)."""
                 t0 = time.perf_counter()
                 if kind == AMBIENT:
                     actor.set_scene(opacity_scaled(scene, 1.0 + 0.1 * (k + 1)))
                 else:
-                    new_light = synthetic_illumination(volume, kind, len(scene.lights),
-                                                       scale=opts.grid_scale, seed=k + 1)
-                    t0 = time.perf_counter()
                     actor.set_illumination(new_light)
                     actor.set_scene(scene.copy() if hasattr(scene, "copy") else scene)
                 window.Render()
                 window.WaitForCompletion()
-                edits.append(1000.0 * (time.perf_counter() - t0))
+                return 1000.0 * (time.perf_counter() - t0)
+
+            def grids(seed, kind=kind):
+                return None if kind == AMBIENT else synthetic_illumination(
+                    volume, kind, len(scene.lights), scale=opts.grid_scale, seed=seed)
+
+            edits = [edit_ms(grids(k + 1), k) for k in range(3 if opts.tf_edit else 0)]
             tf_ms = statistics.median(edits) if edits else nan
             # the same edits with the grids on the warp device (as a light method leaves
             # them) written straight into VTK's textures (device_upload)
@@ -665,18 +668,9 @@ def interactive(opts) -> tuple[list, str]:
             if opts.tf_edit and opts.device_upload and kind != AMBIENT:
                 actor.device_upload = True
                 window.Render()  # a frame drawn with the writer watching: VTK's textures
-                edits = []
-                for k in range(3):
-                    new_light = on_device(synthetic_illumination(
-                        volume, kind, len(scene.lights), scale=opts.grid_scale, seed=k + 4),
-                        opts.device)
-                    t0 = time.perf_counter()
-                    actor.set_illumination(new_light)
-                    actor.set_scene(scene.copy() if hasattr(scene, "copy") else scene)
-                    window.Render()
-                    window.WaitForCompletion()
-                    edits.append(1000.0 * (time.perf_counter() - t0))
-                direct_ms, direct_writes = statistics.median(edits), actor.inputs.writer.writes
+                direct_ms = statistics.median(
+                    edit_ms(on_device(grids(k + 4), opts.device), k) for k in range(3))
+                direct_writes = actor.inputs.writer.writes
                 if actor.inputs.writer.last_error:
                     print(f"device upload: {actor.inputs.writer.last_error}", flush=True)
                 actor.device_upload = False

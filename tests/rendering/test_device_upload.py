@@ -77,14 +77,21 @@ def host_picture(volume, scene, scattered, transmittance):
     return picture
 
 
-def test_new_grids_are_written_into_vtks_textures(grids):
-    volume, scene, transmittance, scattered = grids
+def writing(volume, scene, scattered, transmittance, watched: bool = True):
+    """``(first picture, actor, window, writer)``: device grids drawn, ``device_upload`` on
+    and (``watched``) one frame drawn with the writer watching."""
     first, actor, window = render_opengl(image_data_from_volume(volume), scene,
                                          on_device(volume, scattered, transmittance), 1.5,
                                          accumulate=1)
     actor.device_upload = True
-    writer = actor.inputs.writer
-    window.Render()
+    if watched:
+        window.Render()
+    return first, actor, window, actor.inputs.writer
+
+
+def test_new_grids_are_written_into_vtks_textures(grids):
+    volume, scene, transmittance, scattered = grids
+    first, actor, window, writer = writing(volume, scene, scattered, transmittance)
     assert writer.writes == 0 and writer.can_write(DIRECT_PORT_A, SHAPE[::-1])
     assert np.abs(read_window_rgb(window) - first).max() == 0.0
     # a TF edit: new grids of the same size, on the device
@@ -147,12 +154,7 @@ def test_new_grids_are_written_into_vtks_textures(grids):
 
 def test_what_the_writer_cannot_take_goes_through_the_host(grids):
     volume, scene, transmittance, scattered = grids
-    _first, actor, window = render_opengl(image_data_from_volume(volume), scene,
-                                          on_device(volume, None, transmittance), 1.5,
-                                          accumulate=1)
-    actor.device_upload = True
-    writer = actor.inputs.writer
-    window.Render()
+    _first, actor, window, writer = writing(volume, scene, None, transmittance)
     # grids of another size: the host path (VTK makes textures of the new size)
     smaller = direct_light(volume, scene, shape=(12, 9, 7))
     actor.set_illumination(on_device(volume, None, smaller))
@@ -202,11 +204,8 @@ def test_textures_are_found_by_their_texels(grids):
     """VTK's texture is found among all textures by its texels, which are the port
     image's once the mapper has drawn it with the writer watching (one frame)."""
     volume, scene, transmittance, scattered = grids
-    _first, actor, window = render_opengl(image_data_from_volume(volume), scene,
-                                          on_device(volume, scattered, transmittance), 1.5,
-                                          accumulate=1)
-    actor.device_upload = True
-    writer = actor.inputs.writer
+    _first, actor, window, writer = writing(volume, scene, scattered, transmittance,
+                                            watched=False)
     actor.set_illumination(on_device(volume, scattered, transmittance * 0.9))
     window.Render()  # not seen drawn yet: through the host
     assert writer.writes == 0 and not writer.textures
@@ -297,12 +296,7 @@ def test_an_opengl_without_the_calls_draws_through_the_host(grids):
     """OpenGL 4.1 (macOS) has no glGetTextureSubImage: the first grids that need it go
     through the host, with the reason kept."""
     volume, scene, transmittance, _ = grids
-    _first, actor, window = render_opengl(image_data_from_volume(volume), scene,
-                                          on_device(volume, None, transmittance), 1.5,
-                                          accumulate=1)
-    actor.device_upload = True
-    writer = actor.inputs.writer
-    window.Render()
+    _first, actor, window, writer = writing(volume, scene, None, transmittance)
     gl = writer._gl_calls()
 
     def missing(*args):
