@@ -311,3 +311,21 @@ def test_an_opengl_without_the_calls_draws_through_the_host(grids):
     assert np.abs(read_window_rgb(window) - host_picture(volume, scene, None, edited)).max() \
         == 0.0
     window.Finalize()
+
+
+def test_the_writer_goes_with_its_volume(grids):
+    """A volume let go frees its writer, whose mapper observers refer to it (Python's
+    collector sees through VTK's observers), and with it the pixel buffers and texels."""
+    import gc
+    import weakref
+
+    volume, scene, transmittance, _ = grids
+    _first, actor, window, writer = writing(volume, scene, None, transmittance)
+    actor.set_illumination(on_device(volume, None, transmittance * 0.5))
+    window.Render()
+    assert writer.writes == 1
+    gone = weakref.ref(writer)
+    window.Finalize()
+    del actor, window, writer
+    gc.collect()
+    assert gone() is None

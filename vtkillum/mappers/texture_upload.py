@@ -281,7 +281,7 @@ class TextureWriter:
         try:
             gl = self._gl_calls()
             bound = gl.integer(GL_TEXTURE_BINDING_3D)
-        except RuntimeError as err:  # an OpenGL without these calls (e.g. 4.1): the host
+        except (RuntimeError, ValueError) as err:  # a VTK or OpenGL without these calls
             self.last_error = str(err)
             failed = list(jobs)
             jobs = {}
