@@ -477,11 +477,9 @@ def gl_renderer(window) -> str:
     """The OpenGL renderer string (the GPU's name) of a window that has rendered."""
     import ctypes
 
-    from vtkillum.mappers.gl_trace import _glad_library
+    from vtkillum.mappers.gl_trace import gl_function
 
-    lib = _glad_library()
-    slot = ctypes.c_void_p.in_dll(lib, "vtk_glad_glGetString")
-    get = ctypes.CFUNCTYPE(ctypes.c_char_p, ctypes.c_uint)(slot.value)
+    get = gl_function("glGetString", ctypes.c_char_p, ctypes.c_uint)
     window.MakeCurrent()
     return (get(0x1F01) or b"?").decode()  # GL_RENDERER
 
@@ -716,17 +714,12 @@ def interop_probe(opts) -> None:
 
     import warp as wp
 
-    from vtkillum.mappers.gl_trace import _glad_library
+    from vtkillum.mappers.gl_trace import gl_function as fn
 
     wp.init()
     window, _renderer = window_for(64)
     window.Render()
     window.MakeCurrent()
-    lib = _glad_library()
-
-    def fn(name, restype, *args):
-        return ctypes.CFUNCTYPE(restype, *args)(ctypes.c_void_p.in_dll(lib, f"vtk_glad_{name}").value)
-
     u, i, p, sz = ctypes.c_uint, ctypes.c_int, ctypes.c_void_p, ctypes.c_ssize_t
     gen_buffers = fn("glGenBuffers", None, i, p)
     bind_buffer = fn("glBindBuffer", None, u, u)
@@ -741,9 +734,7 @@ def interop_probe(opts) -> None:
         m = n // 2  # a light grid at half the points of an n^3 volume
         voxels = m ** 3
         nbytes = voxels * 4 * 2  # RGBA16
-        src = wp.array(np.zeros((voxels, 4), np.uint16).view(np.uint16), dtype=wp.uint16,
-                       device="cuda:0") if False else wp.zeros(voxels * 4, dtype=wp.uint16,
-                                                                 device="cuda:0")
+        src = wp.zeros(voxels * 4, dtype=wp.uint16, device="cuda:0")
         pbo = ctypes.c_uint()
         gen_buffers(1, ctypes.byref(pbo))
         bind_buffer(0x88EC, pbo.value)  # GL_PIXEL_UNPACK_BUFFER

@@ -9,7 +9,9 @@ GLX). Counting is exact and deterministic: it is what VTK asked OpenGL to do, no
 timing.
 
 Used by ``tests/rendering/test_opengl_host_work.py`` (a camera move must not re-upload a
-volume or rebuild the shader) and ``benchmarks/bench_opengl.py`` (uploads per frame).
+volume or rebuild the shader) and ``benchmarks/bench_opengl.py`` (uploads per frame);
+:func:`gl_function` gives any OpenGL call VTK's loader holds (used by
+:mod:`vtkillum.mappers.texture_upload`).
 
 Limits: the pointers are swapped in the process; a context created afterwards whose
 loader runs again (a new window in a process that had none) overwrites them, so
