@@ -431,8 +431,12 @@ class TextureWriter:
         def copy(array=array, texels=texels):  # keeps the VTK array alive while it runs
             import warp as wp
 
+            # straight into the VTK array's memory: no host temporary of the grid's size
+            into = wp.array(ptr=vtk_to_numpy(array).ctypes.data, dtype=wp.uint16,
+                            shape=texels.shape, device="cpu")
             with wp.ScopedDevice(texels.device):  # this thread's CUDA context
-                np.copyto(vtk_to_numpy(array).reshape(-1), texels.numpy())
+                wp.copy(into, texels)
+                wp.synchronize_device(texels.device)
 
         self._copies.append(self._pool.submit(copy))
 
