@@ -17,13 +17,14 @@ has instead, without touching the images:
    no help: it comes only in frames that reuse the shader, before that frame binds its
    textures, and a window whose lights follow the camera, as pyvista's, rebuilds the
    shader in every frame.)
-2. When the grids change and each texture has the grid's size and the 16-bit RGBA
-   format, the grids are packed by :mod:`vtkillum.core.texels` into an OpenGL pixel
-   buffer: on CUDA through warp's CUDA–OpenGL interop (``wp.RegisteredGLBuffer``, the
-   buffer mapped into CUDA, no host copy), on the CPU device from host memory.
-3. At the start of the next render (``VolumeMapperRenderStartEvent``, after the inputs
-   were updated, before the draw) the texture's label, size and format are checked and
-   ``glTexSubImage3D`` copies the buffer into it.
+2. When the grids change (the pipeline update), each port gets a job if its image, or
+   the texture found for it, has the grid's size.
+3. At the start of the next render (``VolumeMapperRenderStartEvent``: after the inputs
+   were updated, before the draw) the texture is checked (label, size, format) or found,
+   the grid is packed on its device into texels kept per port (:mod:`vtkillum.core.texels`)
+   and copied into an OpenGL pixel buffer (on CUDA through warp's CUDA–OpenGL interop,
+   ``wp.RegisteredGLBuffer``: the buffer mapped into the GPU, no host copy; on the CPU
+   device from host memory), and ``glTexSubImage3D`` copies the buffer into the texture.
 
 Anything else (the first frame, a grid of another size, float32 textures, an OpenGL
 error) takes the host path: the images are filled and VTK uploads them. After a direct
