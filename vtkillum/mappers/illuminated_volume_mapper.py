@@ -1245,7 +1245,9 @@ class IlluminatedVolume(vtkMultiVolume):
         host packing, no upload from host memory. It applies to grids of the size VTK's
         textures already have, once a frame was drawn with it on; anything else
         (images, numpy grids, another size, float32 grids, an OpenGL error) goes through
-        the host as before. Off by default until its whole TF edit is measured on a GPU.
+        the host as before. Memory: 16 bytes per light-grid point for each texture written
+        (the packed texels and the pixel buffer, on the grids' device), besides VTK's
+        texture. Off by default until its whole TF edit is measured on a GPU.
         """
         return self.inputs.writer is not None
 
