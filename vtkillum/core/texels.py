@@ -66,9 +66,11 @@ def fluence_tops(scattered: wp.array) -> list[float]:
     return [float(v) for v in out.numpy()]
 
 
-def _scales(tops) -> tuple[list, list]:
-    """``(scale, q)`` as ``pack_channels`` makes them: float32 ``65535 / top`` per channel
-    (0 for a channel without a positive finite top, stored as 0) and the shader's factor."""
+def texel_scales(tops) -> tuple[list, list]:
+    """``(scale, q)`` of up to 4 channels with maxima ``tops`` (1 for transmittances):
+    ``float32(65535 / top)`` per channel (0 for a channel without a positive finite top,
+    stored as 0) and the shader's factor. The rule of every 16-bit light texel, packed
+    here or by the mapper's ``pack_channels`` on the host."""
     scale, q = [0.0] * 4, [1.0] * 4
     for k, top in enumerate(tops):
         if top > 0 and np.isfinite(top):
@@ -79,7 +81,7 @@ def _scales(tops) -> tuple[list, list]:
 
 def fluence_factors(tops) -> list:
     """The shader's factors ``q`` of a fluence packed with channel maxima ``tops``."""
-    return _scales(tops)[1]
+    return texel_scales(tops)[1]
 
 
 def texel_count(grid_shape) -> int:
@@ -108,7 +110,7 @@ def pack_fluence(scattered: wp.array, out: wp.array, tops: list | None = None) -
     :func:`texel_count` long, same device), each channel scaled by its maximum (``tops``,
     default :func:`fluence_tops`). Returns the shader's factors ``q``."""
     _check_out(out, scattered.shape, scattered.device)
-    scale, q = _scales(fluence_tops(scattered) if tops is None else tops)
+    scale, q = texel_scales(fluence_tops(scattered) if tops is None else tops)
     wp.launch(_pack_fluence, dim=scattered.shape,
               inputs=[scattered, wp.vec4(*scale), out], device=scattered.device)
     return q

@@ -130,10 +130,9 @@ from vtkillum.mappers.inputs import connect_input, rendered_point_array
 from vtkillum.mappers.interaction import (
     INTERACTIVE_IMAGE_SAMPLE_DISTANCE,
     INTERACTIVE_STEP,
-    image_sample_distance,
+    InteractiveSampling,
     interacting,
 )
-from vtkillum.mappers.interaction import interactive_step as checked_step
 
 #: Lights the OpenGL path takes (one channel of the radiance-cache texture each).
 MAX_LIGHTS = 4
@@ -438,7 +437,7 @@ SHADER_EXIT = """//VTK::Shading::Exit
 """
 
 
-class AmbientScatteringVolume(vtkMultiVolume):
+class AmbientScatteringVolume(InteractiveSampling, vtkMultiVolume):
     """A ``vtkMultiVolume`` rendered with ambient volume scattering by VTK's GPU ray caster.
 
     Parameters
@@ -533,8 +532,8 @@ class AmbientScatteringVolume(vtkMultiVolume):
         shader.AddFragmentShaderReplacement("//VTK::Shading::Impl", True, SHADER_IMPL, False)
         shader.AddFragmentShaderReplacement("//VTK::Shading::Exit", True, SHADER_EXIT, False)
         self.inputs.uniforms = shader.GetFragmentCustomUniforms()
-        self._interactive_isd = image_sample_distance(interactive_image_sample_distance)
-        self._interactive_step = checked_step(interactive_step)
+        self.interactive_image_sample_distance = interactive_image_sample_distance
+        self.interactive_step = interactive_step
         self.inputs.uniforms.SetUniformf("il_stepScale", 1.0)  # declared from the start
         # Each render: every pixel at rest, fewer rays while an interactor moves the view
         # (a weak reference: the mapper must not keep its volume alive).
@@ -548,28 +547,6 @@ class AmbientScatteringVolume(vtkMultiVolume):
         self._scene = None
         self.set_options(**options)
         self.set_scene(scene if scene is not None else Scene())
-
-    @property
-    def interactive_image_sample_distance(self) -> float:
-        """Pixels per ray along x and y while an interactor moves the view (VTK's
-        ``ImageSampleDistance``; default 2; 1: every pixel). Frames drawn at rest (and the
-        one VTK's interactor styles draw when a drag ends) cast every ray
-        (:mod:`vtkillum.mappers.interaction`)."""
-        return self._interactive_isd
-
-    @interactive_image_sample_distance.setter
-    def interactive_image_sample_distance(self, value: float) -> None:
-        self._interactive_isd = image_sample_distance(value)
-
-    @property
-    def interactive_step(self) -> float:
-        """Sample-distance factor while an interactor moves the view (default 2; 1: the
-        scene's step); frames drawn at rest sample at the scene's step."""
-        return self._interactive_step
-
-    @interactive_step.setter
-    def interactive_step(self, value: float) -> None:
-        self._interactive_step = checked_step(value)
 
     # --- scene and options ---------------------------------------------------------------------
     @property
@@ -669,10 +646,7 @@ class AmbientScatteringVolume(vtkMultiVolume):
 def _sample_image(volume) -> None:
     """The image sample distance and step of this frame (read as the mapper renders)."""
     if volume is not None:
-        moving = interacting(volume)
-        volume.mapper.SetImageSampleDistance(volume._interactive_isd if moving else 1.0)
-        volume.inputs.uniforms.SetUniformf("il_stepScale",
-                                           volume._interactive_step if moving else 1.0)
+        volume.sample_for(interacting(volume), volume.inputs.uniforms)
 
 
 class AmbientScatteringInputs(VTKPythonAlgorithmBase):

@@ -307,6 +307,7 @@ from vtkmodules.vtkRenderingVolumeOpenGL2 import vtkOpenGLGPUVolumeRayCastMapper
 from vtkillum.core.illumination import IlluminationVolume, gradient_threshold, shading_terms
 from vtkillum.core.lights import DIRECTIONAL, pack_lights, resolved_radius
 from vtkillum.core.scene import Scene
+from vtkillum.core.texels import texel_scales
 from vtkillum.core.transfer_function import TABLE_SIZE
 from vtkillum.core.volume import Volume
 from vtkillum.io.convert import add_point_array, image_like, volume_from_image_data
@@ -317,9 +318,8 @@ from vtkillum.mappers.inputs import check_covers, connect_input, rendered_point_
 from vtkillum.mappers.interaction import (
     INTERACTIVE_IMAGE_SAMPLE_DISTANCE,
     INTERACTIVE_STEP,
-    image_sample_distance,
+    InteractiveSampling,
 )
-from vtkillum.mappers.interaction import interactive_step as checked_step
 
 #: Lights the shader takes: two 4-channel transmittance textures.
 MAX_LIGHTS = 8
@@ -903,7 +903,7 @@ def glsl_layout_dec(max_lights: int = MAX_LIGHTS, phong: bool = True, direct: bo
     return GLSL_LAYOUT_DEC % values
 
 
-class IlluminatedVolume(vtkMultiVolume):
+class IlluminatedVolume(InteractiveSampling, vtkMultiVolume):
     """A ``vtkMultiVolume`` rendered with an illumination volume by VTK's GPU ray caster.
 
     Parameters
@@ -1011,11 +1011,9 @@ class IlluminatedVolume(vtkMultiVolume):
         self.jitter = jitter
         self._accumulate = 0
         self.accumulate = accumulate
-        self._interactive_step = 1.0
         self.interactive_step = interactive_step
         self._interactive_near_cells = None
         self.interactive_near_cells = interactive_near_cells
-        self._interactive_isd = 1.0
         self.interactive_image_sample_distance = interactive_image_sample_distance
         self.set_frame(0, False)
         # Attach the renderers that show this volume to their accumulator at each render
@@ -1128,24 +1126,6 @@ class IlluminatedVolume(vtkMultiVolume):
                              "plotter.add_actor) first")
         return acc.refine(frames)
 
-    @property
-    def interactive_step(self) -> float:
-        """Sample-distance factor of the frames drawn while the view moves (default
-        :data:`INTERACTIVE_STEP`; 1: every frame at the scene's step).
-
-        Applies only to the frames of a drag (frame 0 of an accumulation while an
-        interactor style moves the view: :func:`~vtkillum.mappers.interaction.
-        window_interacting`); the still frame that ends the drag and the frames the
-        interactor's timer then adds sample at the scene's step, so the picture at rest is
-        the full-quality mean. Scripts (screenshots, camera paths) always sample at the
-        scene's step.
-        """
-        return self._interactive_step
-
-    @interactive_step.setter
-    def interactive_step(self, value: float) -> None:
-        self._interactive_step = checked_step(value)
-
     def set_frame(self, index: int, hold: bool, moving: bool = False) -> None:
         """Sample with the offsets of accumulation frame ``index``; ``hold``: draw nothing;
         ``moving``: the view moves in an interactive window (sample distance times
@@ -1160,33 +1140,13 @@ class IlluminatedVolume(vtkMultiVolume):
         uniforms.SetUniformi("il_frame", int(index))
         uniforms.SetUniformi("il_hold", int(bool(hold)))
         interactive = moving and self._jitter
-        uniforms.SetUniformf("il_stepScale",
-                             float(self._interactive_step) if interactive else 1.0)
+        # a changed image sample distance modifies the mapper, but the accumulator takes its
+        # key after this call, so it starts no new mean
+        self.sample_for(interactive, uniforms)
         near_scale = 1.0
         if interactive and self._interactive_near_cells is not None and self.near_cells > 0:
             near_scale = self._interactive_near_cells / self.near_cells
         uniforms.SetUniformf("il_nearScale", float(near_scale))
-        # vtkSetMacro: modifies the mapper only when the value changes (the accumulator
-        # takes its key after this call, so the change starts no new mean)
-        self.mapper.SetImageSampleDistance(float(self._interactive_isd) if interactive else 1.0)
-
-    @property
-    def interactive_image_sample_distance(self) -> float:
-        """Pixels per ray along x and y of the frames drawn while the view moves (default
-        :data:`~vtkillum.mappers.interaction.INTERACTIVE_IMAGE_SAMPLE_DISTANCE`; 1: every
-        pixel), VTK's ``ImageSampleDistance``: the GPU ray caster draws into a buffer this
-        many times smaller along each axis and scales it up.
-
-        Like :attr:`interactive_step`, it applies only to the frames of a drag; the frame
-        that ends it and those the timer adds at rest cast a ray for every pixel, and the
-        mean never includes frame 0. Why, and what it saves: :mod:`vtkillum.mappers.interaction` and
-        the module docstring.
-        """
-        return self._interactive_isd
-
-    @interactive_image_sample_distance.setter
-    def interactive_image_sample_distance(self, value: float) -> None:
-        self._interactive_isd = image_sample_distance(value)
 
     @property
     def interactive_near_cells(self) -> float | None:
@@ -1921,18 +1881,13 @@ def pack_channels(values: np.ndarray, sixteen_bit: bool, unit_range: bool = Fals
         out = np.empty(shape, dtype)
     elif out.shape != shape or out.dtype != dtype:
         raise ValueError(f"out must be {shape} {np.dtype(dtype)}, got {out.shape} {out.dtype}")
-    q = [1.0] * 4
-    empty = [False] * c  # channels stored as 0 (no positive finite maximum)
+    scale, q = [1.0] * 4, [1.0] * 4
     if sixteen_bit:
-        for k in range(c):
-            if unit_range:
-                continue
-            top = float(np.max(values[..., channels[k]])) if values[..., 0].size else 0.0
-            if top > 0 and np.isfinite(top):
-                q[k] = top
-            else:
-                empty[k] = True
-    scale = [np.float32(65535.0 / t) for t in q]
+        tops = [1.0] * c if unit_range else \
+            [float(np.max(values[..., ch])) if values[..., 0].size else 0.0 for ch in channels]
+        scale, q = texel_scales(tops)
+    empty = [sixteen_bit and scale[k] == 0.0 for k in range(c)]  # stored as 0
+    scale = [np.float32(v) for v in scale]
     slab = max(1, (1 << 18) // max(1, int(np.prod(shape[1:-1]))))  # ~256k points a slab
     tmp = None
     for i in range(0, shape[0], slab):

@@ -88,3 +88,48 @@ def interacting(prop) -> bool:
                 window_interacting(renderer.GetRenderWindow()):
             return True
     return False
+
+
+class InteractiveSampling:
+    """The two coarsenings of a drag, as properties of an OpenGL volume (a mixin).
+
+    :attr:`interactive_image_sample_distance` and :attr:`interactive_step` (checked by
+    :func:`image_sample_distance` and :func:`interactive_step`); the volume calls
+    :meth:`sample_for` before each render with whether the view is moving. It needs a
+    ``mapper`` (VTK's GPU ray caster) and a shader that scales its step by the uniform
+    ``il_stepScale``.
+    """
+
+    _interactive_isd = 1.0
+    _interactive_step = 1.0
+
+    @property
+    def interactive_image_sample_distance(self) -> float:
+        """Pixels per ray along x and y while an interactor style moves the view (VTK's
+        ``ImageSampleDistance``: the ray caster draws into a buffer this many times smaller
+        along each axis and scales it up; default :data:`INTERACTIVE_IMAGE_SAMPLE_DISTANCE`,
+        1: every pixel). Frames drawn at rest, the one that ends a drag and every frame a
+        script renders cast a ray for every pixel (the module docstring says why)."""
+        return self._interactive_isd
+
+    @interactive_image_sample_distance.setter
+    def interactive_image_sample_distance(self, value: float) -> None:
+        self._interactive_isd = image_sample_distance(value)
+
+    @property
+    def interactive_step(self) -> float:
+        """Sample-distance factor while an interactor style moves the view (default
+        :data:`INTERACTIVE_STEP`; 1: the scene's step). Frames drawn at rest, the one that
+        ends a drag and every frame a script renders sample at the scene's step."""
+        return self._interactive_step
+
+    @interactive_step.setter
+    def interactive_step(self, value: float) -> None:
+        self._interactive_step = interactive_step(value)
+
+    def sample_for(self, moving: bool, uniforms) -> None:
+        """Set this frame's image sample distance and step factor (``uniforms``: the
+        shader's custom uniforms) for a moving or resting view. VTK's setter modifies the
+        mapper only when the value changes."""
+        uniforms.SetUniformf("il_stepScale", float(self._interactive_step) if moving else 1.0)
+        self.mapper.SetImageSampleDistance(float(self._interactive_isd) if moving else 1.0)
