@@ -572,6 +572,28 @@ def opacity_scaled(scene, factor: float):
     return edited
 
 
+def device_upload_difference(actor, window, grids, device) -> float:
+    """Largest 8-bit difference between the frame of ``grids`` written into VTK's textures
+    from the warp device and the host path's frame of the same grids (unjittered, one
+    frame each; nan where the write did not happen): the check that the direct write
+    draws what the host path draws, on this GPU."""
+    jitter, accumulate = actor.jitter, actor.accumulate
+    actor.jitter, actor.accumulate = False, 1
+    try:
+        writes = actor.inputs.writer.writes
+        actor.set_illumination(on_device(grids, device))
+        window.Render()
+        direct = _read(window).astype(np.int16)
+        if actor.inputs.writer.writes == writes:
+            return float("nan")
+        actor.device_upload = False
+        actor.set_illumination(grids)
+        window.Render()
+        return float(np.abs(_read(window).astype(np.int16) - direct).max())
+    finally:
+        actor.jitter, actor.accumulate = jitter, accumulate
+
+
 def interactive(opts) -> tuple[list, str]:
     """The ``--interactive`` table (see the module docstring)."""
     from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
@@ -662,7 +684,7 @@ def interactive(opts) -> tuple[list, str]:
             tf_ms = statistics.median(edits) if edits else nan
             # the same edits with the grids on the warp device (as a light method leaves
             # them) written straight into VTK's textures (device_upload)
-            direct_ms, direct_writes = nan, 0
+            direct_ms, direct_writes, direct_diff = nan, 0, nan
             if opts.tf_edit and opts.device_upload and kind != AMBIENT:
                 actor.device_upload = True
                 window.Render()  # a frame drawn with the writer watching: VTK's textures
@@ -671,13 +693,15 @@ def interactive(opts) -> tuple[list, str]:
                 direct_writes = actor.inputs.writer.writes
                 if actor.inputs.writer.last_error:
                     print(f"device upload: {actor.inputs.writer.last_error}", flush=True)
+                direct_diff = device_upload_difference(actor, window, grids(9), opts.device)
                 actor.device_upload = False
             row = (size, kind, still, moving, moving_every, moving_near0, still_near0, before,
                    tf_ms, direct_ms, uploads)
             rows.append(row)
             print(f"| {size}^3 | {kind} | {still:.1f} | {moving:.1f} | {moving_every:.1f} | "
                   f"{moving_near0:.1f} | {still_near0:.1f} | {before:.1f} | {tf_ms:.0f} | "
-                  f"{direct_ms:.0f} ({direct_writes} writes) | {uploads:g} |", flush=True)
+                  f"{direct_ms:.0f} ({direct_writes} writes; picture vs host path: max "
+                  f"{direct_diff:g}/255) | {uploads:g} |", flush=True)
             window.Finalize()
             del actor, light
     return rows, gpu

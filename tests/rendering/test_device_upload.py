@@ -4,12 +4,15 @@
 (:mod:`vtkillum.core.texels`) and copies them through an OpenGL pixel buffer into the
 textures VTK made (:mod:`vtkillum.mappers.texture_upload`). Here the device is warp's CPU
 and the OpenGL is llvmpipe, so the pixel buffer is filled from host memory; on CUDA the
-same buffer is mapped into the GPU (the only step these tests do not run). What they
+same buffer is mapped into the GPU: ``VTKILLUM_TEST_WARP_DEVICE=cuda:0`` runs these tests
+so, on a GPU whose OpenGL is NVIDIA's (EGL). What they
 prove: the texels are ``pack_channels``' bit for bit; the picture is the host path's bit
 for bit; the images are not touched and VTK uploads nothing else; every case the writer
 cannot take (first grids, another size, a failed write, textures made anew) still draws
 the right picture.
 """
+
+import os
 
 import numpy as np
 import pytest
@@ -22,6 +25,7 @@ import warp as wp  # noqa: E402
 from vtkmodules.util.numpy_support import vtk_to_numpy  # noqa: E402
 
 from vtkillum.core import texels  # noqa: E402
+from vtkillum.core.device_arrays import TRAFFIC  # noqa: E402
 from vtkillum.core.illumination import IlluminationVolume  # noqa: E402
 from vtkillum.core.resample import resample_points  # noqa: E402
 from vtkillum.io.convert import image_data_from_volume  # noqa: E402
@@ -31,6 +35,9 @@ from vtkillum.mappers.illuminated_volume_mapper import (  # noqa: E402
     pack_channels,
 )
 
+#: warp's device holding the grids (CUDA runs the interop path; see the module docstring)
+DEVICE = os.environ.get("VTKILLUM_TEST_WARP_DEVICE", "cpu")
+
 
 def test_device_texels_are_pack_channels_bit_for_bit():
     rng = np.random.default_rng(7)
@@ -38,35 +45,35 @@ def test_device_texels_are_pack_channels_bit_for_bit():
     t[0, 0, 0, 0], t[1, 0, 0, 1], t[2, 0, 0, 2] = 1.0, 0.0, 0.5 / 65535  # ends, a half-way tie
     for lights in ([0, 1, 2, 3], [4, 5], [2]):
         ref, q = pack_channels(np.moveaxis(t, 0, -1), True, unit_range=True, channels=lights)
-        out = wp.empty(texels.texel_count(t.shape[1:]), dtype=wp.uint16, device="cpu")
-        assert texels.pack_transmittance(wp.array(t, dtype=wp.float32, device="cpu"),
+        out = wp.empty(texels.texel_count(t.shape[1:]), dtype=wp.uint16, device=DEVICE)
+        assert texels.pack_transmittance(wp.array(t, dtype=wp.float32, device=DEVICE),
                                          lights, out) == q
         assert np.array_equal(out.numpy().reshape(ref.shape), ref)
     s = (rng.random((5, 7, 4, 3)) * np.array([3.0, 0.2, 0.0])).astype(np.float32)  # B all 0
     ref, q = pack_channels(s, True, channels=[0, 1, 2])
-    out = wp.empty(texels.texel_count(s.shape[:3]), dtype=wp.uint16, device="cpu")
-    assert texels.pack_fluence(wp.array(s, dtype=wp.vec3, device="cpu"), out) == q
+    out = wp.empty(texels.texel_count(s.shape[:3]), dtype=wp.uint16, device=DEVICE)
+    assert texels.pack_fluence(wp.array(s, dtype=wp.vec3, device=DEVICE), out) == q
     assert np.array_equal(out.numpy().reshape(ref.shape), ref)
     with pytest.raises(ValueError, match="uint16"):
-        texels.pack_fluence(wp.array(s, dtype=wp.vec3, device="cpu"), out[:-4])
+        texels.pack_fluence(wp.array(s, dtype=wp.vec3, device=DEVICE), out[:-4])
 
 
 @pytest.fixture(scope="module")
 def grids():
     volume = skewed_blobs()
     scene = make_scene(volume, lights=blob_lights(volume))
-    transmittance = direct_light(volume, scene, shape=SHAPE)
+    transmittance = direct_light(volume, scene, shape=SHAPE, device=DEVICE)
     scattered = resample_points(slab_fluence(volume, scene.transfer_function),
                                 SHAPE).astype(np.float32)
     return volume, scene, transmittance, scattered
 
 
 def on_device(volume, scattered, transmittance):
-    """An IlluminationVolume whose grids are warp arrays (warp's CPU device here)."""
+    """An IlluminationVolume whose grids are warp arrays (on :data:`DEVICE`)."""
     return IlluminationVolume.for_volume(
-        volume, None if scattered is None else wp.array(scattered, dtype=wp.vec3, device="cpu"),
+        volume, None if scattered is None else wp.array(scattered, dtype=wp.vec3, device=DEVICE),
         None if transmittance is None else wp.array(transmittance, dtype=wp.float32,
-                                                    device="cpu"))
+                                                    device=DEVICE))
 
 
 def host_picture(volume, scene, scattered, transmittance):
@@ -78,11 +85,11 @@ def host_picture(volume, scene, scattered, transmittance):
 
 
 def writing(volume, scene, scattered, transmittance, watched: bool = True):
-    """``(first picture, actor, window, writer)``: device grids drawn, ``device_upload`` on
-    and (``watched``) one frame drawn with the writer watching."""
+    """``(first picture, actor, window, writer)``: device grids drawn with ``device_upload``
+    off, then turned on and (``watched``) one frame drawn with the writer watching."""
     first, actor, window = render_opengl(image_data_from_volume(volume), scene,
                                          on_device(volume, scattered, transmittance), 1.5,
-                                         accumulate=1)
+                                         accumulate=1, device_upload=False)
     actor.device_upload = True
     if watched:
         window.Render()
@@ -98,11 +105,15 @@ def test_new_grids_are_written_into_vtks_textures(grids):
     edited_t, edited_s = transmittance ** 2, scattered * 0.6
     images = (*actor.inputs.direct_images, actor.inputs.scattered_image)
     stamps = [image.GetMTime() for image in images]
-    actor.set_illumination(on_device(volume, edited_s, edited_t))
+    edited = on_device(volume, edited_s, edited_t)
+    TRAFFIC.reset()
+    actor.set_illumination(edited)
     with GLCallCounter() as gl:
         window.Render()
     drawn = read_window_rgb(window)
     assert writer.writes == 2 and writer.last_error is None  # 2 lights: port A; scattered
+    # no grid went to the host on the way (on a GPU a download is most of a 512³ edit)
+    assert TRAFFIC.downloads == 0
     # the grids' only uploads are the two writes (the optics table is re-made as ever)
     grid_uploads = [u for u in gl.uploads_3d if u[:3] == SHAPE[::-1]]
     assert gl.calls["glTexSubImage3D"] == 2 and len(grid_uploads) == 2
@@ -135,7 +146,7 @@ def test_new_grids_are_written_into_vtks_textures(grids):
     assert np.abs(read_window_rgb(window) - expected).max() == 0.0
     # grids of another size: through the host once (VTK makes the textures of that size),
     # then written again (new pixel buffers; the old ones freed)
-    small_t = direct_light(volume, scene, shape=(12, 9, 7))
+    small_t = direct_light(volume, scene, shape=(12, 9, 7), device=DEVICE)
     small_s = resample_points(edited_s, (12, 9, 7)).astype(np.float32)
     actor.set_illumination(on_device(volume, small_s, small_t))
     window.Render()
@@ -156,7 +167,7 @@ def test_what_the_writer_cannot_take_goes_through_the_host(grids):
     volume, scene, transmittance, scattered = grids
     _first, actor, window, writer = writing(volume, scene, None, transmittance)
     # grids of another size: the host path (VTK makes textures of the new size)
-    smaller = direct_light(volume, scene, shape=(12, 9, 7))
+    smaller = direct_light(volume, scene, shape=(12, 9, 7), device=DEVICE)
     actor.set_illumination(on_device(volume, None, smaller))
     window.Render()
     assert writer.writes == 0
@@ -189,15 +200,22 @@ def test_what_the_writer_cannot_take_goes_through_the_host(grids):
     window.Finalize()
 
 
-def test_device_upload_takes_a_bool(grids):
+def test_device_upload_is_on_by_default_and_takes_a_bool(grids):
     volume, scene, transmittance, _ = grids
     _first, actor, window = render_opengl(image_data_from_volume(volume), scene,
                                           on_device(volume, None, transmittance), 1.5)
+    assert actor.device_upload is True and actor.inputs.writer is not None
     with pytest.raises(TypeError, match="device_upload must be True or False"):
         actor.device_upload = "yes"
+    assert actor.device_upload is True  # the bad value changed nothing
+    actor.device_upload = False
     assert actor.device_upload is False and actor.inputs.writer is None
     window.Finalize()
-
+    _first, actor, window = render_opengl(image_data_from_volume(volume), scene,
+                                          on_device(volume, None, transmittance), 1.5,
+                                          device_upload=False)
+    assert actor.device_upload is False and actor.inputs.writer is None
+    window.Finalize()
 
 
 def test_textures_are_found_by_their_texels(grids):

@@ -141,10 +141,11 @@ def make_scene(volume: Volume, mirrored: bool = False, anisotropy: float = 0.3,
                  shading={"ambient": 0.4, "diffuse": 0.6, "specular": 0.3, "shininess": 20.0})
 
 
-def direct_light(volume: Volume, scene: Scene, shape=LIGHT_GRID) -> np.ndarray:
-    """Per-light transmittance of the scene's lights on a light grid."""
+def direct_light(volume: Volume, scene: Scene, shape=LIGHT_GRID, device: str = "cpu") -> np.ndarray:
+    """Per-light transmittance of the scene's lights on a light grid (computed on warp's
+    ``device``)."""
     return light_transmittance(volume, scene.transfer_function, UNIT, scene.lights,
-                               shape=shape, device="cpu")[0]
+                               shape=shape, device=device)[0]
 
 
 def warp_reference(volume, scene, illumination, **options):

@@ -250,9 +250,10 @@ Grids that a light method left on a GPU (an ``IlluminationVolume`` of warp array
 on_device=True)``) need none of that: with :attr:`IlluminatedVolume.device_upload` on they
 are packed to 16 bit on the device (:mod:`vtkillum.core.texels`, the same texels) and
 copied through an OpenGL pixel buffer mapped into CUDA into the textures VTK made for the
-previous grids (:mod:`vtkillum.mappers.texture_upload`). The copy alone took 3.6 ms for a
-256³ grid on the H200 against 137 ms through the host; the whole edit is not yet measured
-on a GPU, so the property is off by default.
+previous grids (:mod:`vtkillum.mappers.texture_upload`; on by default). On an H200 the
+write of a 512³ grid (pack, copy into the pixel buffer, ``glTexSubImage3D``) takes 3.7 ms,
+and a TF edit to the new frame 164 ms instead of 1451 ms (transmittance; most of the 164 ms
+is the frame).
 
 ``benchmarks/bench_opengl.py`` compares the frame time with VTK's own volumetric shadows
 (``docs/benchmarks.md``).
@@ -948,6 +949,9 @@ class IlluminatedVolume(InteractiveSampling, vtkMultiVolume):
         Pixels per ray along x and y while the view moves in an interactive window
         (default :data:`INTERACTIVE_IMAGE_SAMPLE_DISTANCE`; see
         :attr:`interactive_image_sample_distance`).
+    device_upload : bool
+        Write light grids that live on a GPU straight into VTK's textures (default True;
+        see :attr:`device_upload`).
 
     Notes
     -----
@@ -969,7 +973,7 @@ class IlluminatedVolume(InteractiveSampling, vtkMultiVolume):
                  interactive_step: float = INTERACTIVE_STEP,
                  interactive_near_cells: float | None = INTERACTIVE_NEAR_CELLS,
                  interactive_image_sample_distance: float = INTERACTIVE_IMAGE_SAMPLE_DISTANCE,
-                 ) -> None:
+                 device_upload: bool = True) -> None:
         super().__init__()
         self.inputs = IlluminationInputs()
         self.inputs.SetArrayName(array_name)
@@ -1025,6 +1029,7 @@ class IlluminatedVolume(InteractiveSampling, vtkMultiVolume):
         self._scene = None
         self._ready = False
         self.near_cells = near_cells
+        self.device_upload = device_upload
         self.set_scene(scene if scene is not None else Scene())
         self.set_illumination(illumination)
         self._ready = True
@@ -1196,7 +1201,7 @@ class IlluminatedVolume(InteractiveSampling, vtkMultiVolume):
     @property
     def device_upload(self) -> bool:
         """Write light grids that live on a warp device straight into VTK's textures
-        (default False).
+        (default True).
 
         On: an :class:`~vtkillum.core.illumination.IlluminationVolume` whose grids are warp
         arrays (what a light method computes on a GPU) is packed to 16 bit on its device and
@@ -1207,7 +1212,14 @@ class IlluminatedVolume(InteractiveSampling, vtkMultiVolume):
         (images, numpy grids, another size, float32 grids, an OpenGL error) goes through
         the host as before. Memory: 16 bytes per light-grid point for each texture written
         (the packed texels and the pixel buffer, on the grids' device), besides VTK's
-        texture. Off by default until its whole TF edit is measured on a GPU.
+        texture.
+
+        A TF edit to the new full-quality frame with new 512³ grids on an NVIDIA H200
+        (1024² window, ``benchmarks/bench_opengl.py --interactive --tf-edit
+        --device-upload``): transmittance 164 ms, against 1451 ms through the host;
+        convection-diffusion (two grids) 307 against 3983 ms; photon density 102 against
+        3014 ms; the pictures equal the host path's. Most of what remains is the frame
+        itself (116, 139 and 50 ms still). Off: every grid goes through the host.
         """
         return self.inputs.writer is not None
 
@@ -1699,13 +1711,13 @@ def shading_uniforms(volume: Volume, scene: Scene, lights, illumination, near_ce
         if isinstance(illumination, ImageGrids):
             has_scattered = int(illumination.has_scattered)
             shape = illumination.transmittance_shape
-        else:
-            has_scattered = int(illumination.scattered is not None)
-            t = illumination.transmittance
-            shape = None if t is None else t.shape
+            shape = None if shape is None else shape[1:]
+        else:  # shapes only: reading the grids would download those living on a device
+            has_scattered = int(illumination.has("scattered"))
+            shape = illumination.transmittance_shape
         near = 0.0
         if shape is not None:
-            spacing = illumination.extent / (np.asarray(shape[1:]) - 1)
+            spacing = illumination.extent / (np.asarray(shape) - 1)
             near = float(near_cells) * float(spacing.max())
     axes = np.asarray(volume.direction, np.float64)
     return {
