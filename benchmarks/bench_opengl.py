@@ -594,6 +594,16 @@ def device_upload_difference(actor, window, grids, device) -> float:
         actor.jitter, actor.accumulate = jitter, accumulate
 
 
+def ambient_upload_difference(actor, window) -> float:
+    """Largest 8-bit difference between the ambient mapper's frame drawn from textures
+    written on the device (the last edit) and the host path's frame of the same scene."""
+    window.Render()
+    direct = _read(window).astype(np.int16)
+    actor.device_upload = False  # the next update fills the images on the host
+    window.Render()
+    return float(np.abs(_read(window).astype(np.int16) - direct).max())
+
+
 def interactive(opts) -> tuple[list, str]:
     """The ``--interactive`` table (see the module docstring)."""
     from vtkmodules.vtkRenderingUI import vtkGenericRenderWindowInteractor
@@ -680,20 +690,31 @@ def interactive(opts) -> tuple[list, str]:
                 return None if kind == AMBIENT else synthetic_illumination(
                     volume, kind, len(scene.lights), scale=opts.grid_scale, seed=seed)
 
+            # through the host: numpy grids (as a method computing on the CPU hands them
+            # over); the ambient mapper with device_upload off
+            actor.device_upload = False
             edits = [edit_ms(grids(k + 1), k) for k in range(3 if opts.tf_edit else 0)]
             tf_ms = statistics.median(edits) if edits else nan
             # the same edits with the grids on the warp device (as a light method leaves
-            # them) written straight into VTK's textures (device_upload)
+            # them; the ambient mapper's σ̃t and radiance cache) written straight into VTK's
+            # textures (device_upload)
             direct_ms, direct_writes, direct_diff = nan, 0, nan
-            if opts.tf_edit and opts.device_upload and kind != AMBIENT:
+            if opts.tf_edit and opts.device_upload:
                 actor.device_upload = True
                 window.Render()  # a frame drawn with the writer watching: VTK's textures
-                direct_ms = statistics.median(
-                    edit_ms(on_device(grids(k + 4), opts.device), k) for k in range(3))
+                if kind == AMBIENT:
+                    direct_ms = statistics.median(edit_ms(None, k + 3) for k in range(3))
+                else:
+                    direct_ms = statistics.median(
+                        edit_ms(on_device(grids(k + 4), opts.device), k) for k in range(3))
                 direct_writes = actor.inputs.writer.writes
                 if actor.inputs.writer.last_error:
                     print(f"device upload: {actor.inputs.writer.last_error}", flush=True)
-                direct_diff = device_upload_difference(actor, window, grids(9), opts.device)
+                if kind == AMBIENT:
+                    direct_diff = ambient_upload_difference(actor, window)
+                else:
+                    direct_diff = device_upload_difference(actor, window, grids(9),
+                                                           opts.device)
                 actor.device_upload = False
             row = (size, kind, still, moving, moving_every, moving_near0, still_near0, before,
                    tf_ms, direct_ms, uploads)

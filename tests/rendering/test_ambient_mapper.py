@@ -160,10 +160,15 @@ def grab_modified(window, image):
     return read_window_rgb(window)
 
 
-def test_edits_recompute_what_table1_says(setup):
+@pytest.mark.parametrize("device_upload", [False, True])
+def test_edits_recompute_what_table1_says(setup, device_upload):
+    """Each edit recomputes its stages and re-uploads only their textures: from the host
+    images, or (``device_upload``) written from the cache's device into VTK's textures,
+    the images untouched."""
     volume, scene, ref, exposure = setup
     image_data = image_data_from_volume(volume)
-    actor = AmbientScatteringVolume(image_data, scene, exposure=exposure, device="cpu")
+    actor = AmbientScatteringVolume(image_data, scene, exposure=exposure, device="cpu",
+                                    device_upload=device_upload)
     renderer = vtkRenderer()
     renderer.AddVolume(actor)
     window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
@@ -189,7 +194,11 @@ def test_edits_recompute_what_table1_says(setup):
     # ... and only the radiance cache's texture (and the small table) is re-uploaded.
     assert (actor.inputs.data_image.GetMTime(), actor.inputs.extinction_image.GetMTime(),
             actor.inputs.optics_image.GetMTime()) == kept
-    assert actor.inputs.radiance_image.GetMTime() > cache_time
+    if device_upload:  # the radiance cache's texture written from the device
+        assert actor.inputs.writer.writes == 1, actor.inputs.writer.last_error
+        assert actor.inputs.radiance_image.GetMTime() == cache_time
+    else:
+        assert actor.inputs.radiance_image.GetMTime() > cache_time
     ref_g, _ = reference(volume, backward, exposure)
     errors = rel_errors(image, ref_g)
     print(f"g = -0.5: mean {errors[0]:.2e}, p99 {errors[1]:.2e}")
@@ -200,6 +209,8 @@ def test_edits_recompute_what_table1_says(setup):
     actor.set_options(radius=5.0)
     image = read_window_rgb(window)
     assert actor.cache.stats == {"sat": 1, "extinction": 2, "radiance": 3}
+    if device_upload:  # σ̃t and the radiance cache
+        assert actor.inputs.writer.writes == 3, actor.inputs.writer.last_error
     ref_r, _ = reference(volume, make_scene(volume, -0.5, radius=5.0), exposure)
     assert within(rel_errors(image, ref_r)), rel_errors(image, ref_r)
 
@@ -210,6 +221,8 @@ def test_edits_recompute_what_table1_says(setup):
     actor.set_options(radius=None)  # the scene's radius is the same: nothing to redo
     image = read_window_rgb(window)
     assert actor.cache.stats == {"sat": 2, "extinction": 3, "radiance": 4}
+    if device_upload:
+        assert actor.inputs.writer.writes == 5, actor.inputs.writer.last_error
     ref_tf, _ = reference(volume, edited, exposure)
     errors = rel_errors(image, ref_tf)
     print(f"TF + specular + AO: mean {errors[0]:.2e}, p99 {errors[1]:.2e}")

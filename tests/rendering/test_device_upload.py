@@ -58,6 +58,41 @@ def test_device_texels_are_pack_channels_bit_for_bit():
         texels.pack_fluence(wp.array(s, dtype=wp.vec3, device=DEVICE), out[:-4])
 
 
+def test_ambient_texels_are_the_host_images_bit_for_bit():
+    """σ̃t and the grey radiance cache laid out on the device equal what the host path
+    hands VTK (``add_point_array`` of ``grey_radiance``), and a cache that is not grey
+    times its light's colour is refused as on the host."""
+    from vtkillum.core.lights import DirectionalLight, PointLight, pack_lights
+    from vtkillum.core.volume import Volume
+    from vtkillum.io.convert import add_point_array, image_like
+    from vtkillum.mappers.ambient_volume_mapper import grey_radiance
+
+    rng = np.random.default_rng(3)
+    sigma = rng.random((5, 6, 7)).astype(np.float32)
+    volume = Volume(sigma)
+    out = wp.empty(sigma.size, dtype=wp.float32, device=DEVICE)
+    texels.pack_scalar(wp.array(sigma, dtype=wp.float32, device=DEVICE), out)
+    assert np.array_equal(out.numpy(), vtk_to_numpy(add_point_array(image_like(volume), "s",
+                                                                     sigma)))
+    lights = [DirectionalLight((1.0, 0.0, 0.0), (3.0, 2.4, 1.8)),
+              PointLight((5.0, 5.0, 5.0), (800.0, 800.0, 900.0)),
+              DirectionalLight((0.0, 1.0, 0.0), (0.0, 0.0, 0.0))]  # a dark light: 0
+    _, _, rgb = pack_lights(lights)
+    grey = rng.random((3, 5, 6, 7))
+    cache = (grey[..., None] * rgb.astype(np.float64)[:, None, None, None, :]).astype(np.float32)
+    expected = add_point_array(image_like(volume), "g", grey_radiance(cache, lights, volume))
+    device_cache = wp.array(cache, dtype=wp.vec3, device=DEVICE)
+    texels.check_grey(device_cache, rgb)
+    out = wp.empty(4 * sigma.size, dtype=wp.float32, device=DEVICE)
+    texels.pack_grey(device_cache, rgb, out)
+    assert np.array_equal(out.numpy(), vtk_to_numpy(expected).reshape(-1))
+    cache[1, 2, 3, 4, 0] *= 1.01  # no longer grey times the colour
+    with pytest.raises(RuntimeError, match="light 1 is not grey"):
+        texels.check_grey(wp.array(cache, dtype=wp.vec3, device=DEVICE), rgb)
+    with pytest.raises(RuntimeError, match="light 1 is not grey"):
+        grey_radiance(cache, lights, volume)
+
+
 @pytest.fixture(scope="module")
 def grids():
     volume = skewed_blobs()
@@ -347,3 +382,112 @@ def test_the_writer_goes_with_its_volume(grids):
     del actor, window, writer
     gc.collect()
     assert gone() is None
+
+
+# --- AmbientScatteringVolume: σ̃t and the radiance cache from the cache's device ---------------------
+def ambient_window(volume, scene, device_upload: bool, data=None):
+    """``(actor, window)``: an AmbientScatteringVolume of ``volume`` (or of ``data``, a
+    pipeline connection) on :data:`DEVICE`, one frame drawn."""
+    from helpers import offscreen_window
+    from test_ambient_mapper import HEIGHT, WIDTH
+    from vtkmodules.vtkRenderingCore import vtkRenderer
+
+    from vtkillum.mappers import AmbientScatteringVolume
+
+    actor = AmbientScatteringVolume(data or image_data_from_volume(volume), scene, exposure=2.0,
+                                    device=DEVICE, device_upload=device_upload)
+    renderer = vtkRenderer()
+    renderer.AddVolume(actor)
+    window = offscreen_window(renderer, scene.camera, WIDTH, HEIGHT)
+    window.Render()
+    return actor, window
+
+
+def test_ambient_edits_are_written_into_vtks_textures():
+    """A TF edit and a g edit: σ̃t and the radiance cache are laid out on the cache's
+    device (x fastest, grey per light) and written into VTK's float textures; the picture
+    is the host path's bit for bit, the images are untouched, VTK uploads no grid."""
+    from test_ambient_mapper import blob_tf, blob_volume, make_scene
+
+    volume = blob_volume()
+    scene = make_scene(volume)
+    edited = make_scene(volume)
+    edited.transfer_function = blob_tf(0.6)
+    actor, window = ambient_window(volume, scene, True)
+    writer = actor.inputs.writer
+    images = (actor.inputs.data_image, actor.inputs.extinction_image,
+              actor.inputs.radiance_image)
+    stamps = [image.GetMTime() for image in images]
+    grids = {tuple(image.GetDimensions()) for image in images}
+    TRAFFIC.reset()
+    actor.set_scene(edited)
+    with GLCallCounter() as gl:
+        window.Render()
+    drawn = read_window_rgb(window)
+    assert writer.writes == 2 and writer.last_error is None
+    assert sorted(writer.textures) == [2, 3]  # EXTINCTION_PORT, RADIANCE_PORT
+    assert gl.calls["glTexSubImage3D"] == 2
+    assert not [u for u in gl.uploads_3d if u[:3] in grids and u[3] is not None]  # no re-make
+    assert [image.GetMTime() for image in images] == stamps
+    assert TRAFFIC.downloads == 0
+    host, host_window = ambient_window(volume, edited, False)
+    expected = read_window_rgb(host_window)
+    assert np.abs(drawn - expected).max() == 0.0
+    # the images hold the new grids once the background copies end (as the host path's)
+    writer.sync_host()
+    for mine, theirs in ((actor.inputs.extinction_image, host.inputs.extinction_image),
+                         (actor.inputs.radiance_image, host.inputs.radiance_image)):
+        assert np.array_equal(vtk_to_numpy(mine.GetPointData().GetScalars()),
+                              vtk_to_numpy(theirs.GetPointData().GetScalars()))
+    # g: the radiance cache alone
+    backward = make_scene(volume, anisotropy=-0.5)
+    backward.transfer_function = blob_tf(0.6)
+    actor.set_scene(backward)
+    window.Render()
+    assert writer.writes == 3
+    host.set_scene(backward)
+    host_window.Render()
+    assert np.abs(read_window_rgb(window) - read_window_rgb(host_window)).max() == 0.0
+    # turned off: the host path again, the same picture
+    actor.device_upload = False
+    window.Render()
+    assert np.abs(read_window_rgb(window) - read_window_rgb(host_window)).max() == 0.0
+    window.Finalize()
+    host_window.Finalize()
+
+
+def test_ambient_data_edits_and_failed_writes_go_through_the_host():
+    """New data (a new texture size) and a write that fails draw the host path's picture."""
+    from test_ambient_mapper import blob_tf, blob_volume, make_scene
+    from vtkmodules.vtkCommonExecutionModel import vtkTrivialProducer
+
+    volume = blob_volume()
+    scene = make_scene(volume)
+    producer = vtkTrivialProducer()
+    producer.SetOutput(image_data_from_volume(volume))
+    actor, window = ambient_window(volume, scene, True, producer.GetOutputPort())
+    writer = actor.inputs.writer
+    # a failing write (interop unavailable): the same render draws through the host
+    edited = make_scene(volume)
+    edited.transfer_function = blob_tf(0.8)
+    actor.set_scene(edited)
+    for job in writer.pending.values():
+        job.pack = lambda out: (_ for _ in ()).throw(RuntimeError("interop unavailable"))
+    window.Render()
+    assert writer.writes == 0 and "interop unavailable" in writer.last_error
+    host, host_window = ambient_window(volume, edited, False)
+    assert np.abs(read_window_rgb(window) - read_window_rgb(host_window)).max() == 0.0
+    # new data of another size: the host path, then writes again
+    smaller = blob_volume(0.9)
+    smaller = smaller.__class__(smaller.scalars[:20, :18, :22], spacing=smaller.spacing,
+                                origin=smaller.origin, direction=smaller.direction)
+    producer.SetOutput(image_data_from_volume(smaller))
+    window.Render()
+    assert writer.writes == 0
+    actor.set_scene(scene)
+    window.Render()
+    assert writer.writes == 2, writer.last_error
+    check, check_window = ambient_window(smaller, scene, False)
+    assert np.abs(read_window_rgb(window) - read_window_rgb(check_window)).max() == 0.0
+    for w in (window, host_window, check_window):
+        w.Finalize()

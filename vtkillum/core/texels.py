@@ -130,6 +130,131 @@ def pack_fluence(scattered: wp.array, out: wp.array, tops: list | None = None) -
     return q
 
 
+# --- float32 textures in VTK's point order (x fastest): the ambient mapper's inputs ---------------
+@wp.kernel
+def _scalar_x_fastest(src: wp.array3d(dtype=wp.float32), out: wp.array(dtype=wp.float32)):
+    k, j, i = wp.tid()  # i fastest: the writes are consecutive
+    out[(k * src.shape[1] + j) * src.shape[0] + i] = src[i, j, k]
+
+
+@wp.kernel
+def _grey_x_fastest(src: wp.array4d(dtype=wp.vec3), channel: wp.vec4i, divisor: wp.vec4d,
+                    count: int, out: wp.array(dtype=wp.float32)):
+    k, j, i = wp.tid()
+    base = ((k * src.shape[2] + j) * src.shape[1] + i) * 4
+    for light in range(4):
+        value = float(0.0)
+        if light < count:
+            if divisor[light] > wp.float64(0.0):
+                v = src[light, i, j, k]
+                value = wp.float32(wp.float64(v[channel[light]]) / divisor[light])
+        out[base + light] = value
+
+
+@wp.kernel
+def _grey_error(src: wp.array4d(dtype=wp.vec3), light: int, channel: int, colour: wp.vec3d,
+                n: int, threads: int, out: wp.array(dtype=wp.float32)):
+    """Thread ``wp.tid()`` takes points ``tid, tid + threads, ...`` of light ``light`` and
+    folds into ``out`` its largest ``|L - (L[channel] / colour[channel]) colour|`` (float64
+    arithmetic, as the host) and largest ``|L|``."""
+    t = wp.tid()
+    ny = src.shape[2]
+    nz = src.shape[3]
+    worst = wp.float64(0.0)
+    top = wp.float64(0.0)
+    p = t
+    while p < n:
+        v = src[light, p // (ny * nz), (p // nz) % ny, p % nz]
+        g = wp.float64(v[channel]) / colour[channel]
+        for c in range(3):
+            value = wp.float64(v[c])
+            worst = wp.max(worst, wp.abs(value - g * colour[c]))
+            top = wp.max(top, wp.abs(value))
+        p += threads
+    wp.atomic_max(out, 0, wp.float32(worst))
+    wp.atomic_max(out, 1, wp.float32(top))
+
+
+def pack_scalar(src: wp.array, out: wp.array) -> None:
+    """Copy a float32 grid ``(nx, ny, nz)`` into ``out`` (float32, ``nx ny nz`` values, same
+    device) in VTK's point order, x fastest: what ``add_point_array`` makes on the host, bit
+    for bit."""
+    if out.dtype != wp.float32 or out.ndim != 1 or out.shape[0] != src.size:
+        raise ValueError(f"texels: need {src.size} float32 values, got {out.shape} {out.dtype}")
+    _same_device(out, src.device)
+    wp.launch(_scalar_x_fastest, dim=src.shape[::-1], inputs=[src, out], device=src.device)
+
+
+def _grey_divisors(colours, count: int) -> tuple[list, list]:
+    """``(channel, divisor)`` per light: the colour's largest channel and its value (0 for
+    a dark light, whose grey channel is 0), as the host's ``grey_radiance``."""
+    channel, divisor = [0] * 4, [0.0] * 4
+    for light in range(count):
+        colour = colours[light]
+        channel[light] = int(np.argmax(colour))
+        if colour[channel[light]] > 0.0:
+            divisor[light] = float(colour[channel[light]])
+    return channel, divisor
+
+
+def _grey_colours(cache: wp.array, colours) -> np.ndarray:
+    colours = np.asarray(colours, dtype=np.float64).reshape(-1, 3)
+    count = int(cache.shape[0])
+    if not 1 <= count <= 4 or colours.shape[0] < count:
+        raise ValueError(f"1 to 4 lights with a colour each, got {count} and {len(colours)}")
+    return colours
+
+
+def check_grey(cache: wp.array, colours) -> None:
+    """Check on the device that light ``j`` of an RGB grid ``(n_lights <= 4, nx, ny, nz)``
+    of vec3 is a grey factor times ``colours[j]`` (largest deviation at most 1e-4 of the
+    light's largest value, float64 arithmetic, as the host's ``grey_radiance``).
+
+    Raises
+    ------
+    RuntimeError
+        Naming the first light that is not.
+    """
+    colours = _grey_colours(cache, colours)
+    channel, divisor = _grey_divisors(colours, int(cache.shape[0]))
+    n = int(np.prod(cache.shape[1:]))
+    threads = max(1, min(n, STATS_THREADS["cpu" if cache.device.is_cpu else "cuda"]))
+    for light in range(int(cache.shape[0])):
+        if divisor[light] <= 0.0:
+            continue
+        errors = wp.zeros(2, dtype=wp.float32, device=cache.device)
+        wp.launch(_grey_error, dim=threads,
+                  inputs=[cache, light, channel[light], wp.vec3d(*colours[light]), n, threads,
+                          errors], device=cache.device)
+        worst, top = (float(v) for v in errors.numpy())
+        if worst > 1e-4 * (top + 1e-30):
+            raise RuntimeError(f"the radiance cache of light {light} is not grey times its "
+                               "colour; the OpenGL path cannot store it (use the compute path)")
+
+
+def pack_grey(cache: wp.array, colours, out: wp.array) -> None:
+    """One grey channel per light of an RGB grid ``(n_lights <= 4, nx, ny, nz)`` of vec3 whose
+    light ``j`` is ``f_j * colours[j]`` (:func:`check_grey` proves it): ``f_j = L_j[c] /
+    colours[j][c]`` (``c`` the colour's largest channel, float64 division as on the host),
+    into ``out`` (float32, ``4 nx ny nz`` values, x fastest; unused channels and dark lights
+    0). The ambient mapper's radiance-cache texture, bit for bit its host twin
+    ``ambient_volume_mapper.grey_radiance`` laid out by ``add_point_array``."""
+    colours = _grey_colours(cache, colours)
+    points = int(np.prod(cache.shape[1:]))
+    if out.dtype != wp.float32 or out.ndim != 1 or out.shape[0] != 4 * points:
+        raise ValueError(f"texels: need {4 * points} float32 values, got {out.shape} {out.dtype}")
+    _same_device(out, cache.device)
+    channel, divisor = _grey_divisors(colours, int(cache.shape[0]))
+    wp.launch(_grey_x_fastest, dim=tuple(cache.shape[1:])[::-1],
+              inputs=[cache, wp.vec4i(*channel), wp.vec4d(*divisor), int(cache.shape[0]), out],
+              device=cache.device)
+
+
+def _same_device(out: wp.array, device) -> None:
+    if str(out.device) != str(device):
+        raise ValueError(f"texels on {out.device}, grid on {device}")
+
+
 def _check_out(out: wp.array, grid_shape, device) -> None:
     if out.dtype != wp.uint16 or out.ndim != 1 or out.shape[0] != texel_count(grid_shape):
         raise ValueError(f"texels: need {texel_count(grid_shape)} uint16 values, got "

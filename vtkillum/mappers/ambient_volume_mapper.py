@@ -47,7 +47,13 @@ port  image                                  contents
 Port 0 is the output of :class:`AmbientScatteringInputs` (a pipeline stage that
 follows its data input: new data, time steps, ``array.Modified()``); ports 1–4 are
 images it keeps and refreshes only when their stage was recomputed, so a ``g`` edit
-re-uploads the small radiance cache and table, not the data. The fragment shader's
+re-uploads the small radiance cache and table, not the data. With
+:attr:`~AmbientScatteringVolume.device_upload` (default on) a recomputed ``σ̃t`` and
+radiance cache do not go through the host at all: they are laid out as texels on the
+cache's device (:func:`vtkillum.core.texels.pack_scalar`, :func:`~vtkillum.core.texels.pack_grey`,
+bit for bit the host images) and written into the float textures VTK made for ports 2
+and 3 (:mod:`vtkillum.mappers.texture_upload`); new data, another size and any failure
+take the host path. The fragment shader's
 composite step (``//VTK::Shading::Impl``), its set-up and its exit are replaced
 through the volume's ``vtkShaderProperty``; parameters are custom uniforms. (A
 ``vtkTextureObject`` bound in an ``UpdateShaderEvent`` observer gets no render
@@ -69,12 +75,12 @@ While an interactor moves the view, the mapper casts one ray per 2 × 2 pixels
 (:attr:`AmbientScatteringVolume.interactive_image_sample_distance`,
 :mod:`vtkillum.mappers.interaction`) with samples twice as far apart
 (:attr:`~AmbientScatteringVolume.interactive_step`); at rest, and in the frame VTK's
-interactor styles draw when a drag ends, every ray at the scene's step. On an NVIDIA H200 (EGL, ``benchmarks/bench_opengl.py
---interactive --kinds ambient-scattering --sizes 512 --image 1024``) a camera move of the
-512³ CT-like volume takes 377 ms at every pixel and 119 ms while dragging (a ray per 2 × 2
-pixels, before the coarser step was added; not yet measured with it); a TF edit to
-the new frame 6.0 s (the extinction and the radiance cache computed on the device, then
-downloaded and uploaded by VTK). That GPU runs OpenGL's fragment shaders on a few of its
+interactor styles draw when a drag ends, every ray at the scene's step. On an NVIDIA H200
+(EGL, ``benchmarks/bench_opengl.py --interactive --kinds ambient-scattering --sizes 512
+--image 1024``) a camera move of the 512³ CT-like volume takes 378 ms at every pixel and
+48.7 ms while dragging (119 ms before the coarser step); a TF edit to the new frame took
+6.2 s through the host (``σ̃t`` and the radiance cache downloaded, laid out and uploaded
+by VTK); ``device_upload``'s figure is in ``docs/benchmarks.md``. That GPU runs OpenGL's fragment shaders on a few of its
 multiprocessors (VTK's own composite frame of the same data: 60 ms); the compute path
 (``ComputeVolumeRenderer(..., method="ambient-scattering")``, pyvista's
 ``add_computed_volume``) moves the camera in 13.7 ms and edits the TF in 53 ms there.
@@ -96,6 +102,8 @@ Simplifications and limits
   (``vtkMultiVolume`` restrictions).
 * Memory: the data and ``σ̃t`` textures hold 4 bytes per voxel each (8 in all), the
   cache 16 bytes per cache point; the warp cache keeps its own copies on its device.
+  ``device_upload`` adds, on that device, twice each texture it writes (texels and
+  pixel buffer: 8 bytes per voxel and 32 per cache point).
 * Texture units: 5 volumes plus VTK's colour and opacity tables of each (15) and the
   depth buffer; OpenGL implementations with fewer than 16 fragment texture units
   cannot draw it.
@@ -133,6 +141,7 @@ from vtkillum.mappers.interaction import (
     InteractiveSampling,
     interacting,
 )
+from vtkillum.mappers.texture_upload import R32F, RGBA32F, DeviceUpload, Job
 
 #: Lights the OpenGL path takes (one channel of the radiance-cache texture each).
 MAX_LIGHTS = 4
@@ -437,7 +446,7 @@ SHADER_EXIT = """//VTK::Shading::Exit
 """
 
 
-class AmbientScatteringVolume(InteractiveSampling, vtkMultiVolume):
+class AmbientScatteringVolume(InteractiveSampling, DeviceUpload, vtkMultiVolume):
     """A ``vtkMultiVolume`` rendered with ambient volume scattering by VTK's GPU ray caster.
 
     Parameters
@@ -465,6 +474,9 @@ class AmbientScatteringVolume(InteractiveSampling, vtkMultiVolume):
     interactive_step : float
         Sample-distance factor while an interactor moves the view (default
         :data:`~vtkillum.mappers.interaction.INTERACTIVE_STEP`; 1: the scene's step).
+    device_upload : bool
+        Write ``σ̃t`` and the radiance cache, recomputed on the warp device, straight into
+        VTK's textures (default True; see :attr:`device_upload`).
     **options
         Override the scene's ``ambient_scattering`` section: ``radius``,
         ``radius_units``, ``radiance_cache_scale``, ``specular``, ``ambient_occlusion``,
@@ -491,7 +503,8 @@ class AmbientScatteringVolume(InteractiveSampling, vtkMultiVolume):
                  exposure: float = 1.0, device: str | None = None,
                  cache: AmbientScatteringCache | None = None,
                  interactive_image_sample_distance: float = INTERACTIVE_IMAGE_SAMPLE_DISTANCE,
-                 interactive_step: float = INTERACTIVE_STEP, **options) -> None:
+                 interactive_step: float = INTERACTIVE_STEP, device_upload: bool = True,
+                 **options) -> None:
         super().__init__()
         self.inputs = AmbientScatteringInputs(device=device, cache=cache)
         self.inputs.SetArrayName(array_name)
@@ -543,6 +556,7 @@ class AmbientScatteringVolume(InteractiveSampling, vtkMultiVolume):
                                 lambda caller, event: _sample_image(weak.Get()))
         self._exposure = 1.0
         self.exposure = exposure
+        self.device_upload = device_upload
         self._options = {}
         self._scene = None
         self.set_options(**options)
@@ -691,6 +705,11 @@ class AmbientScatteringInputs(VTKPythonAlgorithmBase):
         self.state = None
         #: The error of the last RequestData, or None.
         self.last_error = None
+        #: TextureWriter of σ̃t and the radiance cache (None: through the host; see
+        #: AmbientScatteringVolume.device_upload).
+        self.writer = None
+        self._refill = False  # fill the side images on the host at the next update
+        self._last = None     # (volume, lights, cache shape) of the last update
         self._array_name = None
         self._scene = None
         self._options = {}
@@ -786,22 +805,88 @@ class AmbientScatteringInputs(VTKPythonAlgorithmBase):
         add_point_array(out, "ambient_table", np.repeat(slice_[:, :, None], 2, axis=2),
                         set_active=True)
 
-        # Side images: refreshed when their stage ran; a new input (data, geometry) refreshes all.
+        # Side images: refreshed when their stage ran; a new input (data, geometry) refreshes
+        # all. σ̃t and the radiance cache go straight into VTK's textures where they can
+        # (device_upload), else through the host.
         if refresh_data:
             _set_image(self.data_image, image_like(volume), "scalars", volume.scalars)
-        if refresh_data or recomputed & {"sat", "extinction"}:
-            _set_image(self.extinction_image, image_like(volume), "sigma_tilde",
-                       state.sigma_tilde.numpy())
-        if refresh_data or "radiance" in recomputed:
-            grey = grey_radiance(state.radiance.numpy(), lights, volume)
-            _set_image(self.radiance_image, image_like(volume, shape=cache_shape),
-                       "radiance_grey", grey)
+        self._last = (volume, lights, cache_shape)
+        refill, self._refill = refresh_data or self._refill, False
+        ports = set()
+        if refill or recomputed & {"sat", "extinction"}:
+            ports.add(EXTINCTION_PORT)
+        if refill or "radiance" in recomputed:
+            ports.add(RADIANCE_PORT)
+        if ports and (refill or not self._write_on_device(ports, state, volume, lights,
+                                                          cache_shape)):
+            if self.writer is not None:
+                self.writer.forget()  # the images (the host path) hold the grids again
+            self._set_host_images(ports, state, volume, lights, cache_shape)
         if refresh_data or "sat" in recomputed:  # the transfer function's tables were rebuilt
             medium = state.medium
             optics = optics_rows(medium.color_table.numpy(), medium.sigma_table.numpy())
             _set_image(self.optics_image, _stretched_image(volume, optics.shape[:3]), "optics",
                        optics)
         self._set_uniforms(volume, scene, opts, state, table, lights)
+
+    def _set_host_images(self, ports, state, volume, lights, cache_shape) -> None:
+        """Fill the images of ``ports`` (extinction, radiance) from ``state`` on the host;
+        VTK uploads them."""
+        if EXTINCTION_PORT in ports:
+            _set_image(self.extinction_image, image_like(volume), "sigma_tilde",
+                       state.sigma_tilde.numpy())
+        if RADIANCE_PORT in ports:
+            grey = grey_radiance(state.radiance.numpy(), lights, volume)
+            _set_image(self.radiance_image, image_like(volume, shape=cache_shape),
+                       "radiance_grey", grey)
+
+    def _write_on_device(self, ports, state, volume, lights, cache_shape) -> bool:
+        """Schedule ``ports``' grids for :attr:`writer` (straight from the cache's device
+        into VTK's textures); False where the host path must draw them all (no writer,
+        a cache of half-precision textures, no lights, textures of another size or not
+        made yet)."""
+        from functools import partial
+
+        from vtkillum.core import texels
+
+        writer = self.writer
+        if writer is None or writer.host_stale:
+            return False
+        jobs = {}
+        device = str(state.sigma_tilde.device)
+        if EXTINCTION_PORT in ports:
+            jobs[EXTINCTION_PORT] = Job(tuple(int(n) for n in volume.dims), device,
+                                        partial(texels.pack_scalar, state.sigma_tilde))
+        if RADIANCE_PORT in ports:
+            radiance = state.radiance
+            data = None if radiance is None or radiance.texture is not None \
+                else radiance.grid.data
+            if data is None or not lights or str(data.device) != device:
+                return False
+            _, _, rgb = pack_lights(lights, volume.direction, volume.origin)
+            texels.check_grey(data, rgb)  # an error now, from check(), not in the render
+            jobs[RADIANCE_PORT] = Job(tuple(int(n) for n in cache_shape), device,
+                                      partial(texels.pack_grey, data, rgb))
+        if not all(writer.can_write(port, job.size) for port, job in jobs.items()):
+            return False
+        for port, job in jobs.items():
+            writer.schedule(port, job)
+        return True
+
+    def writer_images(self) -> tuple[dict, dict]:
+        """The images :attr:`writer` may write (``port -> image``) and their formats."""
+        return ({EXTINCTION_PORT: self.extinction_image, RADIANCE_PORT: self.radiance_image},
+                {EXTINCTION_PORT: R32F, RADIANCE_PORT: RGBA32F})
+
+    def refill_host(self) -> None:
+        """Fill σ̃t and the radiance cache into their images again at the next update."""
+        self._refill = True
+
+    def _host_fallback(self, ports) -> None:
+        """A scheduled texture write failed (at the render's start): fill those images on
+        the host, in time for VTK to upload them in this render."""
+        if self.state is not None and self._last is not None:
+            self._set_host_images(set(ports), self.state, *self._last)
 
     def _set_uniforms(self, volume, scene, opts, state, table, lights) -> None:
         u = self.uniforms

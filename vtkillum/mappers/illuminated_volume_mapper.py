@@ -321,6 +321,7 @@ from vtkillum.mappers.interaction import (
     INTERACTIVE_STEP,
     InteractiveSampling,
 )
+from vtkillum.mappers.texture_upload import DeviceUpload
 
 #: Lights the shader takes: two 4-channel transmittance textures.
 MAX_LIGHTS = 8
@@ -904,7 +905,7 @@ def glsl_layout_dec(max_lights: int = MAX_LIGHTS, phong: bool = True, direct: bo
     return GLSL_LAYOUT_DEC % values
 
 
-class IlluminatedVolume(InteractiveSampling, vtkMultiVolume):
+class IlluminatedVolume(InteractiveSampling, DeviceUpload, vtkMultiVolume):
     """A ``vtkMultiVolume`` rendered with an illumination volume by VTK's GPU ray caster.
 
     Parameters
@@ -1195,52 +1196,6 @@ class IlluminatedVolume(InteractiveSampling, vtkMultiVolume):
         if bool(value) != self.inputs.illumination_16bit:
             self.inputs.illumination_16bit = bool(value)
             self.inputs._light_key = None  # re-pack the grids
-            self.inputs.Modified()
-            self.Modified()
-
-    @property
-    def device_upload(self) -> bool:
-        """Write light grids that live on a warp device straight into VTK's textures
-        (default True).
-
-        On: an :class:`~vtkillum.core.illumination.IlluminationVolume` whose grids are warp
-        arrays (what a light method computes on a GPU) is packed to 16 bit on its device and
-        copied into the textures VTK made for the previous grids, through an OpenGL pixel
-        buffer mapped into CUDA (:mod:`vtkillum.mappers.texture_upload`): no download, no
-        host packing, no upload from host memory. It applies to grids of the size VTK's
-        textures already have, once a frame was drawn with it on; anything else
-        (images, numpy grids, another size, float32 grids, an OpenGL error) goes through
-        the host as before. Memory: 16 bytes per light-grid point for each texture written
-        (the packed texels and the pixel buffer, on the grids' device), besides VTK's
-        texture.
-
-        A TF edit to the new full-quality frame with new 512³ grids on an NVIDIA H200
-        (1024² window, ``benchmarks/bench_opengl.py --interactive --tf-edit
-        --device-upload``): transmittance 164 ms, against 1451 ms through the host;
-        convection-diffusion (two grids) 307 against 3983 ms; photon density 102 against
-        3014 ms; the pictures equal the host path's. Most of what remains is the frame
-        itself (116, 139 and 50 ms still). Off: every grid goes through the host.
-        """
-        return self.inputs.writer is not None
-
-    @device_upload.setter
-    def device_upload(self, value: bool) -> None:
-        if not isinstance(value, (bool, np.bool_)):
-            raise TypeError(f"device_upload must be True or False, got {value!r}")
-        if bool(value) == self.device_upload:
-            return
-        if value:
-            from vtkillum.mappers.texture_upload import TextureWriter
-
-            inputs = self.inputs
-            inputs.writer = TextureWriter(
-                self.mapper, {DIRECT_PORT_A: inputs.direct_images[0],
-                              DIRECT_PORT_B: inputs.direct_images[1],
-                              SCATTERED_PORT: inputs.scattered_image}, inputs._host_fallback)
-        else:
-            writer, self.inputs.writer = self.inputs.writer, None
-            writer.release()
-            self.inputs._light_key = None  # the images may hold older grids: re-pack
             self.inputs.Modified()
             self.Modified()
 
@@ -1581,6 +1536,16 @@ class IlluminationInputs(VTKPythonAlgorithmBase):
             vtk_order = False
         self._texture_uniforms = _upload_light_grids(self, volume, transmittance, scattered,
                                                      vtk_order)
+
+    def writer_images(self) -> tuple[dict, None]:
+        """The images :attr:`writer` may write (``port -> image``) and their formats
+        (None: 16-bit RGBA, every port)."""
+        return {DIRECT_PORT_A: self.direct_images[0], DIRECT_PORT_B: self.direct_images[1],
+                SCATTERED_PORT: self.scattered_image}, None
+
+    def refill_host(self) -> None:
+        """Pack the light grids into the images again at the next update."""
+        self._light_key = None
 
     def _write_device_grids(self, illumination) -> bool:
         """Schedule the grids of an IlluminationVolume that lives on a warp device for

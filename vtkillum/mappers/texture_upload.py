@@ -1,15 +1,17 @@
-"""Light grids from a warp device straight into the 3D textures VTK made for them.
+"""Grids from a warp device straight into the 3D textures VTK made for them.
 
 :class:`~vtkillum.mappers.illuminated_volume_mapper.IlluminatedVolume` hands its light
-grids to VTK's ray caster as ``vtkImageData`` inputs; VTK uploads each from host memory
-when the image changes. For grids that a light method left on a GPU that is a download,
+grids to VTK's ray caster as ``vtkImageData`` inputs (16-bit RGBA), and
+:class:`~vtkillum.mappers.ambient_volume_mapper.AmbientScatteringVolume` its ``σ̃t`` and
+radiance cache (float32, 1 and 4 components: :class:`TexelFormat`); VTK uploads each
+from host memory when the image changes. For grids that a light method left on a GPU that is a download,
 a pack on the host and an upload (2.6 s for a 512³ transmittance on an H200, most of a
 TF edit). :class:`TextureWriter` writes the new texels into the textures VTK already
 has instead, without touching the images:
 
 1. VTK's texture of a port is found among all textures of the current context as the
-   one 16-bit RGBA texture of the grid's size whose texels equal the port image's at 24
-   places, once the mapper has rendered since the image last changed (so VTK has made
+   one texture of the grid's size and the port's format whose texels equal the port
+   image's at 24 places, once the mapper has rendered since the image last changed (so VTK has made
    its own texture from it, and a texture of another volume with the same texels makes
    two: none is taken, the host path draws). Each texture found gets a debug label
    (``glObjectLabel``): OpenGL reuses the names of deleted textures, the label goes with
@@ -57,6 +59,7 @@ GL_TEXTURE_BINDING_3D = 0x806A
 GL_TEXTURE_WIDTH, GL_TEXTURE_HEIGHT, GL_TEXTURE_DEPTH = 0x1000, 0x1001, 0x8071
 GL_TEXTURE_INTERNAL_FORMAT = 0x1003
 GL_RGBA, GL_RGBA16, GL_UNSIGNED_SHORT = 0x1908, 0x805B, 0x1403
+GL_RED, GL_FLOAT, GL_R32F, GL_RGBA32F = 0x1903, 0x1406, 0x822E, 0x8814
 GL_PIXEL_UNPACK_BUFFER, GL_PIXEL_UNPACK_BUFFER_BINDING = 0x88EC, 0x88EF
 GL_STREAM_DRAW = 0x88E0
 GL_UNPACK_ALIGNMENT = 0x0CF5
@@ -101,6 +104,35 @@ class _GL:
         return value.value
 
 
+@dataclass(frozen=True)
+class TexelFormat:
+    """How a port's texels look to VTK, to OpenGL and to warp."""
+
+    internal_format: int  # of VTK's texture (what it makes from such an image)
+    gl_format: int        # of the texels written (glTexSubImage3D)
+    gl_type: int
+    vtk_type: int         # of the image's array
+    components: int
+    dtype: str            # numpy / warp scalar: "uint16" or "float32"
+
+    @property
+    def itemsize(self) -> int:
+        return np.dtype(self.dtype).itemsize
+
+    def warp_dtype(self):
+        import warp as wp
+
+        return {"uint16": wp.uint16, "float32": wp.float32}[self.dtype]
+
+
+#: 16-bit normalised RGBA: the light grids of IlluminatedVolume (VTK_UNSIGNED_SHORT = 5).
+RGBA16 = TexelFormat(GL_RGBA16, GL_RGBA, GL_UNSIGNED_SHORT, 5, 4, "uint16")
+#: One float32 component (VTK_FLOAT = 10): VTK makes GL_R32F.
+R32F = TexelFormat(GL_R32F, GL_RED, GL_FLOAT, 10, 1, "float32")
+#: Four float32 components: VTK makes GL_RGBA32F.
+RGBA32F = TexelFormat(GL_RGBA32F, GL_RGBA, GL_FLOAT, 10, 4, "float32")
+
+
 @dataclass
 class Texture:
     """VTK's texture of one input port, as found by its texels."""
@@ -113,8 +145,9 @@ class Texture:
 
 @dataclass
 class Job:
-    """Texels for one port: ``pack(out)`` fills a uint16 warp array of ``size`` texels'
-    4 channels on ``device`` (:mod:`vtkillum.core.texels`)."""
+    """Texels for one port: ``pack(out)`` fills a flat warp array of ``size`` texels (all
+    their components, the port's :class:`TexelFormat`, VTK's point order: x fastest or,
+    for z-major images, z fastest) on ``device`` (:mod:`vtkillum.core.texels`)."""
 
     size: tuple  # texture (width, height, depth)
     device: str
@@ -141,12 +174,12 @@ class PixelBuffer:
                 self.name, self.device, flags=wp.RegisteredGLBuffer.WRITE_DISCARD)
 
     def fill(self, texels) -> None:
-        """Copy ``texels`` (a uint16 warp array of the buffer's size, on its device) into
+        """Copy ``texels`` (a flat warp array of the buffer's size, on its device) into
         the buffer."""
         import warp as wp
 
         if self._registered is not None:
-            out = self._registered.map(dtype=wp.uint16, shape=(self.nbytes // 2,))
+            out = self._registered.map(dtype=texels.dtype, shape=texels.shape)
             try:
                 wp.copy(out, texels)
             finally:
@@ -180,12 +213,16 @@ class TextureWriter:
         ``fallback(ports)`` is called when a scheduled write cannot be made (an OpenGL or
         warp error, a texture that changed): it must put the grids of those ports on the
         host path (fill the images; VTK uploads them in the same render).
+    formats : dict, optional
+        ``port -> TexelFormat`` of each port's image and texture (default :data:`RGBA16`
+        for every port).
     """
 
-    def __init__(self, mapper, images: dict, fallback) -> None:
+    def __init__(self, mapper, images: dict, fallback, formats: dict | None = None) -> None:
         from vtkmodules.vtkCommonCore import vtkCommand
 
         self.images = {int(port): image for port, image in images.items()}
+        self.formats = {port: (formats or {}).get(port, RGBA16) for port in self.images}
         self.ports = tuple(self.images)
         self.fallback = fallback
         self.textures: dict[int, Texture] = {}   # found by their texels
@@ -211,25 +248,28 @@ class TextureWriter:
     # --- what the mapper asks ------------------------------------------------------------------
     def can_write(self, port: int, size: tuple) -> bool:
         """Whether ``port``'s texture is (as far as is known without OpenGL) ``size``
-        texels and 16-bit RGBA: found so, or made from a port image of that size."""
+        texels of the port's format: found so, or made from a port image of that size."""
         size = tuple(int(n) for n in size)
         tex = self.textures.get(int(port))
-        if tex is not None and tex.size == size and tex.internal_format == GL_RGBA16:
+        if tex is not None and tex.size == size and \
+                tex.internal_format == self.formats[int(port)].internal_format:
             return True
         return self._host_texels(int(port), size) is not None  # then found at the write
 
     def _host_texels(self, port: int, size: tuple):
-        """The port image's uint16 RGBA values (a view, ``[n, 4]``) if it has ``size`` and
-        the mapper has rendered since it changed (VTK's texture holds it), else None."""
+        """The port image's values (a view, ``[n, components]``) if it has ``size`` and the
+        port's format, and the mapper has rendered since it changed (VTK's texture holds
+        it), else None."""
         from vtkmodules.util.numpy_support import vtk_to_numpy
 
-        image = self.images[port]
+        image, fmt = self.images[port], self.formats[port]
         array = image.GetPointData().GetScalars()
         if array is None or tuple(image.GetDimensions()) != tuple(size) or \
-                array.GetDataType() != 5 or array.GetNumberOfComponents() != 4 or \
+                array.GetDataType() != fmt.vtk_type or \
+                array.GetNumberOfComponents() != fmt.components or \
                 self._drawn.get(port) != image.GetMTime():
-            return None  # 5: VTK_UNSIGNED_SHORT
-        return vtk_to_numpy(array)
+            return None
+        return vtk_to_numpy(array).reshape(-1, fmt.components)
 
     def _rendered(self) -> None:
         """At a render's end: VTK's textures now hold the images as they are."""
@@ -309,24 +349,25 @@ class TextureWriter:
         texture = self.textures.get(port)
         if texture is not None and gl.IsTexture(texture.name) and \
                 gl.label(texture.name) == texture.label and \
-                self._fits(gl, texture.name, job.size):
+                self._fits(gl, texture.name, job.size, self.formats[port]):
             return texture
         self.textures.pop(port, None)
         return self._find(gl, port, tuple(job.size))
 
-    def _fits(self, gl: _GL, name: int, size) -> bool:
-        """Whether texture ``name`` is ``size`` texels of 16-bit RGBA (level 0)."""
+    def _fits(self, gl: _GL, name: int, size, fmt: TexelFormat) -> bool:
+        """Whether texture ``name`` is ``size`` texels of ``fmt`` (level 0)."""
         found = []
         level = _i(0)
         for parameter in (GL_TEXTURE_WIDTH, GL_TEXTURE_HEIGHT, GL_TEXTURE_DEPTH,
                           GL_TEXTURE_INTERNAL_FORMAT):
             gl.GetTextureLevelParameteriv(name, 0, parameter, ctypes.byref(level))
             found.append(level.value)
-        return tuple(found[:3]) == tuple(int(n) for n in size) and found[3] == GL_RGBA16
+        return tuple(found[:3]) == tuple(int(n) for n in size) and \
+            found[3] == fmt.internal_format
 
     def _find(self, gl: _GL, port: int, size: tuple) -> Texture | None:
-        """VTK's texture of ``port`` among all texture names: the one 16-bit RGBA texture
-        of ``size`` whose texels equal the port image's at 24 places, asked only once the
+        """VTK's texture of ``port`` among all texture names: the one texture of ``size``
+        and the port's format whose texels equal the port image's (bit for bit) at 24 places, asked only once the
         mapper has rendered since the image changed (VTK's own texture is then one of
         them). None when there is none or more than one."""
         self.sync_host()  # the image must hold what the texture was last given
@@ -337,25 +378,27 @@ class TextureWriter:
         rng = np.random.default_rng(port)
         places = np.unique(np.concatenate([np.linspace(0, count - 1, 12).astype(np.int64),
                                            rng.integers(0, count, 12)]))
-        expected = host[places]
+        expected = [host[place].tobytes() for place in places]
+        fmt = self.formats[port]
         probe = _u(0)
         gl.GenTextures(1, ctypes.byref(probe))  # a name above (about) every name in use
         gl.DeleteTextures(1, ctypes.byref(probe))
         width, height = size[0], size[1]
         pack = gl.integer(GL_PIXEL_PACK_BUFFER_BINDING)
         gl.BindBuffer(GL_PIXEL_PACK_BUFFER, 0)
-        texel = (ctypes.c_uint16 * 4)()
+        nbytes = fmt.components * fmt.itemsize
+        texel = ctypes.create_string_buffer(nbytes)
         matches = []
         try:
             for name in range(1, max(int(probe.value), 256) + 64):
-                if not gl.IsTexture(name) or not self._fits(gl, name, size):
+                if not gl.IsTexture(name) or not self._fits(gl, name, size, fmt):
                     continue
                 same = True
                 for place, values in zip(places, expected):
                     x, y, z = place % width, (place // width) % height, place // (width * height)
-                    gl.GetTextureSubImage(name, 0, int(x), int(y), int(z), 1, 1, 1, GL_RGBA,
-                                          GL_UNSIGNED_SHORT, 8, ctypes.byref(texel))
-                    if tuple(texel) != tuple(int(v) for v in values):
+                    gl.GetTextureSubImage(name, 0, int(x), int(y), int(z), 1, 1, 1,
+                                          fmt.gl_format, fmt.gl_type, nbytes, texel)
+                    if texel.raw != values:
                         same = False
                         break
                 if same:
@@ -368,7 +411,7 @@ class TextureWriter:
         name = matches[0]
         label = f"vtkillum-{id(self):x}-{port}-{name}".encode()
         gl.ObjectLabel(GL_TEXTURE, name, -1, label)
-        texture = Texture(name, tuple(size), GL_RGBA16, label)
+        texture = Texture(name, tuple(size), fmt.internal_format, label)
         self.textures[port] = texture
         return texture
 
@@ -380,19 +423,22 @@ class TextureWriter:
 
         while gl.GetError():  # errors of others are not ours
             pass
-        count = 4 * int(np.prod(job.size))
+        fmt = self.formats[port]
+        count = fmt.components * int(np.prod(job.size))
         self.sync_host()  # a background copy may still read the texels of the last write
         try:
             texels = self._texels.get(port)
-            if texels is None or texels.shape[0] != count or str(texels.device) != job.device:
-                texels = self._texels[port] = wp.empty(count, dtype=wp.uint16,
+            if texels is None or texels.shape[0] != count or \
+                    str(texels.device) != job.device or texels.dtype != fmt.warp_dtype():
+                texels = self._texels[port] = wp.empty(count, dtype=fmt.warp_dtype(),
                                                        device=job.device)
             job.pack(texels)
+            nbytes = count * fmt.itemsize
             buffer = self._buffers.get(port)
-            if buffer is None or buffer.nbytes != 2 * count or buffer.device != job.device:
+            if buffer is None or buffer.nbytes != nbytes or buffer.device != job.device:
                 if buffer is not None:
                     buffer.release()  # the context is current: free it now, not with it
-                buffer = self._buffers[port] = PixelBuffer(gl, 2 * count, job.device)
+                buffer = self._buffers[port] = PixelBuffer(gl, nbytes, job.device)
             buffer.fill(texels)
         except Exception as err:  # noqa: BLE001 -- interop unavailable: the host path draws
             self.last_error = f"{type(err).__name__}: {err}"
@@ -404,8 +450,8 @@ class TextureWriter:
         gl.PixelStorei(GL_UNPACK_ALIGNMENT, 1)
         gl.BindTexture(GL_TEXTURE_3D, texture.name)  # on the active unit (restored by _flush)
         width, height, depth = job.size
-        gl.TexSubImage3D(GL_TEXTURE_3D, 0, 0, 0, 0, width, height, depth, GL_RGBA,
-                         GL_UNSIGNED_SHORT, None)
+        gl.TexSubImage3D(GL_TEXTURE_3D, 0, 0, 0, 0, width, height, depth, fmt.gl_format,
+                         fmt.gl_type, None)
         gl.PixelStorei(GL_UNPACK_ALIGNMENT, alignment)
         gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, previous)
         error = gl.GetError()
@@ -422,8 +468,8 @@ class TextureWriter:
         from vtkmodules.util.numpy_support import vtk_to_numpy
 
         array = self.images[port].GetPointData().GetScalars()
-        if array is None or array.GetDataType() != 5 or \
-                array.GetNumberOfValues() != texels.shape[0]:  # VTK_UNSIGNED_SHORT
+        if array is None or array.GetDataType() != self.formats[port].vtk_type or \
+                array.GetNumberOfValues() != texels.shape[0]:
             return
         if self._pool is None:
             from concurrent.futures import ThreadPoolExecutor
@@ -434,7 +480,7 @@ class TextureWriter:
             import warp as wp
 
             # straight into the VTK array's memory: no host temporary of the grid's size
-            into = wp.array(ptr=vtk_to_numpy(array).ctypes.data, dtype=wp.uint16,
+            into = wp.array(ptr=vtk_to_numpy(array).ctypes.data, dtype=texels.dtype,
                             shape=texels.shape, device="cpu")
             with wp.ScopedDevice(texels.device):  # this thread's CUDA context
                 wp.copy(into, texels)
@@ -443,4 +489,54 @@ class TextureWriter:
         self._copies.append(self._pool.submit(copy))
 
 
-__all__ = ["Job", "PixelBuffer", "Texture", "TextureWriter"]
+class DeviceUpload:
+    """The ``device_upload`` switch of a volume (a mixin for
+    :class:`~vtkillum.mappers.IlluminatedVolume` and
+    :class:`~vtkillum.mappers.AmbientScatteringVolume`).
+
+    The volume has ``mapper`` and ``inputs``; the inputs stage has ``writer`` (a
+    :class:`TextureWriter` or None), ``writer_images()`` (``(images, formats)``: the port
+    images it may write and their :class:`TexelFormat`), ``_host_fallback(ports)`` and
+    ``refill_host()`` (the next update fills every writable image on the host again).
+    """
+
+    @property
+    def device_upload(self) -> bool:
+        """Write grids that live on a warp device straight into VTK's textures (default
+        True).
+
+        On: grids a computation left on a GPU (an ``IlluminatedVolume``'s light grids
+        given as warp arrays; an ``AmbientScatteringVolume``'s ``σ̃t`` and radiance cache,
+        recomputed on its device) are laid out as texels on their device
+        (:mod:`vtkillum.core.texels`, the host path's texels bit for bit) and copied into
+        the textures VTK made for the previous ones through an OpenGL pixel buffer
+        mapped into CUDA (:mod:`vtkillum.mappers.texture_upload`): no download, no host
+        packing, no upload from host memory. It applies to grids of the size VTK's
+        textures already have, once a frame was drawn with it on; anything else (images,
+        numpy grids, another size, an OpenGL error) goes through the host as before.
+        Memory: twice the texture's bytes on the grids' device for each texture written
+        (the texels and the pixel buffer), besides VTK's texture. Off: every grid goes
+        through the host.
+        """
+        return self.inputs.writer is not None
+
+    @device_upload.setter
+    def device_upload(self, value: bool) -> None:
+        if not isinstance(value, (bool, np.bool_)):
+            raise TypeError(f"device_upload must be True or False, got {value!r}")
+        if bool(value) == self.device_upload:
+            return
+        inputs = self.inputs
+        if value:
+            images, formats = inputs.writer_images()
+            inputs.writer = TextureWriter(self.mapper, images, inputs._host_fallback, formats)
+        else:
+            writer, inputs.writer = inputs.writer, None
+            writer.release()
+            inputs.refill_host()  # the images may hold older grids: fill them again
+            inputs.Modified()
+            self.Modified()
+
+
+__all__ = ["DeviceUpload", "Job", "PixelBuffer", "R32F", "RGBA16", "RGBA32F", "TexelFormat", "Texture",
+           "TextureWriter"]
