@@ -491,3 +491,26 @@ def test_ambient_data_edits_and_failed_writes_go_through_the_host():
     assert np.abs(read_window_rgb(window) - read_window_rgb(check_window)).max() == 0.0
     for w in (window, host_window, check_window):
         w.Finalize()
+
+
+def test_ambient_writes_read_back_exactly_after_a_single_valued_grid():
+    """The shader reads the float texels as they are, not through VTK's normalisation by
+    the range of the grid a texture was made from (which a write keeps): after an
+    all-zero σ̃t (nothing opaque, a range of one value) the written grids draw the host
+    path's picture bit for bit."""
+    from test_ambient_mapper import blob_tf, blob_volume, make_scene
+
+    volume = blob_volume()
+    clear = make_scene(volume)
+    clear.transfer_function = blob_tf(0.0)
+    actor, window = ambient_window(volume, clear, True)
+    assert vtk_to_numpy(actor.inputs.extinction_image.GetPointData().GetScalars()).max() == 0
+    scene = make_scene(volume)
+    actor.set_scene(scene)
+    window.Render()
+    assert actor.inputs.writer.writes == 2
+    host, host_window = ambient_window(volume, scene, False)
+    assert np.abs(read_window_rgb(window) - read_window_rgb(host_window)).max() == 0.0
+    assert read_window_rgb(window).max() > 0.1  # not a black picture
+    window.Finalize()
+    host_window.Finalize()

@@ -53,7 +53,10 @@ radiance cache do not go through the host at all: they are laid out as texels on
 cache's device (:func:`vtkillum.core.texels.pack_scalar`, :func:`~vtkillum.core.texels.pack_grey`,
 bit for bit the host images) and written into the float textures VTK made for ports 2
 and 3 (:mod:`vtkillum.mappers.texture_upload`); new data, another size and any failure
-take the host path. The fragment shader's
+take the host path. The shader reads every texel as uploaded (all five are float32
+textures), not through VTK's ``in_volume_scale`` / ``in_scalarsRange``, which normalise by
+the range of the array a texture was made from and would keep an old grid's range for a
+grid written later. The fragment shader's
 composite step (``//VTK::Shading::Impl``), its set-up and its exit are replaced
 through the volume's ``vtkShaderProperty``; parameters are custom uniforms. (A
 ``vtkTextureObject`` bound in an ``UpdateShaderEvent`` observer gets no render
@@ -189,43 +192,33 @@ vec3 il_gridTex(vec3 p, vec3 n)
   return (clamp(p / il_extent, 0.0, 1.0) * (n - 1.0) + 0.5) / n;
 }
 
+// Every input is a float32 texture (R32F or RGBA32F): texels hold the values as uploaded,
+// read as they are, not through VTK's in_volume_scale / in_volume_bias and
+// in_scalarsRange, which normalise by the range of the array a texture was made from
+// (so a grid written into the texture later, device_upload, reads back exactly).
 float il_scalar(vec3 p)
 {
   vec3 n = vec3(textureSize(in_volume[%(data)d], 0));
-  float v = texture3D(in_volume[%(data)d], il_gridTex(p, n)).r * in_volume_scale[%(data)d].r +
-    in_volume_bias[%(data)d].r;
-  return mix(in_scalarsRange[%(data4)d].x, in_scalarsRange[%(data4)d].y, v);
+  return texture3D(in_volume[%(data)d], il_gridTex(p, n)).r;
 }
 
 float il_sigmaTilde(vec3 p)
 {
   vec3 n = vec3(textureSize(in_volume[%(ext)d], 0));
-  float v = texture3D(in_volume[%(ext)d], il_gridTex(p, n)).r * in_volume_scale[%(ext)d].r +
-    in_volume_bias[%(ext)d].r;
-  return mix(in_scalarsRange[%(ext4)d].x, in_scalarsRange[%(ext4)d].y, v);
+  return texture3D(in_volume[%(ext)d], il_gridTex(p, n)).r;
 }
 
 vec4 il_cache(vec3 p)
 {
   vec3 n = vec3(textureSize(in_volume[%(rad)d], 0));
-  vec4 v = texture3D(in_volume[%(rad)d], il_gridTex(p, n)) * in_volume_scale[%(rad)d] +
-    in_volume_bias[%(rad)d];
-  return vec4(mix(in_scalarsRange[%(rad4)d].x, in_scalarsRange[%(rad4)d].y, v.x),
-              mix(in_scalarsRange[%(rad4)d + 1].x, in_scalarsRange[%(rad4)d + 1].y, v.y),
-              mix(in_scalarsRange[%(rad4)d + 2].x, in_scalarsRange[%(rad4)d + 2].y, v.z),
-              mix(in_scalarsRange[%(rad4)d + 3].x, in_scalarsRange[%(rad4)d + 3].y, v.w));
+  return texture3D(in_volume[%(rad)d], il_gridTex(p, n));
 }
 
 // Entry i of the colour (rgb) and sigma_t (a) tables.
 vec4 il_opticsEntry(int i)
 {
   int w = textureSize(in_volume[%(opt)d], 0).x;
-  vec4 v = texelFetch(in_volume[%(opt)d], ivec3(i %% w, i / w, 0), 0) *
-    in_volume_scale[%(opt)d] + in_volume_bias[%(opt)d];
-  return vec4(mix(in_scalarsRange[%(opt4)d].x, in_scalarsRange[%(opt4)d].y, v.x),
-              mix(in_scalarsRange[%(opt4)d + 1].x, in_scalarsRange[%(opt4)d + 1].y, v.y),
-              mix(in_scalarsRange[%(opt4)d + 2].x, in_scalarsRange[%(opt4)d + 2].y, v.z),
-              mix(in_scalarsRange[%(opt4)d + 3].x, in_scalarsRange[%(opt4)d + 3].y, v.w));
+  return texelFetch(in_volume[%(opt)d], ivec3(i %% w, i / w, 0), 0);
 }
 
 // Colour and sigma_t of data value s: linear between table entries (lookup_color/sigma_t).
@@ -247,9 +240,7 @@ float il_sigmaAt(vec3 p)
 
 float il_tableEntry(int i, int j)
 {
-  float v = texelFetch(in_volume[%(table)d], ivec3(i, j, 0), 0).r *
-    in_volume_scale[%(table)d].r + in_volume_bias[%(table)d].r;
-  return mix(in_scalarsRange[%(table4)d].x, in_scalarsRange[%(table4)d].y, v);
+  return texelFetch(in_volume[%(table)d], ivec3(i, j, 0), 0).r;
 }
 
 // L~o(theta, r sigma~t) bilinearly, both axes clamped (gather.lookup_table).
@@ -538,7 +529,6 @@ class AmbientScatteringVolume(InteractiveSampling, DeviceUpload, vtkMultiVolume)
         shader = self.GetShaderProperty()
         values = {"max_lights": MAX_LIGHTS, "table": TABLE_PORT, "data": DATA_PORT,
                   "ext": EXTINCTION_PORT, "rad": RADIANCE_PORT, "opt": OPTICS_PORT}
-        values.update({f"{k}4": 4 * v for k, v in list(values.items()) if k != "max_lights"})
         shader.AddFragmentShaderReplacement("//VTK::Shading::Dec", True, SHADER_DEC % values,
                                             False)
         shader.AddFragmentShaderReplacement("//VTK::Shading::Init", True, SHADER_INIT, False)

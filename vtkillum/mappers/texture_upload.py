@@ -156,7 +156,12 @@ class Job:
 
 class PixelBuffer:
     """An OpenGL pixel buffer of ``nbytes`` filled from warp: mapped into CUDA on a GPU,
-    from host memory on the CPU device."""
+    from host memory on the CPU device.
+
+    On CUDA the buffer is registered with CUDA for each fill and unregistered after it,
+    while VTK's context is current: a registration that outlived the window's context
+    could not be unregistered (CUDA error 219 when it is let go).
+    """
 
     def __init__(self, gl: _GL, nbytes: int, device: str) -> None:
         self.gl, self.nbytes, self.device = gl, int(nbytes), str(device)
@@ -166,24 +171,24 @@ class PixelBuffer:
         gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, self.name)
         gl.BufferData(GL_PIXEL_UNPACK_BUFFER, self.nbytes, None, GL_STREAM_DRAW)
         gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, 0)
-        self._registered = None
-        if self.device.startswith("cuda"):
-            import warp as wp
-
-            self._registered = wp.RegisteredGLBuffer(
-                self.name, self.device, flags=wp.RegisteredGLBuffer.WRITE_DISCARD)
 
     def fill(self, texels) -> None:
         """Copy ``texels`` (a flat warp array of the buffer's size, on its device) into
         the buffer."""
         import warp as wp
 
-        if self._registered is not None:
-            out = self._registered.map(dtype=texels.dtype, shape=texels.shape)
+        if self.device.startswith("cuda"):
+            registered = wp.RegisteredGLBuffer(self.name, self.device,
+                                               flags=wp.RegisteredGLBuffer.WRITE_DISCARD,
+                                               fallback_to_copy=False)
             try:
-                wp.copy(out, texels)
+                out = registered.map(dtype=texels.dtype, shape=texels.shape)
+                try:
+                    wp.copy(out, texels)
+                finally:
+                    registered.unmap()
             finally:
-                self._registered.unmap()
+                del registered  # unregistered now, while the context is current
             return
         host = np.ascontiguousarray(texels.numpy())
         self.gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, self.name)
@@ -192,8 +197,7 @@ class PixelBuffer:
         self.gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, 0)
 
     def release(self) -> None:
-        """Unregister from CUDA and delete the OpenGL buffer (its context current)."""
-        self._registered = None  # warp unregisters it
+        """Delete the OpenGL buffer (its context current)."""
         name = _u(self.name)
         self.gl.DeleteBuffers(1, ctypes.byref(name))
 
