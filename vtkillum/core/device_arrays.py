@@ -90,17 +90,21 @@ def download(array: wp.array) -> np.ndarray:
 
 
 def flat_float(array: wp.array) -> wp.array:
-    """A contiguous float32 warp array (any vector dtype) seen as one flat float32 array.
+    """A contiguous float32 warp array (any vector dtype) seen as a 2D float32 array
+    ``(rows, columns)``: its last axis times the components, and the rest.
 
-    No copy: the result aliases ``array``'s memory without owning it, so the caller keeps
-    ``array`` alive while using it."""
+    Two axes, not one: a warp array axis indexes at most 2³¹ values, and a 1024³ grid of
+    vec3 holds 3.2 billion floats. No copy: the result aliases ``array``'s memory without
+    owning it, so the caller keeps ``array`` alive while using it."""
     if not array.is_contiguous:
         raise ValueError("flat_float needs a contiguous array")
     scalar = getattr(array.dtype, "_wp_scalar_type_", array.dtype)
     if scalar is not wp.float32:
         raise ValueError(f"expected float32 data, got {array.dtype}")
-    n = array.size * (wp.types.type_size_in_bytes(array.dtype) // 4)
-    return wp.array(ptr=array.ptr, dtype=wp.float32, shape=(n,), device=array.device)
+    columns = int(array.shape[-1]) * (wp.types.type_size_in_bytes(array.dtype) // 4)
+    rows = int(array.size) // int(array.shape[-1])
+    return wp.array(ptr=array.ptr, dtype=wp.float32, shape=(rows, columns),
+                    device=array.device)
 
 
 def array_stats(array: wp.array) -> tuple[int, float, float]:
@@ -112,15 +116,16 @@ def array_stats(array: wp.array) -> tuple[int, float, float]:
     ValueError
         For an empty array.
     """
-    flat = flat_float(array)
-    n = flat.shape[0]
-    if n == 0:
+    if array.size == 0:
         raise ValueError("array_stats of an empty array")
+    flat = flat_float(array)
+    n = flat.shape[0] * flat.shape[1]
     device = str(array.device)
     threads = int(min(n, STATS_THREADS["cpu" if array.device.is_cpu else "cuda"]))
     out = wp.array(np.array([0.0, np.inf, -np.inf], np.float32), dtype=wp.float32,
                    device=device)
-    wp.launch(stats_kernel, dim=threads, inputs=[flat, n, threads, out], device=device)
+    wp.launch(stats_kernel, dim=threads, inputs=[flat, wp.int64(n), threads, out],
+              device=device)
     bad, lo, hi = out.numpy()  # three numbers: not counted as traffic
     return int(bad), float(lo), float(hi)
 
@@ -133,7 +138,7 @@ def scaled_nonnegative(src: wp.array, scale: float, out: wp.array | None = None)
     elif out.shape != src.shape or out.dtype != src.dtype:
         raise ValueError(f"out {out.shape}/{out.dtype} does not match src {src.shape}/{src.dtype}")
     a, b = flat_float(src), flat_float(out)
-    wp.launch(scale_clamp_kernel, dim=a.shape[0], inputs=[a, float(scale), b],
+    wp.launch(scale_clamp_kernel, dim=a.shape, inputs=[a, float(scale), b],
               device=src.device)
     return out
 
@@ -142,29 +147,30 @@ def clamp_max(array: wp.array, hi: float) -> wp.array:
     """A copy of ``array`` with values above ``hi`` set to ``hi``, on its device."""
     out = wp.empty(array.shape, dtype=array.dtype, device=array.device)
     a, b = flat_float(array), flat_float(out)
-    wp.launch(clamp_max_kernel, dim=a.shape[0], inputs=[a, float(hi), b], device=array.device)
+    wp.launch(clamp_max_kernel, dim=a.shape, inputs=[a, float(hi), b], device=array.device)
     return out
 
 
 @wp.kernel
-def stats_kernel(a: wp.array(dtype=wp.float32), n: int, threads: int,
+def stats_kernel(a: wp.array2d(dtype=wp.float32), n: wp.int64, threads: int,
                  out: wp.array(dtype=wp.float32)):
-    """Thread ``wp.tid()`` reduces elements ``tid, tid + threads, ...`` of ``a`` (unitless),
-    then adds its non-finite count to ``out[0]`` and folds its extremes into ``out[1]``
-    (min) and ``out[2]`` (max)."""
+    """Thread ``wp.tid()`` reduces elements ``tid, tid + threads, ...`` of ``a`` in C order
+    (unitless; a 64-bit count: more than 2³¹ elements at 1024³), then adds its non-finite
+    count to ``out[0]`` and folds its extremes into ``out[1]`` (min) and ``out[2]`` (max)."""
     t = wp.tid()
     bad = float(0.0)
     lo = float(3.0e38)
     hi = float(-3.0e38)
-    i = t
+    columns = wp.int64(a.shape[1])
+    i = wp.int64(t)
     while i < n:
-        v = a[i]
+        v = a[wp.int32(i / columns), wp.int32(i % columns)]
         if wp.isfinite(v):
             lo = wp.min(lo, v)
             hi = wp.max(hi, v)
         else:
             bad += 1.0
-        i += threads
+        i += wp.int64(threads)
     if bad > 0.0:
         wp.atomic_add(out, 0, bad)
     wp.atomic_min(out, 1, lo)
@@ -172,15 +178,16 @@ def stats_kernel(a: wp.array(dtype=wp.float32), n: int, threads: int,
 
 
 @wp.kernel
-def scale_clamp_kernel(a: wp.array(dtype=wp.float32), scale: float,
-                       out: wp.array(dtype=wp.float32)):
-    """``wp.tid()`` = flat element index: ``out = max(a, 0) * scale``."""
-    i = wp.tid()
-    out[i] = wp.max(a[i], 0.0) * scale
+def scale_clamp_kernel(a: wp.array2d(dtype=wp.float32), scale: float,
+                       out: wp.array2d(dtype=wp.float32)):
+    """``wp.tid()`` = element ``(row, column)``: ``out = max(a, 0) * scale``."""
+    i, j = wp.tid()
+    out[i, j] = wp.max(a[i, j], 0.0) * scale
 
 
 @wp.kernel
-def clamp_max_kernel(a: wp.array(dtype=wp.float32), hi: float, out: wp.array(dtype=wp.float32)):
-    """``wp.tid()`` = flat element index: ``out = min(a, hi)``."""
-    i = wp.tid()
-    out[i] = wp.min(a[i], hi)
+def clamp_max_kernel(a: wp.array2d(dtype=wp.float32), hi: float,
+                     out: wp.array2d(dtype=wp.float32)):
+    """``wp.tid()`` = element ``(row, column)``: ``out = min(a, hi)``."""
+    i, j = wp.tid()
+    out[i, j] = wp.min(a[i, j], hi)

@@ -10,7 +10,10 @@ reaches an OpenGL texture without a trip through the host (see
 :mod:`vtkillum.mappers.texture_upload`).
 
 Texel order: the texture is z-major, ``[x, y, z, 4]`` in C order (z fastest), which is
-numpy's order of the grid, so no transposition is needed on either side.
+numpy's order of the grid, so no transposition is needed on either side. The ambient
+mapper's float textures (:func:`pack_scalar`, :func:`pack_grey`) are in VTK's point order,
+x fastest. Texels are held as 3D warp arrays (:func:`texel_shape`): a 1024³ grid's
+4.3 billion values exceed what one warp array axis can index (2³¹).
 """
 
 from __future__ import annotations
@@ -26,29 +29,23 @@ init_warp()
 
 @wp.kernel
 def _pack_transmittance(t: wp.array4d(dtype=wp.float32), lights: wp.vec4i, count: int,
-                        scale: wp.vec4, out: wp.array(dtype=wp.uint16)):
+                        scale: wp.vec4, out: wp.array3d(dtype=wp.uint16)):
     x, y, z = wp.tid()
-    ny = t.shape[2]
-    nz = t.shape[3]
-    base = ((x * ny + y) * nz + z) * 4
     for k in range(4):
         value = float(0.0)
         if k < count:
             value = wp.rint(wp.clamp(t[lights[k], x, y, z] * scale[k], 0.0, 65535.0))
-        out[base + k] = wp.uint16(value)
+        out[x, y, z * 4 + k] = wp.uint16(value)
 
 
 @wp.kernel
 def _pack_fluence(s: wp.array3d(dtype=wp.vec3), scale: wp.vec4,
-                  out: wp.array(dtype=wp.uint16)):
+                  out: wp.array3d(dtype=wp.uint16)):
     x, y, z = wp.tid()
-    ny = s.shape[1]
-    nz = s.shape[2]
-    base = ((x * ny + y) * nz + z) * 4
     v = s[x, y, z]
     for k in range(3):
-        out[base + k] = wp.uint16(wp.rint(wp.clamp(v[k] * scale[k], 0.0, 65535.0)))
-    out[base + 3] = wp.uint16(0)
+        out[x, y, z * 4 + k] = wp.uint16(wp.rint(wp.clamp(v[k] * scale[k], 0.0, 65535.0)))
+    out[x, y, z * 4 + 3] = wp.uint16(0)
 
 
 @wp.kernel
@@ -98,19 +95,23 @@ def fluence_factors(tops) -> list:
     return texel_scales(tops)[1]
 
 
-def texel_count(grid_shape) -> int:
-    """uint16 values of the 4-component texture of a grid with points ``grid_shape``."""
-    return 4 * int(np.prod(grid_shape))
+def texel_shape(grid_shape, components: int = 4, x_fastest: bool = False) -> tuple:
+    """Shape of the 3D warp array holding the texels of a grid of points ``grid_shape``
+    ``(nx, ny, nz)`` with ``components`` per point: ``(nx, ny, nz * components)`` in the
+    z-major order of the light grids, ``(nz, ny, nx * components)`` with x fastest (VTK's
+    point order). Its C order is the texture's texel order."""
+    nx, ny, nz = (int(n) for n in grid_shape)
+    return (nz, ny, nx * components) if x_fastest else (nx, ny, nz * components)
 
 
 def pack_transmittance(transmittance: wp.array, lights: list, out: wp.array) -> list:
     """Pack up to 4 lights of a device transmittance ``(n_lights, nx, ny, nz)`` (values in
     [0, 1], as :class:`~vtkillum.core.illumination.IlluminationVolume` checks them) into
-    ``out`` (uint16, :func:`texel_count` long, on the same device); channels past
+    ``out`` (uint16, :func:`texel_shape`, on the same device); channels past
     ``len(lights)`` are 0. Returns the shader's factors ``q`` (all 1)."""
     if not 1 <= len(lights) <= 4:
         raise ValueError(f"1 to 4 lights a texture, got {len(lights)}")
-    _check_out(out, transmittance.shape[1:], transmittance.device)
+    _check_out(out, texel_shape(transmittance.shape[1:]), wp.uint16, transmittance.device)
     index = wp.vec4i(*(list(lights) + [0] * (4 - len(lights))))
     wp.launch(_pack_transmittance, dim=transmittance.shape[1:],
               inputs=[transmittance, index, len(lights), wp.vec4(65535.0, 65535.0, 65535.0,
@@ -121,9 +122,9 @@ def pack_transmittance(transmittance: wp.array, lights: list, out: wp.array) -> 
 
 def pack_fluence(scattered: wp.array, out: wp.array, tops: list | None = None) -> list:
     """Pack a device RGB fluence ``(nx, ny, nz)`` of vec3 into ``out`` (uint16,
-    :func:`texel_count` long, same device), each channel scaled by its maximum (``tops``,
+    :func:`texel_shape`, same device), each channel scaled by its maximum (``tops``,
     default :func:`fluence_tops`). Returns the shader's factors ``q``."""
-    _check_out(out, scattered.shape, scattered.device)
+    _check_out(out, texel_shape(scattered.shape), wp.uint16, scattered.device)
     scale, q = texel_scales(fluence_tops(scattered) if tops is None else tops)
     wp.launch(_pack_fluence, dim=scattered.shape,
               inputs=[scattered, wp.vec4(*scale), out], device=scattered.device)
@@ -132,23 +133,22 @@ def pack_fluence(scattered: wp.array, out: wp.array, tops: list | None = None) -
 
 # --- float32 textures in VTK's point order (x fastest): the ambient mapper's inputs ---------------
 @wp.kernel
-def _scalar_x_fastest(src: wp.array3d(dtype=wp.float32), out: wp.array(dtype=wp.float32)):
+def _scalar_x_fastest(src: wp.array3d(dtype=wp.float32), out: wp.array3d(dtype=wp.float32)):
     k, j, i = wp.tid()  # i fastest: the writes are consecutive
-    out[(k * src.shape[1] + j) * src.shape[0] + i] = src[i, j, k]
+    out[k, j, i] = src[i, j, k]
 
 
 @wp.kernel
 def _grey_x_fastest(src: wp.array4d(dtype=wp.vec3), channel: wp.vec4i, divisor: wp.vec4d,
-                    count: int, out: wp.array(dtype=wp.float32)):
+                    count: int, out: wp.array3d(dtype=wp.float32)):
     k, j, i = wp.tid()
-    base = ((k * src.shape[2] + j) * src.shape[1] + i) * 4
     for light in range(4):
         value = float(0.0)
         if light < count:
             if divisor[light] > wp.float64(0.0):
                 v = src[light, i, j, k]
                 value = wp.float32(wp.float64(v[channel[light]]) / divisor[light])
-        out[base + light] = value
+        out[k, j, i * 4 + light] = value
 
 
 @wp.kernel
@@ -176,12 +176,10 @@ def _grey_error(src: wp.array4d(dtype=wp.vec3), light: int, channel: int, colour
 
 
 def pack_scalar(src: wp.array, out: wp.array) -> None:
-    """Copy a float32 grid ``(nx, ny, nz)`` into ``out`` (float32, ``nx ny nz`` values, same
-    device) in VTK's point order, x fastest: what ``add_point_array`` makes on the host, bit
-    for bit."""
-    if out.dtype != wp.float32 or out.ndim != 1 or out.shape[0] != src.size:
-        raise ValueError(f"texels: need {src.size} float32 values, got {out.shape} {out.dtype}")
-    _same_device(out, src.device)
+    """Copy a float32 grid ``(nx, ny, nz)`` into ``out`` (float32, ``texel_shape(shape, 1,
+    x_fastest=True)``, same device) in VTK's point order, x fastest: what
+    ``add_point_array`` makes on the host, bit for bit."""
+    _check_out(out, texel_shape(src.shape, 1, x_fastest=True), wp.float32, src.device)
     wp.launch(_scalar_x_fastest, dim=src.shape[::-1], inputs=[src, out], device=src.device)
 
 
@@ -236,28 +234,21 @@ def pack_grey(cache: wp.array, colours, out: wp.array) -> None:
     """One grey channel per light of an RGB grid ``(n_lights <= 4, nx, ny, nz)`` of vec3 whose
     light ``j`` is ``f_j * colours[j]`` (:func:`check_grey` proves it): ``f_j = L_j[c] /
     colours[j][c]`` (``c`` the colour's largest channel, float64 division as on the host),
-    into ``out`` (float32, ``4 nx ny nz`` values, x fastest; unused channels and dark lights
-    0). The ambient mapper's radiance-cache texture, bit for bit its host twin
+    into ``out`` (float32, ``texel_shape((nx, ny, nz), 4, x_fastest=True)``; unused
+    channels and dark lights 0). The ambient mapper's radiance-cache texture, bit for bit its host twin
     ``ambient_volume_mapper.grey_radiance`` laid out by ``add_point_array``."""
     colours = _grey_colours(cache, colours)
-    points = int(np.prod(cache.shape[1:]))
-    if out.dtype != wp.float32 or out.ndim != 1 or out.shape[0] != 4 * points:
-        raise ValueError(f"texels: need {4 * points} float32 values, got {out.shape} {out.dtype}")
-    _same_device(out, cache.device)
+    _check_out(out, texel_shape(cache.shape[1:], 4, x_fastest=True), wp.float32,
+               cache.device)
     channel, divisor = _grey_divisors(colours, int(cache.shape[0]))
     wp.launch(_grey_x_fastest, dim=tuple(cache.shape[1:])[::-1],
               inputs=[cache, wp.vec4i(*channel), wp.vec4d(*divisor), int(cache.shape[0]), out],
               device=cache.device)
 
 
-def _same_device(out: wp.array, device) -> None:
-    if str(out.device) != str(device):
-        raise ValueError(f"texels on {out.device}, grid on {device}")
-
-
-def _check_out(out: wp.array, grid_shape, device) -> None:
-    if out.dtype != wp.uint16 or out.ndim != 1 or out.shape[0] != texel_count(grid_shape):
-        raise ValueError(f"texels: need {texel_count(grid_shape)} uint16 values, got "
-                         f"{out.shape} {out.dtype}")
+def _check_out(out: wp.array, shape: tuple, dtype, device) -> None:
+    if out.dtype != dtype or tuple(out.shape) != tuple(shape) or not out.is_contiguous:
+        raise ValueError(f"texels: need a contiguous {shape} array of {dtype.__name__}, got "
+                         f"{out.shape} {out.dtype.__name__}")
     if str(out.device) != str(device):
         raise ValueError(f"texels on {out.device}, grid on {device}")

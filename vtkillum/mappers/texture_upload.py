@@ -145,9 +145,10 @@ class Texture:
 
 @dataclass
 class Job:
-    """Texels for one port: ``pack(out)`` fills a flat warp array of ``size`` texels (all
-    their components, the port's :class:`TexelFormat`, VTK's point order: x fastest or,
-    for z-major images, z fastest) on ``device`` (:mod:`vtkillum.core.texels`)."""
+    """Texels for one port: ``pack(out)`` fills a warp array of shape ``(depth, height,
+    width * components)`` (``size`` is the texture's ``(width, height, depth)``; the
+    port's :class:`TexelFormat`; the texture's texel order, width fastest) on ``device``
+    (:mod:`vtkillum.core.texels`)."""
 
     size: tuple  # texture (width, height, depth)
     device: str
@@ -173,8 +174,8 @@ class PixelBuffer:
         gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, 0)
 
     def fill(self, texels) -> None:
-        """Copy ``texels`` (a flat warp array of the buffer's size, on its device) into
-        the buffer."""
+        """Copy ``texels`` (a contiguous warp array of the buffer's size, on its device)
+        into the buffer."""
         import warp as wp
 
         if self.device.startswith("cuda"):
@@ -428,16 +429,20 @@ class TextureWriter:
         while gl.GetError():  # errors of others are not ours
             pass
         fmt = self.formats[port]
-        count = fmt.components * int(np.prod(job.size))
+        width, height, depth = (int(n) for n in job.size)
+        # the texture's texel order (depth slowest, width fastest) as a 3D array: one axis
+        # of a warp array indexes at most 2^31 values, a 1024³ RGBA grid has 4.3 billion
+        shape = (depth, height, width * fmt.components)
         self.sync_host()  # a background copy may still read the texels of the last write
         try:
             texels = self._texels.get(port)
-            if texels is None or texels.shape[0] != count or \
+            if texels is None or tuple(texels.shape) != shape or \
                     str(texels.device) != job.device or texels.dtype != fmt.warp_dtype():
-                texels = self._texels[port] = wp.empty(count, dtype=fmt.warp_dtype(),
+                texels = self._texels[port] = None  # free the old texels first
+                texels = self._texels[port] = wp.empty(shape, dtype=fmt.warp_dtype(),
                                                        device=job.device)
             job.pack(texels)
-            nbytes = count * fmt.itemsize
+            nbytes = texels.size * fmt.itemsize
             buffer = self._buffers.get(port)
             if buffer is None or buffer.nbytes != nbytes or buffer.device != job.device:
                 if buffer is not None:
@@ -453,7 +458,6 @@ class TextureWriter:
         gl.BindBuffer(GL_PIXEL_UNPACK_BUFFER, buffer.name)
         gl.PixelStorei(GL_UNPACK_ALIGNMENT, 1)
         gl.BindTexture(GL_TEXTURE_3D, texture.name)  # on the active unit (restored by _flush)
-        width, height, depth = job.size
         gl.TexSubImage3D(GL_TEXTURE_3D, 0, 0, 0, 0, width, height, depth, fmt.gl_format,
                          fmt.gl_type, None)
         gl.PixelStorei(GL_UNPACK_ALIGNMENT, alignment)
@@ -473,7 +477,7 @@ class TextureWriter:
 
         array = self.images[port].GetPointData().GetScalars()
         if array is None or array.GetDataType() != self.formats[port].vtk_type or \
-                array.GetNumberOfValues() != texels.shape[0]:
+                array.GetNumberOfValues() != texels.size:
             return
         if self._pool is None:
             from concurrent.futures import ThreadPoolExecutor
