@@ -251,9 +251,10 @@ on_device=True)``) need none of that: with :attr:`IlluminatedVolume.device_uploa
 are packed to 16 bit on the device (:mod:`vtkillum.core.texels`, the same texels) and
 copied through an OpenGL pixel buffer mapped into CUDA into the textures VTK made for the
 previous grids (:mod:`vtkillum.mappers.texture_upload`; on by default). On an H200 the
-write of a 512³ grid (pack, copy into the pixel buffer, ``glTexSubImage3D``) takes 3.7 ms,
-and a TF edit to the new frame 164 ms instead of 1451 ms (transmittance; most of the 164 ms
-is the frame).
+write of a 512³ grid (pack, copy into the pixel buffer, ``glTexSubImage3D``) takes 14 ms,
+and a TF edit to the new frame 164–174 ms instead of 1451 ms (transmittance; most of it is
+the frame); with the transmittance recomputed on the GPU as well, 210 ms instead of
+2156 ms.
 
 ``benchmarks/bench_opengl.py`` compares the frame time with VTK's own volumetric shadows
 (``docs/benchmarks.md``).

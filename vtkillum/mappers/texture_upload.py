@@ -4,15 +4,15 @@
 grids to VTK's ray caster as ``vtkImageData`` inputs (16-bit RGBA), and
 :class:`~vtkillum.mappers.ambient_volume_mapper.AmbientScatteringVolume` its ``σ̃t`` and
 radiance cache (float32, 1 and 4 components: :class:`TexelFormat`); VTK uploads each
-from host memory when the image changes. For grids that a light method left on a GPU that is a download,
-a pack on the host and an upload (2.6 s for a 512³ transmittance on an H200, most of a
-TF edit). :class:`TextureWriter` writes the new texels into the textures VTK already
+from host memory when the image changes. For grids that a computation left on a GPU
+that is a download, a pack on the host and an upload (1.45 s for a 512³ transmittance on
+an H200, most of a TF edit). :class:`TextureWriter` writes the new texels into the textures VTK already
 has instead, without touching the images:
 
 1. VTK's texture of a port is found among all textures of the current context as the
    one texture of the grid's size and the port's format whose texels equal the port
-   image's at 24 places, once the mapper has rendered since the image last changed (so VTK has made
-   its own texture from it, and a texture of another volume with the same texels makes
+   image's at 24 places, once the mapper has rendered since the image last changed (so
+   VTK has made its own texture from it, and a texture of another volume with the same texels makes
    two: none is taken, the host path draws). Each texture found gets a debug label
    (``glObjectLabel``): OpenGL reuses the names of deleted textures, the label goes with
    the texture, so later writes find it again at once. (VTK's ``UpdateShaderEvent`` is
@@ -37,10 +37,12 @@ and then finds the grids it was last given. :meth:`TextureWriter.sync_host` wait
 that copy.
 
 Measured on an NVIDIA H200 (``benchmarks/bench_opengl.py --interactive --tf-edit
---device-upload``, 512³ grids, 1024² window): a write (pack 1.3 ms, pixel buffer 2.2 ms,
-``glTexSubImage3D``) takes 3.7 ms; a TF edit to the new frame 164 ms with a transmittance
-(1451 ms through the host), 102 ms with a photon density (3014 ms). The pictures equal the
-host path's bit for bit there too. ``IlluminatedVolume.device_upload`` is on by default.
+--device-upload``, 512³ grids, 1024² window): a write takes 14 ms (pack 1.3 ms, CUDA
+registration of the pixel buffer and copy 12 ms, ``glTexSubImage3D``); a TF edit to the new
+frame 164–174 ms with a transmittance (1451 ms through the host), 102 ms with a photon
+density (3014 ms), 462 ms with the ambient mapper's two grids (5.8 s), most of it the
+frame. The pictures equal the host path's bit for bit there too. ``device_upload`` is on
+by default in both mappers (:class:`DeviceUpload`).
 """
 
 from __future__ import annotations
