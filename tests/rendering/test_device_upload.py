@@ -516,3 +516,26 @@ def test_ambient_writes_read_back_exactly_after_a_single_valued_grid():
     assert read_window_rgb(window).max() > 0.1  # not a black picture
     window.Finalize()
     host_window.Finalize()
+
+
+def test_ambient_writes_not_made_yet_go_through_the_host_with_the_next_edit():
+    """A TF edit schedules both writes; a second edit before any render that must take
+    the host path (a radiance cache of another size) fills both images, so the new σ̃t is
+    not lost with the dropped write."""
+    from test_ambient_mapper import blob_tf, blob_volume, make_scene
+
+    volume = blob_volume()
+    actor, window = ambient_window(volume, make_scene(volume), True)
+    edited = make_scene(volume)
+    edited.transfer_function = blob_tf(0.5)
+    actor.set_scene(edited)
+    assert sorted(actor.inputs.writer.pending) == [2, 3]
+    actor.set_options(radiance_cache_scale=0.25)
+    window.Render()
+    assert actor.inputs.writer.writes == 0 and not actor.inputs.writer.pending
+    host, host_window = ambient_window(volume, edited, False)
+    host.set_options(radiance_cache_scale=0.25)
+    host_window.Render()
+    assert np.abs(read_window_rgb(window) - read_window_rgb(host_window)).max() == 0.0
+    window.Finalize()
+    host_window.Finalize()

@@ -50,8 +50,8 @@ images it keeps and refreshes only when their stage was recomputed, so a ``g`` e
 re-uploads the small radiance cache and table, not the data. With
 :attr:`~AmbientScatteringVolume.device_upload` (default on) a recomputed ``σ̃t`` and
 radiance cache do not go through the host at all: they are laid out as texels on the
-cache's device (:func:`vtkillum.core.texels.pack_scalar`, :func:`~vtkillum.core.texels.pack_grey`,
-bit for bit the host images) and written into the float textures VTK made for ports 2
+cache's device (:func:`vtkillum.core.texels.pack_scalar`,
+:func:`~vtkillum.core.texels.pack_grey`, bit for bit the host images) and written into the float textures VTK made for ports 2
 and 3 (:mod:`vtkillum.mappers.texture_upload`); new data, another size and any failure
 take the host path. The shader reads every texel as uploaded (all five are float32
 textures), not through VTK's ``in_volume_scale`` / ``in_scalarsRange``, which normalise by
@@ -80,10 +80,11 @@ While an interactor moves the view, the mapper casts one ray per 2 × 2 pixels
 (:attr:`~AmbientScatteringVolume.interactive_step`); at rest, and in the frame VTK's
 interactor styles draw when a drag ends, every ray at the scene's step. On an NVIDIA H200
 (EGL, ``benchmarks/bench_opengl.py --interactive --kinds ambient-scattering --sizes 512
---image 1024``) a camera move of the 512³ CT-like volume takes 378 ms at every pixel and
-48.7 ms while dragging (119 ms before the coarser step); a TF edit to the new frame took
-6.2 s through the host (``σ̃t`` and the radiance cache downloaded, laid out and uploaded
-by VTK); ``device_upload``'s figure is in ``docs/benchmarks.md``. That GPU runs OpenGL's fragment shaders on a few of its
+--image 1024 --tf-edit --device-upload``) a camera move of the 512³ CT-like volume takes
+365 ms at every pixel and 46 ms while dragging (119 ms before the coarser step); a TF edit
+to the new frame 462 ms with ``device_upload``, 5.8 s through the host (``σ̃t`` and the
+radiance cache downloaded, laid out and uploaded by VTK). That GPU runs OpenGL's fragment
+shaders on a few of its
 multiprocessors (VTK's own composite frame of the same data: 60 ms); the compute path
 (``ComputeVolumeRenderer(..., method="ambient-scattering")``, pyvista's
 ``add_computed_volume``) moves the camera in 13.7 ms and edits the TF in 53 ms there.
@@ -810,6 +811,7 @@ class AmbientScatteringInputs(VTKPythonAlgorithmBase):
         if ports and (refill or not self._write_on_device(ports, state, volume, lights,
                                                           cache_shape)):
             if self.writer is not None:
+                ports |= set(self.writer.pending)  # writes not made yet: the host's now
                 self.writer.forget()  # the images (the host path) hold the grids again
             self._set_host_images(ports, state, volume, lights, cache_shape)
         if refresh_data or "sat" in recomputed:  # the transfer function's tables were rebuilt
