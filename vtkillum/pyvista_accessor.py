@@ -913,7 +913,12 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
         (``"transmittance"``, ``"convection_diffusion"``, ``"photon_density"``,
         ``"many_lights"``, ``"ambient_extinction"``: computed here with these lights,
         transfer function, albedo and anisotropy, the other settings their defaults), or
-        ``None`` for unshadowed direct light.
+        ``None`` for unshadowed direct light. A named illumination is computed once: after
+        editing the returned volume's transfer function (``volume.set_scene``), call
+        this function again, or compute the illumination and pass it to
+        ``volume.set_illumination``; ``"ambient_extinction"`` is the exception (its mapper
+        recomputes what an edit invalidates). Grids given as warp arrays are written
+        straight into VTK's textures (the returned volume's ``device_upload``).
     lights : optional
         As in :func:`transmittance`; also the Phong directions. A filter output carries
         the lights it was computed with, and those are used (other ``lights`` are an

@@ -170,6 +170,9 @@ def light_transmittance(volume, transfer_function, unit_distance: float, lights,
         ``sum_l T_l E_l``, RGB, in the lights' irradiance units (intensity / world
         unit² for point lights).
 
+    With ``on_device=True`` both are warp arrays on ``device`` (``array4d`` of float32,
+    ``array3d`` of vec3) instead.
+
     Notes
     -----
     Chained segments blur sharp shadow edges of oblique directional lights by about

@@ -952,8 +952,8 @@ class IlluminatedVolume(InteractiveSampling, DeviceUpload, vtkMultiVolume):
         (default :data:`INTERACTIVE_IMAGE_SAMPLE_DISTANCE`; see
         :attr:`interactive_image_sample_distance`).
     device_upload : bool
-        Write light grids that live on a GPU straight into VTK's textures (default True;
-        see :attr:`device_upload`).
+        Write light grids that are warp arrays (on a GPU, or warp's CPU device) straight
+        into VTK's textures (default True; see :attr:`device_upload`).
 
     Notes
     -----
@@ -1046,7 +1046,12 @@ class IlluminatedVolume(InteractiveSampling, DeviceUpload, vtkMultiVolume):
         """Take transfer function, unit distance, albedo, ``g``, lights, shading and step size.
 
         Data-dependent defaults (transfer-function ramp, unit distance = mean spacing,
-        step = half the smallest spacing) are resolved on the current data.
+        step = half the smallest spacing) are resolved on the current data. The light
+        grids are not recomputed: they are what :meth:`set_illumination` was given. After
+        a transfer-function or light edit, compute them again (e.g. with
+        ``light_transmittance(..., on_device=True)``) and pass them to
+        :meth:`set_illumination`, or give an illumination filter's output port, whose own
+        transfer function you edit.
         """
         if not isinstance(scene, Scene):
             raise TypeError(f"scene must be a vtkillum Scene, got {type(scene).__name__}")

@@ -512,11 +512,10 @@ class DeviceUpload:
 
     @property
     def device_upload(self) -> bool:
-        """Write grids that live on a warp device straight into VTK's textures (default
-        True).
+        """Write grids that are warp arrays straight into VTK's textures (default True).
 
-        On: grids a computation left on a GPU (an ``IlluminatedVolume``'s light grids
-        given as warp arrays; an ``AmbientScatteringVolume``'s ``σ̃t`` and radiance cache,
+        On: grids a computation left on its warp device, a GPU or warp's CPU device (an
+        ``IlluminatedVolume``'s light grids given as warp arrays; an ``AmbientScatteringVolume``'s ``σ̃t`` and radiance cache,
         recomputed on its device) are laid out as texels on their device
         (:mod:`vtkillum.core.texels`, the host path's texels bit for bit) and copied into
         the textures VTK made for the previous ones through an OpenGL pixel buffer
