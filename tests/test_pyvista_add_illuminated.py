@@ -152,3 +152,44 @@ def test_ambient_extinction_filter_itself_gives_its_radius_and_lights(grid, give
     check_lit(image, f"ambient {given}")
     left, right = halves(image)
     assert right > 1.2 * left, (left, right)
+
+
+def test_a_named_illumination_follows_scene_edits(grid):
+    """``illumination="transmittance"``: ``set_scene`` with another light (or transfer
+    function) computes the shadows again, so the edited volume draws what a volume made
+    with the new scene draws; an edit of the shading alone recomputes nothing."""
+    import dataclasses
+
+    plotter = pv.Plotter(off_screen=True, window_size=(SIZE, SIZE))
+    try:
+        plotter.set_background("black")
+        actor = accessor.add_illuminated_volume(plotter, grid, "transmittance",
+                                                lights=[light(-1.0)], cmap="bone",
+                                                opacity=OPACITY, render=False, jitter=False)
+        assert actor.relight is not None
+        plotter.camera_position = [(0.0, 0.0, 6.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0)]
+        plotter.camera.parallel_projection = True
+        plotter.camera.parallel_scale = 1.1
+        calls = []
+        relight = actor.relight
+        actor.relight = lambda scene: calls.append(scene) or relight(scene)
+        actor.set_scene(dataclasses.replace(actor.scene, shading=dict(actor.scene.shading,
+                                                                      ambient=0.3)))
+        assert calls == []  # shading only: the light grids stand
+        actor.set_scene(dataclasses.replace(actor.scene, lights=[light(1.0)]))
+        assert len(calls) == 1
+        # a failing recomputation leaves the volume as it was
+        kept = actor.scene
+        actor.relight = lambda scene: (_ for _ in ()).throw(ValueError("no light volume"))
+        with pytest.raises(ValueError, match="no light volume"):
+            actor.set_scene(dataclasses.replace(kept, lights=[light(-1.0)]))
+        assert actor.scene is kept
+        plotter.render()
+        edited = np.asarray(plotter.screenshot(), dtype=np.float64).mean(axis=2)
+    finally:
+        plotter.close()
+    left, right = halves(edited)
+    assert left > 1.2 * right, ("the edited light comes from -x now", left, right)
+    fresh, _ = picture(grid, "transmittance", lights=[light(1.0)], jitter=False,
+                       shading=dict(ambient=0.3))
+    assert np.abs(edited - fresh).max() <= 1.0

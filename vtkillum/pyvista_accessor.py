@@ -63,6 +63,7 @@ draws what ``vtkillum render`` draws.
 
 from __future__ import annotations
 
+import functools
 import re
 from dataclasses import dataclass
 
@@ -913,12 +914,13 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
         (``"transmittance"``, ``"convection_diffusion"``, ``"photon_density"``,
         ``"many_lights"``, ``"ambient_extinction"``: computed here with these lights,
         transfer function, albedo and anisotropy, the other settings their defaults), or
-        ``None`` for unshadowed direct light. A named illumination is computed once: after
-        editing the returned volume's transfer function (``volume.set_scene``), call
-        this function again, or compute the illumination and pass it to
-        ``volume.set_illumination``; ``"ambient_extinction"`` is the exception (its mapper
-        recomputes what an edit invalidates). Grids given as warp arrays are written
-        straight into VTK's textures (the returned volume's ``device_upload``).
+        ``None`` for unshadowed direct light. A named illumination follows edits: the
+        returned volume's ``set_scene`` with another transfer function, unit distance,
+        albedo, anisotropy or lights computes it again (``volume.relight``; the ambient
+        mapper recomputes what an edit invalidates itself). An illumination given as
+        data is what it is: after such an edit compute it again and pass it to
+        ``volume.set_illumination``. Grids given as warp arrays are written straight into
+        VTK's textures (the returned volume's ``device_upload``).
     lights : optional
         As in :func:`transmittance`; also the Phong directions. A filter output carries
         the lights it was computed with, and those are used (other ``lights`` are an
@@ -984,6 +986,7 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     illumination = _check_unmasked(illumination, "illumination")
     core_lights = lights_from_pyvista(lights)
     tf = transfer_function_from_vtk(inputs.ctf, inputs.otf)
+    relight = None
     if isinstance(illumination, str):
         methods = {"transmittance": transmittance, "convection_diffusion": convection_diffusion,
                    "photon_density": photon_density, "many_lights": many_lights,
@@ -992,11 +995,13 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
             raise ValueError(f"illumination={_short(illumination)}: name one of "
                              f"{sorted(methods)}, or pass a filter output")
         method = methods[illumination]
-        settings = dict(transfer_function=tf, opacity_unit_distance=inputs.unit_distance,
-                        albedo=albedo, component=component, nan_policy=nan_policy)
-        if "anisotropy" in inspect.signature(method).parameters:
-            settings["anisotropy"] = anisotropy
-        illumination = method(grid, core_lights, scalars, **settings)
+        anisotropic = "anisotropy" in inspect.signature(method).parameters
+        relight = functools.partial(_relit, method, grid, scalars, component, nan_policy,
+                                    anisotropic)
+        illumination = relight(Scene(transfer_function=tf,
+                                     opacity_unit_distance=inputs.unit_distance,
+                                     albedo=albedo, anisotropy=anisotropy,
+                                     lights=core_lights))
     ambient = _ambient_settings(illumination)  # None, or (radius options, stored lights)
     if ambient is not None and ambient[1]:
         if lights is not None and not _same_lights(core_lights, ambient[1]):
@@ -1018,8 +1023,20 @@ def add_illuminated_volume(plotter, grid, illumination=None, scalars=None, *, cm
     else:
         volume = IlluminatedVolume(data, scene, illumination=illumination,
                                    array_name=array_name, exposure=exposure, jitter=jitter)
+        volume.relight = relight
     plotter.add_actor(volume, name=name, reset_camera=reset_camera, render=render)
     return volume
+
+
+def _relit(method, grid, scalars, component, nan_policy, anisotropic: bool, scene):
+    """A named illumination of ``grid`` computed with ``scene``'s transfer function, unit
+    distance, albedo, anisotropy (where the method has one) and lights."""
+    settings = dict(transfer_function=scene.transfer_function,
+                    opacity_unit_distance=scene.opacity_unit_distance, albedo=scene.albedo,
+                    component=component, nan_policy=nan_policy)
+    if anisotropic:
+        settings["anisotropy"] = scene.anisotropy
+    return method(grid, list(scene.lights), scalars, **settings)
 
 
 def add_computed_volume(plotter, grid, method="transmittance", scalars=None, *, lights=None,

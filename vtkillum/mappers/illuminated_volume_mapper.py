@@ -1030,6 +1030,9 @@ class IlluminatedVolume(InteractiveSampling, DeviceUpload, vtkMultiVolume):
                                 lambda caller, event: _attach_renderers(weak.Get()))
         self._scene = None
         self._ready = False
+        #: ``relight(scene)`` -> illumination (anything :meth:`set_illumination` takes), or
+        #: None: called by :meth:`set_scene` when the scene's light-relevant parts change.
+        self.relight = None
         self.near_cells = near_cells
         self.device_upload = device_upload
         self.set_scene(scene if scene is not None else Scene())
@@ -1047,11 +1050,13 @@ class IlluminatedVolume(InteractiveSampling, DeviceUpload, vtkMultiVolume):
 
         Data-dependent defaults (transfer-function ramp, unit distance = mean spacing,
         step = half the smallest spacing) are resolved on the current data. The light
-        grids are not recomputed: they are what :meth:`set_illumination` was given. After
-        a transfer-function or light edit, compute them again (e.g. with
-        ``light_transmittance(..., on_device=True)``) and pass them to
-        :meth:`set_illumination`, or give an illumination filter's output port, whose own
-        transfer function you edit.
+        grids are recomputed only with :attr:`relight` set (pyvista's
+        ``add_illuminated_volume`` sets it for a named illumination): then a change of
+        the transfer function, unit distance, albedo, ``g`` or lights gives
+        ``relight(scene)`` to :meth:`set_illumination`. Otherwise they are what
+        :meth:`set_illumination` was given: after such an edit compute them again (e.g.
+        ``light_transmittance(..., on_device=True)``) and pass them on, or give an
+        illumination filter's output port, whose own transfer function you edit.
         """
         if not isinstance(scene, Scene):
             raise TypeError(f"scene must be a vtkillum Scene, got {type(scene).__name__}")
@@ -1061,13 +1066,18 @@ class IlluminatedVolume(InteractiveSampling, DeviceUpload, vtkMultiVolume):
                 f"the OpenGL mapper takes at most {MAX_LIGHTS} lights, the scene has "
                 f"{len(scene.lights)}; render with the compute path (ComputeVolumeRenderer)"
             )
+        relight = self._ready and self.relight is not None and \
+            _lighting_key(self._scene) != _lighting_key(scene)
+        relit = self.relight(scene) if relight else None  # first: an error changes nothing
         grid = self._grid_summary()
         apply_scene_to_volume_property(scene, grid, self.volumes[DATA_PORT].GetProperty())
         self.mapper.SetSampleDistance(scene.resolved_step_size(grid))
         self._scene = scene
         self.inputs.set_scene(scene)
         self.Modified()
-        if self._ready:
+        if relight:
+            self.set_illumination(relit)  # checks too
+        elif self._ready:
             self.check()
 
     @property
@@ -1294,6 +1304,17 @@ class IlluminatedVolume(InteractiveSampling, DeviceUpload, vtkMultiVolume):
         image = self.inputs.GetInputDataObject(0, 0)
         scalars = rendered_point_array(image, self.inputs.GetArrayName())
         return GridSummary(image, scalars)
+
+
+def _lighting_key(scene) -> bytes | None:
+    """What of ``scene`` a light method's result depends on (transfer function, unit
+    distance, albedo, g, lights), as comparable bytes."""
+    import pickle
+
+    if scene is None:
+        return None
+    return pickle.dumps((scene.transfer_function, scene.opacity_unit_distance,
+                         float(scene.albedo), float(scene.anisotropy), list(scene.lights)))
 
 
 def _attach_renderers(volume) -> None:
