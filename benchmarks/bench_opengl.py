@@ -51,10 +51,12 @@ move while dragging in an interactive window (the interactor's update rate: the 
 0), that at every pixel, that with ``interactive_near_cells`` 0, a still move with
 ``near_cells`` 0, and with ``--history`` the move before issue 35's first changes (float32
 grids, no leaps), with ``--tf-edit`` a TF edit to the new frame from host arrays (16-bit
-grids; the method's own compute is not included; the ambient mapper recomputes its inputs),
-with ``--device-upload`` too the same edits from grids on the warp device written straight
-into VTK's textures (``IlluminatedVolume.device_upload``; the writes made are counted); and
-counts 3D uploads per camera move. One table.
+grids; the method's own compute is not included; the ambient mapper recomputes its inputs,
+``device_upload`` off), with ``--device-upload`` too the same edits from grids on the warp
+device written straight into VTK's textures (``device_upload``; for the ambient mapper its
+σ̃t and radiance cache; the writes made are counted, and the last edit's picture is
+compared with the host path's: the largest 8-bit difference); and counts 3D uploads per
+camera move. One table.
 
 Measured on an NVIDIA H200 (EGL, VTK 9.7.2), 512³ CT-like, 1024², grids at full resolution
 (2026-11-29, after the z-major textures and the moving defaults; ms):
