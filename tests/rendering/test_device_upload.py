@@ -121,6 +121,23 @@ def host_picture(volume, scene, scattered, transmittance):
     return picture
 
 
+def break_pending_writes(writer) -> None:
+    """Make the scheduled writes fail as they would without CUDA–OpenGL interop."""
+    def broken(out):
+        raise RuntimeError("interop unavailable")
+
+    for job in writer.pending.values():
+        job.pack = broken
+
+
+def assert_drawn_through_host(writer, window, expected, error: str) -> None:
+    """No write was made (``error`` says why), the picture is ``expected`` (the host
+    path's) bit for bit; the window is closed."""
+    assert writer.writes == 0 and error in writer.last_error
+    assert np.abs(read_window_rgb(window) - expected).max() == 0.0
+    window.Finalize()
+
+
 def writing(volume, scene, scattered, transmittance, watched: bool = True):
     """``(first picture, actor, window, writer)``: device grids drawn with ``device_upload``
     off, then turned on and (``watched``) one frame drawn with the writer watching."""
@@ -224,17 +241,10 @@ def test_what_the_writer_cannot_take_goes_through_the_host(grids):
     actor.set_illumination(on_device(volume, None, dimmer))
     actor.check()
     assert writer.pending  # scheduled: the textures are known and of this size
-
-    def broken(out):
-        raise RuntimeError("interop unavailable")
-
-    for job in writer.pending.values():
-        job.pack = broken
+    break_pending_writes(writer)
     window.Render()
-    assert writer.writes == 0 and "interop unavailable" in writer.last_error
-    assert np.abs(read_window_rgb(window) - host_picture(volume, scene, None, dimmer)).max() \
-        == 0.0
-    window.Finalize()
+    assert_drawn_through_host(writer, window, host_picture(volume, scene, None, dimmer),
+                              "interop unavailable")
 
 
 def test_device_upload_is_on_by_default_and_takes_a_bool(grids):
@@ -362,10 +372,8 @@ def test_an_opengl_without_the_calls_draws_through_the_host(grids):
     edited = transmittance * 0.4
     actor.set_illumination(on_device(volume, None, edited))
     window.Render()
-    assert writer.writes == 0 and "glGetTextureSubImage" in writer.last_error
-    assert np.abs(read_window_rgb(window) - host_picture(volume, scene, None, edited)).max() \
-        == 0.0
-    window.Finalize()
+    assert_drawn_through_host(writer, window, host_picture(volume, scene, None, edited),
+                              "glGetTextureSubImage")
 
 
 def test_the_writer_goes_with_its_volume(grids):
@@ -473,8 +481,7 @@ def test_ambient_data_edits_and_failed_writes_go_through_the_host():
     edited = make_scene(volume)
     edited.transfer_function = blob_tf(0.8)
     actor.set_scene(edited)
-    for job in writer.pending.values():
-        job.pack = lambda out: (_ for _ in ()).throw(RuntimeError("interop unavailable"))
+    break_pending_writes(writer)
     window.Render()
     assert writer.writes == 0 and "interop unavailable" in writer.last_error
     host, host_window = ambient_window(volume, edited, False)

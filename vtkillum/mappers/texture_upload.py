@@ -428,13 +428,14 @@ class TextureWriter:
         False on an OpenGL or warp error (nothing of it reached the texture)."""
         import warp as wp
 
+        from vtkillum.core.texels import texel_shape
+
         while gl.GetError():  # errors of others are not ours
             pass
         fmt = self.formats[port]
         width, height, depth = (int(n) for n in job.size)
-        # the texture's texel order (depth slowest, width fastest) as a 3D array: one axis
-        # of a warp array indexes at most 2^31 values, a 1024³ RGBA grid has 4.3 billion
-        shape = (depth, height, width * fmt.components)
+        # the texture's texel order, width fastest, as texels.texel_shape lays it out
+        shape = texel_shape(job.size, fmt.components, x_fastest=True)
         self.sync_host()  # a background copy may still read the texels of the last write
         try:
             texels = self._texels.get(port)
